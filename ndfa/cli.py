@@ -1,0 +1,164 @@
+"""The `ndfa` command. Each subcommand parses its options, calls one library function and prints
+a short table; any `NdfaError` becomes a one-line message and exit code 2."""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.table import Table
+
+from ndfa.errors import NdfaError
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                  help="Robust object-level change detection in RGB-D data with Neural Descriptor Fields.")
+ingest_app = typer.Typer(no_args_is_help=True, help="Turn a data source into ndfa recordings (MCAP).")
+app.add_typer(ingest_app, name="ingest")
+console = Console()
+err_console = Console(stderr=True)
+
+
+def _parse_range(text: str, what: str) -> tuple[int, int]:
+    try:
+        lo, _, hi = text.partition("-")
+        return int(lo), int(hi or lo)
+    except ValueError:
+        raise typer.BadParameter(f"{what} must be N or LO-HI, got {text!r}") from None
+
+
+@ingest_app.command("sim")
+def ingest_sim_command(
+    out: Path = typer.Option(..., "--out", "-o", help="Output directory for source.mcap and target.mcap."),
+    preset: str = typer.Option("paper", help="paper | sample | random."),
+    seed: int = typer.Option(0, help="Seed of everything random in the scene."),
+    mesh_dir: Optional[Path] = typer.Option(None, help="Place these OBJ/PLY/STL mug meshes instead of procedural ones."),
+    mesh_up: str = typer.Option("z", help="Up axis of the --mesh-dir meshes: z or y."),
+    tables: Optional[str] = typer.Option(None, help="Table grid as ROWSxCOLS, e.g. 2x4."),
+    mugs_per_table: Optional[str] = typer.Option(None, help="Mugs per table in the source, N or LO-HI."),
+    models: Optional[int] = typer.Option(None, help="Number of distinct procedural mug models."),
+    added: Optional[int] = typer.Option(None, help="Mugs added in the target."),
+    removed: Optional[int] = typer.Option(None, help="Mugs removed in the target."),
+    moved: Optional[int] = typer.Option(None, help="Mugs moved in the target."),
+    switched: Optional[int] = typer.Option(None, help="Mugs that switch places (an even number)."),
+    source_route: Optional[str] = typer.Option(None, help="perimeter | corridor | weave | circles."),
+    target_route: Optional[str] = typer.Option(None, help="perimeter | corridor | weave | circles."),
+    step: Optional[float] = typer.Option(None, help="Camera travel between frames, metres."),
+    noise: Optional[bool] = typer.Option(None, "--noise/--no-noise", help="Depth sensor noise on or off."),
+    offset: Optional[float] = typer.Option(None, help="Target pose offset: max translation per axis, metres."),
+    offset_yaw: Optional[float] = typer.Option(None, help="Target pose offset: max yaw, degrees."),
+    drift: Optional[float] = typer.Option(None, help="Target drift: random-walk translation step std, metres/frame."),
+    drift_yaw: Optional[float] = typer.Option(None, help="Target drift: random-walk yaw step std, degrees/frame."),
+) -> None:
+    """Render a synthetic source/target pair of recordings with ground truth."""
+    from ndfa.ingest.synthetic import check_output_dir, ingest_sim
+    from ndfa.sim.noise import DepthNoise
+    from ndfa.sim.presets import make_config
+
+    config = make_config(preset, seed)
+    overrides: dict = {}
+    if tables is not None:
+        rows, _, cols = tables.lower().partition("x")
+        if not (rows.isdigit() and cols.isdigit()):
+            raise typer.BadParameter(f"--tables must be ROWSxCOLS, got {tables!r}")
+        overrides.update(table_rows=int(rows), table_cols=int(cols), total_mugs=None)
+    if mugs_per_table is not None:
+        overrides.update(mugs_per_table=_parse_range(mugs_per_table, "--mugs-per-table"), total_mugs=None)
+    if models is not None:
+        overrides["mug_models"] = models
+    counts = {k: v for k, v in dict(added=added, removed=removed, moved=moved, switched=switched).items() if v is not None}
+    if counts:
+        overrides["changes"] = {**config.changes, **counts}
+    if source_route is not None:
+        overrides["source_route"] = source_route
+    if target_route is not None:
+        overrides["target_route"] = target_route
+    if step is not None:
+        overrides["trajectory"] = dataclasses.replace(config.trajectory, step_m=step)
+    if noise is not None:
+        overrides["depth_noise"] = DepthNoise() if noise else DepthNoise.off()
+    error = {k: v for k, v in dict(offset_translation_m=offset, offset_yaw_deg=offset_yaw,
+                                   drift_translation_m=drift, drift_yaw_deg=drift_yaw).items() if v is not None}
+    if error:
+        overrides["target_pose_error"] = dataclasses.replace(config.target_pose_error, **error)
+    config = make_config(preset, seed, **overrides)
+
+    check_output_dir(out)
+    user_models = None
+    if mesh_dir is not None:
+        from ndfa.sim.mesh_io import load_mug_dir
+
+        user_models = load_mug_dir(mesh_dir, up=mesh_up)
+
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TimeRemainingColumn(), console=err_console, transient=False) as progress:
+        tasks: dict[str, int] = {}
+
+        def on_progress(session: str, done: int, total: int) -> None:
+            if session not in tasks:
+                tasks[session] = progress.add_task(f"rendering {session}", total=total)
+            progress.update(tasks[session], completed=done)
+
+        summaries = ingest_sim(config, out, models=user_models, on_progress=on_progress)
+
+    table = Table(title=f"ndfa ingest sim --preset {preset} --seed {seed}")
+    for column in ("session", "frames", "mugs", "added", "removed", "moved", "switched", "file", "size"):
+        table.add_column(column, justify="left" if column in ("session", "file") else "right")
+    for s in summaries:
+        table.add_row(s.session, str(s.frames), str(s.objects),
+                      *(str(s.changes.get(k, "-")) for k in ("added", "removed", "moved", "switched")),
+                      str(s.path), f"{s.size_bytes / 1e6:.1f} MB")
+    console.print(table)
+
+
+@app.command("info")
+def info_command(recording: Path = typer.Argument(..., help="An ndfa recording (.mcap).")) -> None:
+    """Summarise a recording: source, frames, image size, poses and ground-truth changes."""
+    from ndfa.recording import RecordingReader
+
+    reader = RecordingReader(recording)
+    meta = reader.meta
+    table = Table(title=str(recording), show_header=False)
+    table.add_column("key")
+    table.add_column("value")
+    for key in ("source", "session", "preset", "seed", "route", "poses"):
+        if key in meta:
+            table.add_row(key, str(meta[key]))
+    table.add_row("frames", str(len(reader)))
+    table.add_row("instance masks", "yes" if reader.has_instances else "no")
+    truth = reader.ground_truth
+    if truth:
+        table.add_row("tables", str(len(truth.get("tables", []))))
+        session = truth.get("session", meta.get("session"))
+        present = [o for o in truth.get("objects", []) if o.get(session)]
+        table.add_row("mugs in this session", str(len(present)))
+        changes = truth.get("changes", {})
+        table.add_row("changes", ", ".join(f"{k} {v}" for k, v in changes.items()))
+    console.print(table)
+
+
+def main() -> None:
+    """Entry point: run the app, turning ndfa's own errors into one line on stderr."""
+    try:
+        app(standalone_mode=False)
+    except NdfaError as error:
+        err_console.print(f"[red]error:[/red] {error}", highlight=False, soft_wrap=True)
+        sys.exit(2)
+    except typer.Abort:
+        err_console.print("aborted")
+        sys.exit(130)
+    except Exception as error:  # click's usage errors arrive here in non-standalone mode
+        import click
+
+        if isinstance(error, click.ClickException):
+            error.show()
+            sys.exit(error.exit_code)
+        raise
+
+
+if __name__ == "__main__":
+    main()

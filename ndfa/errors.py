@@ -1,0 +1,18 @@
+"""Error types. Each package raises its own subclass; the CLI turns any `NdfaError` into a one-line
+message and a non-zero exit code, so a user never sees a traceback for bad input."""
+
+
+class NdfaError(Exception):
+    """Base class of every error ndfa raises on purpose."""
+
+
+class RecordingError(NdfaError):
+    """A recording (MCAP file) is missing, unreadable, truncated or breaks the recording contract."""
+
+
+class SimError(NdfaError):
+    """The synthetic world cannot be built as asked (unknown preset, bad mesh, impossible layout)."""
+
+
+class IngestError(NdfaError):
+    """An importer cannot turn its input into a recording."""

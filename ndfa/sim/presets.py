@@ -1,0 +1,125 @@
+"""Named configurations of the synthetic world.
+
+- `paper`: the paper's synthetic test (Sec. V-A): 8 tables, 35-40 instances of 20 test-set mug
+  models, 3-5 mugs per table, 12 changes (4 added, 4 removed, 2 switched pairs, switches within a
+  table), a source loop around the room and a target route that sees half of the tables from the
+  other side, and a random 6-DoF offset on the target poses.
+- `sample`: a reduced `paper`-like scene at quarter resolution, small enough to ship in
+  `recordings/` and to run in the tests.
+- `random`: everything drawn from the seed (tables, mugs, change counts and kinds, routes, noise,
+  pose offset and drift); any field can still be set explicitly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ndfa.errors import SimError
+from ndfa.sim.camera import PinholeCamera
+from ndfa.sim.noise import DepthNoise
+from ndfa.sim.pose_error import PoseError
+from ndfa.sim.trajectory import ROUTES, TrajectoryConfig
+
+PRESETS = ("paper", "sample", "random")
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    preset: str = "paper"
+    seed: int = 0
+    table_rows: int = 2
+    table_cols: int = 4
+    mugs_per_table: tuple[int, int] = (3, 5)        # inclusive range in the source session
+    total_mugs: tuple[int, int] | None = (35, 40)   # inclusive range of source instances, or None
+    mug_models: int = 20                             # distinct models, drawn from the test split
+    changes: dict[str, int] = field(default_factory=lambda: {"added": 4, "removed": 4, "switched": 4, "moved": 0})
+    switch_within_table: bool = True
+    source_route: str = "perimeter"
+    target_route: str = "corridor"
+    trajectory: TrajectoryConfig = TrajectoryConfig()
+    camera: PinholeCamera = PinholeCamera()
+    depth_noise: DepthNoise = DepthNoise()
+    target_pose_error: PoseError = PoseError(offset_translation_m=1.0, offset_yaw_deg=180.0, offset_tilt_deg=3.0)
+    fps: float = 5.0                                 # frames per second of the recorded timestamps
+
+    def __post_init__(self) -> None:
+        lo, hi = self.mugs_per_table
+        if not 0 <= lo <= hi:
+            raise SimError(f"mugs per table range {self.mugs_per_table} is empty")
+        for route in (self.source_route, self.target_route):
+            if route not in ROUTES:
+                raise SimError(f"unknown camera route {route!r}; expected one of {ROUTES}")
+        if self.table_rows < 1 or self.table_cols < 1:
+            raise SimError("a scene needs at least one table")
+
+
+def make_config(preset: str, seed: int = 0, **overrides) -> SimConfig:
+    """The named preset for `seed`, with explicit `overrides` (SimConfig field names) applied last."""
+    if preset == "paper":
+        config = SimConfig(preset="paper", seed=seed)
+    elif preset == "sample":
+        config = _sample(seed)
+    elif preset == "random":
+        config = _random(seed)
+    else:
+        raise SimError(f"unknown preset {preset!r}; expected one of {', '.join(PRESETS)}")
+    unknown = set(overrides) - {f.name for f in dataclasses.fields(SimConfig)}
+    if unknown:
+        raise SimError(f"unknown simulation settings {sorted(unknown)}")
+    return dataclasses.replace(config, **overrides)
+
+
+def _sample(seed: int) -> SimConfig:
+    return SimConfig(
+        preset="sample",
+        seed=seed,
+        table_rows=2,
+        table_cols=2,
+        mugs_per_table=(3, 4),
+        total_mugs=None,
+        mug_models=8,
+        changes={"added": 1, "removed": 1, "switched": 2, "moved": 1},
+        trajectory=TrajectoryConfig(step_m=0.2),
+        camera=PinholeCamera().scaled(0.5),
+    )
+
+
+def _random(seed: int) -> SimConfig:
+    # A stream of its own, so that the world drawn from the same seed does not depend on it.
+    rng = np.random.default_rng([seed, 0x5EED])
+    rows, cols = int(rng.integers(1, 3, endpoint=True)), int(rng.integers(2, 4, endpoint=True))
+    lo = int(rng.integers(2, 4, endpoint=True))
+    per_table = (lo, int(rng.integers(lo, 5, endpoint=True)))
+    n_source_min = rows * cols * per_table[0]
+    n_switch_pairs = int(rng.integers(0, 2, endpoint=True))
+    n_removed = int(rng.integers(0, 3, endpoint=True))
+    n_moved = int(rng.integers(0, 2, endpoint=True))
+    while 2 * n_switch_pairs + n_removed + n_moved > n_source_min:
+        n_removed = max(0, n_removed - 1)
+        n_switch_pairs = max(0, n_switch_pairs - 1)
+    source_route, target_route = rng.choice(["perimeter", "corridor", "weave"], size=2, replace=False)
+    return SimConfig(
+        preset="random",
+        seed=seed,
+        table_rows=rows,
+        table_cols=cols,
+        mugs_per_table=per_table,
+        total_mugs=None,
+        mug_models=int(rng.integers(6, 20, endpoint=True)),
+        changes={"added": int(rng.integers(0, 3, endpoint=True)), "removed": n_removed,
+                 "switched": 2 * n_switch_pairs, "moved": n_moved},
+        switch_within_table=bool(rng.random() < 0.5),
+        source_route=str(source_route),
+        target_route=str(target_route),
+        depth_noise=DepthNoise(),
+        target_pose_error=PoseError(
+            offset_translation_m=float(rng.uniform(0.0, 1.0)),
+            offset_yaw_deg=float(rng.uniform(0.0, 180.0)),
+            offset_tilt_deg=float(rng.uniform(0.0, 3.0)),
+            drift_translation_m=float(rng.uniform(0.0, 0.002)),
+            drift_yaw_deg=float(rng.uniform(0.0, 0.05)),
+        ),
+    )

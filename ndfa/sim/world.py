@@ -1,0 +1,280 @@
+"""Where the mugs stand in each session, and what changed between the sessions.
+
+A `World` is the whole synthetic ground truth: static room and tables, the mug models, one
+layout per session (instance id -> placement) and the change labels. It is pure data; rendering
+and writing recordings happen elsewhere (`ndfa.ingest.synthetic`).
+
+A physical mug keeps its instance id in both sessions, so a moved or switched mug is the same id
+at a new place. Changes are counted per object, as the paper counts them: a switch of two mugs
+is two changes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ndfa.errors import SimError
+from ndfa.geometry import make_pose, rotation_z
+from ndfa.sim.mug import Mug
+from ndfa.sim.presets import SimConfig
+from ndfa.sim.scene import Room, Table, room_around, table_grid
+from ndfa.sim.splits import TEST_SEEDS, make_split_mug
+
+CHANGE_KINDS = ("added", "removed", "moved", "switched")
+SESSIONS = ("source", "target")
+
+
+@dataclass(frozen=True)
+class Placement:
+    """A mug instance standing on a table: position `xy` and `yaw` in the table-top frame."""
+
+    instance_id: int
+    model_id: str
+    table_id: int
+    xy: tuple[float, float]
+    yaw: float
+
+    def pose_world_object(self, table: Table) -> np.ndarray:
+        """Object-to-world pose (mug frame: z-up, base at z = 0, axis on z)."""
+        return table.pose_world_top @ make_pose(rotation_z(self.yaw), np.array([*self.xy, 0.0]))
+
+
+@dataclass(frozen=True)
+class Change:
+    """One changed object. `partner` is the other mug of a switch."""
+
+    instance_id: int
+    kind: str
+    partner: int | None = None
+
+
+@dataclass
+class World:
+    tables: list[Table]
+    room: Room
+    mugs: dict[str, Mug]
+    source: dict[int, Placement]
+    target: dict[int, Placement]
+    changes: list[Change]
+    colors: dict[int, tuple[float, float, float]] = field(default_factory=dict)
+
+    def layout(self, session: str) -> dict[int, Placement]:
+        if session not in SESSIONS:
+            raise SimError(f"unknown session {session!r}; expected one of {SESSIONS}")
+        return self.source if session == "source" else self.target
+
+    def table(self, table_id: int) -> Table:
+        return self.tables[table_id - 1]
+
+    def object_pose(self, placement: Placement) -> np.ndarray:
+        return placement.pose_world_object(self.table(placement.table_id))
+
+    def change_counts(self) -> dict[str, int]:
+        return {kind: sum(c.kind == kind for c in self.changes) for kind in CHANGE_KINDS}
+
+
+def procedural_models(config: SimConfig) -> list[Mug]:
+    """`config.mug_models` distinct procedural mugs from the test split, chosen by the seed."""
+    rng = np.random.default_rng([config.seed, 1])
+    indices = rng.choice(len(TEST_SEEDS), size=config.mug_models, replace=False)
+    return [make_split_mug("test", int(i)) for i in sorted(indices)]
+
+
+def build_world(config: SimConfig, models: list[Mug]) -> World:
+    """Tables, room, source layout and the changed target layout for `config`, with `models` as
+    the mug models to place. Deterministic in `config.seed`."""
+    if not models:
+        raise SimError("no mug models to place")
+    tables = table_grid(config.table_rows, config.table_cols)
+    mugs = {m.model_id: m for m in models}
+    rng = np.random.default_rng([config.seed, 2])
+    counts = _mugs_per_table(len(tables), config.mugs_per_table, config.total_mugs, rng)
+    source = place_source(tables, mugs, counts, rng)
+    target, changes = apply_changes(tables, mugs, source, config.changes, rng, config.switch_within_table)
+    color_rng = np.random.default_rng([config.seed, 3])
+    colors = {i: tuple(float(c) for c in color_rng.uniform(0.15, 0.95, size=3)) for i in sorted(source.keys() | target.keys())}
+    return World(tables, room_around(tables), mugs, source, target, changes, colors)
+
+
+def _mugs_per_table(n_tables: int, per_table: tuple[int, int], total: tuple[int, int] | None,
+                    rng: np.random.Generator) -> list[int]:
+    lo, hi = per_table
+    if total is not None and not (n_tables * lo <= total[1] and total[0] <= n_tables * hi):
+        raise SimError(f"{total[0]}-{total[1]} mugs cannot stand {lo}-{hi} to a table on {n_tables} tables")
+    for _ in range(10_000):
+        counts = [int(c) for c in rng.integers(lo, hi, size=n_tables, endpoint=True)]
+        if total is None or total[0] <= sum(counts) <= total[1]:
+            return counts
+    raise SimError(f"could not draw {lo}-{hi} mugs per table summing to {total}")
+
+
+def footprint_radius(mug: Mug) -> float:
+    """Radius of the circle about the mug's axis that contains it seen from above (handle included)."""
+    return float(np.linalg.norm(mug.mesh.vertices[:, :2], axis=1).max())
+
+
+class TableSpace:
+    """Free space on table tops, with mugs as circles: finds collision-free spots."""
+
+    def __init__(self, tables: list[Table], mugs: dict[str, Mug], clearance: float = 0.01, edge_margin: float = 0.03):
+        self.tables = tables
+        self.radius = {model_id: footprint_radius(m) for model_id, m in mugs.items()}
+        self.clearance = clearance
+        self.edge_margin = edge_margin
+        self.occupied: dict[int, dict[int, tuple[np.ndarray, float]]] = {t.table_id: {} for t in tables}
+
+    def fits(self, table_id: int, xy: np.ndarray, radius: float) -> bool:
+        half = np.array(self.tables[table_id - 1].size_xy) / 2 - radius - self.edge_margin
+        if np.any(np.abs(xy) > half):
+            return False
+        return all(
+            np.linalg.norm(xy - other_xy) >= radius + other_r + self.clearance
+            for other_xy, other_r in self.occupied[table_id].values()
+        )
+
+    def add(self, placement: Placement) -> None:
+        self.occupied[placement.table_id][placement.instance_id] = (
+            np.array(placement.xy),
+            self.radius[placement.model_id],
+        )
+
+    def find_spot(self, table_id: int, model_id: str, rng: np.random.Generator, tries: int = 300) -> np.ndarray | None:
+        """A random collision-free position for `model_id` on the table, or None if none was found."""
+        radius = self.radius[model_id]
+        half = np.array(self.tables[table_id - 1].size_xy) / 2 - radius - self.edge_margin
+        if np.any(half <= 0):
+            return None
+        for _ in range(tries):
+            xy = rng.uniform(-half, half)
+            if self.fits(table_id, xy, radius):
+                return xy
+        return None
+
+
+def place_source(
+    tables: list[Table],
+    mugs: dict[str, Mug],
+    counts_per_table: list[int],
+    rng: np.random.Generator,
+) -> dict[int, Placement]:
+    """Source layout: `counts_per_table[i]` mugs on table i+1, every model used once before any repeats."""
+    model_ids = list(mugs)
+    total = sum(counts_per_table)
+    order = list(rng.permutation(model_ids)) + list(rng.choice(model_ids, size=max(0, total - len(model_ids))))
+    space = TableSpace(tables, mugs)
+    layout: dict[int, Placement] = {}
+    next_id = 1
+    for table, count in zip(tables, counts_per_table):
+        for _ in range(count):
+            model_id = str(order[next_id - 1])
+            xy = space.find_spot(table.table_id, model_id, rng)
+            if xy is None:
+                raise SimError(f"cannot fit {count} mugs on table {table.table_id} of size {table.size_xy}")
+            placement = Placement(next_id, model_id, table.table_id, (float(xy[0]), float(xy[1])), float(rng.uniform(-np.pi, np.pi)))
+            layout[next_id] = placement
+            space.add(placement)
+            next_id += 1
+    return layout
+
+
+def apply_changes(
+    tables: list[Table],
+    mugs: dict[str, Mug],
+    source: dict[int, Placement],
+    counts: dict[str, int],
+    rng: np.random.Generator,
+    switch_within_table: bool = True,
+) -> tuple[dict[int, Placement], list[Change]]:
+    """Target layout from the source one by the change script `counts` (objects per kind).
+
+    Removed, moved and switched mugs are drawn from distinct source instances; switched pairs
+    have different models (swapping two identical mugs is no change) and, by default, stand on
+    the same table as in the paper's scenes. Added mugs get new instance ids.
+    """
+    unknown = set(counts) - set(CHANGE_KINDS)
+    if unknown:
+        raise SimError(f"unknown change kinds {sorted(unknown)}; expected {CHANGE_KINDS}")
+    n_added, n_removed, n_moved, n_switched = (counts.get(k, 0) for k in CHANGE_KINDS)
+    if n_switched % 2:
+        raise SimError(f"switched changes come in pairs; got an odd count {n_switched}")
+    if n_removed + n_moved + n_switched > len(source):
+        raise SimError(f"{n_removed + n_moved + n_switched} removed/moved/switched mugs asked of {len(source)} in the source")
+
+    available = [int(i) for i in rng.permutation(list(source))]
+    changes: list[Change] = []
+    pairs = _switch_pairs(source, available, n_switched // 2, switch_within_table)
+    for a, b in pairs:
+        available.remove(a)
+        available.remove(b)
+        changes += [Change(a, "switched", b), Change(b, "switched", a)]
+    removed, available = available[:n_removed], available[n_removed:]
+    moved = available[:n_moved]
+    changes += [Change(i, "removed") for i in removed]
+
+    changed = set(removed) | set(moved) | {i for pair in pairs for i in pair}
+    target = {i: p for i, p in source.items() if i not in changed}
+    space = TableSpace(tables, mugs)
+    for placement in target.values():
+        space.add(placement)
+
+    for a, b in pairs:  # each takes the other's spot, picked up and put down at a new yaw
+        for mover, spot in ((source[a], source[b]), (source[b], source[a])):
+            placement = Placement(mover.instance_id, mover.model_id, spot.table_id, spot.xy, float(rng.uniform(-np.pi, np.pi)))
+            if not space.fits(spot.table_id, np.array(spot.xy), space.radius[mover.model_id]):
+                raise SimError(f"switched mug {mover.instance_id} does not fit at mug {spot.instance_id}'s place")
+            target[mover.instance_id] = placement
+            space.add(placement)
+    for instance_id in moved:
+        mover = source[instance_id]
+        target[instance_id] = _place_somewhere(space, tables, mover.instance_id, mover.model_id, rng, avoid=mover)
+        changes.append(Change(instance_id, "moved"))
+    next_id = max(source) + 1
+    model_ids = list(mugs)
+    for _ in range(n_added):
+        model_id = str(rng.choice(model_ids))
+        target[next_id] = _place_somewhere(space, tables, next_id, model_id, rng)
+        changes.append(Change(next_id, "added"))
+        next_id += 1
+    return target, changes
+
+
+def _switch_pairs(source: dict[int, Placement], candidates: list[int], n_pairs: int, within_table: bool) -> list[tuple[int, int]]:
+    pairs: list[tuple[int, int]] = []
+    used: set[int] = set()
+    used_tables: set[int] = set()
+    for a in candidates:
+        if len(pairs) == n_pairs:
+            break
+        if a in used or (within_table and source[a].table_id in used_tables):
+            continue
+        for b in candidates:
+            pa, pb = source[a], source[b]
+            if b == a or b in used or pa.model_id == pb.model_id:
+                continue
+            if within_table and pa.table_id != pb.table_id:
+                continue
+            pairs.append((a, b))
+            used |= {a, b}
+            used_tables.add(pa.table_id)
+            break
+    if len(pairs) < n_pairs:
+        raise SimError(f"cannot find {n_pairs} pairs of different mugs to switch")
+    return pairs
+
+
+def _place_somewhere(space: TableSpace, tables: list[Table], instance_id: int, model_id: str,
+                     rng: np.random.Generator, avoid: Placement | None = None) -> Placement:
+    """A free spot on a random table; for a moved mug, at least 10 cm from where it stood."""
+    for table_id in rng.permutation([t.table_id for t in tables]):
+        for _ in range(20):
+            xy = space.find_spot(int(table_id), model_id, rng)
+            if xy is None:
+                break
+            if avoid is not None and avoid.table_id == table_id and np.linalg.norm(xy - np.array(avoid.xy)) < 0.10:
+                continue
+            placement = Placement(instance_id, model_id, int(table_id), (float(xy[0]), float(xy[1])), float(rng.uniform(-np.pi, np.pi)))
+            space.add(placement)
+            return placement
+    raise SimError(f"no free spot left on any table for mug {instance_id}")

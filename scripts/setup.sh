@@ -1,0 +1,31 @@
+#!/usr/bin/env bash
+# Set up ndfa on a fresh Debian machine: system libraries, a venv with the CPU build of torch,
+# and the package itself (editable). Idempotent: a second run only checks.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+VENV=${NDFA_VENV:-.venv}
+PYTHON=${PYTHON:-python3}
+
+# open3d needs libusb at import time, even headless.
+if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
+    echo "[setup] installing libusb-1.0-0 (open3d needs it)"
+    SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq libusb-1.0-0 libgomp1 >/dev/null
+fi
+
+if [ ! -x "$VENV/bin/python" ]; then
+    echo "[setup] creating $VENV"
+    "$PYTHON" -m venv "$VENV"
+fi
+
+stamp="$VENV/.ndfa-installed"
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+    "$VENV/bin/pip" install -q --upgrade pip
+    # The pinned CPU build first: a looser spec would pull a multi-GB CUDA build.
+    "$VENV/bin/pip" install -q torch==2.13.0
+    "$VENV/bin/pip" install -q -e '.[dev]'
+    touch "$stamp"
+fi
+echo "[setup] ready: $VENV/bin/ndfa"
