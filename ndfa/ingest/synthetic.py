@@ -77,14 +77,11 @@ def _render_session(world: World, config: SimConfig, session: str, path: Path, g
 
     renderer = SceneRenderer(render_objects(world, session))
     meta = {
-        "format": "ndfa.recording/1",
         "source": "sim",
         "session": session,
         "preset": config.preset,
         "seed": config.seed,
         "route": route,
-        "depth_scale": 1000.0,  # stored depth units per metre
-        "units": "m",
         "frame_rate_hz": config.fps,
         "poses": "perturbed" if offset is not None else "true",
         "instances": "rendered",

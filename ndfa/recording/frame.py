@@ -63,7 +63,7 @@ class Frame:
         """Raise ValueError if a field has the wrong type, shape or dtype, or a pose is not rigid."""
         if isinstance(self.index, bool) or not isinstance(self.index, (int, np.integer)) or self.index < 0:
             raise ValueError(f"index must be an integer >= 0, got {self.index!r}")
-        if not isinstance(self.timestamp, (int, float, np.number)) or not np.isfinite(self.timestamp) or self.timestamp < 0:
+        if not isinstance(self.timestamp, (int, float, np.number)) or not 0 <= self.timestamp < np.inf:
             raise ValueError(f"timestamp must be a finite number of seconds >= 0, got {self.timestamp!r}")
 
         _check_array("depth", self.depth, ndim=2, dtype=np.float32)

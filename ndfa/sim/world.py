@@ -204,7 +204,10 @@ def apply_changes(
 
     available = [int(i) for i in rng.permutation(list(source))]
     changes: list[Change] = []
-    pairs = _switch_pairs(source, available, n_switched // 2, switch_within_table)
+    source_space = TableSpace(tables, mugs)
+    for placement in source.values():
+        source_space.add(placement)
+    pairs = _switch_pairs(source, available, n_switched // 2, switch_within_table, source_space)
     for a, b in pairs:
         available.remove(a)
         available.remove(b)
@@ -240,7 +243,10 @@ def apply_changes(
     return target, changes
 
 
-def _switch_pairs(source: dict[int, Placement], candidates: list[int], n_pairs: int, within_table: bool) -> list[tuple[int, int]]:
+def _switch_pairs(source: dict[int, Placement], candidates: list[int], n_pairs: int, within_table: bool,
+                  space: TableSpace) -> list[tuple[int, int]]:
+    """Pairs of different mugs that fit into each other's place among the other source mugs
+    (a conservative test: removed and moved mugs only free more space)."""
     pairs: list[tuple[int, int]] = []
     used: set[int] = set()
     used_tables: set[int] = set()
@@ -255,6 +261,8 @@ def _switch_pairs(source: dict[int, Placement], candidates: list[int], n_pairs: 
                 continue
             if within_table and pa.table_id != pb.table_id:
                 continue
+            if not _fit_swapped(space, pa, pb):
+                continue
             pairs.append((a, b))
             used |= {a, b}
             used_tables.add(pa.table_id)
@@ -262,6 +270,16 @@ def _switch_pairs(source: dict[int, Placement], candidates: list[int], n_pairs: 
     if len(pairs) < n_pairs:
         raise SimError(f"cannot find {n_pairs} pairs of different mugs to switch")
     return pairs
+
+
+def _fit_swapped(space: TableSpace, a: Placement, b: Placement) -> bool:
+    saved_a = space.occupied[a.table_id].pop(a.instance_id)
+    saved_b = space.occupied[b.table_id].pop(b.instance_id)
+    fits = space.fits(b.table_id, np.array(b.xy), space.radius[a.model_id]) and \
+        space.fits(a.table_id, np.array(a.xy), space.radius[b.model_id])
+    space.occupied[a.table_id][a.instance_id] = saved_a
+    space.occupied[b.table_id][b.instance_id] = saved_b
+    return fits
 
 
 def _place_somewhere(space: TableSpace, tables: list[Table], instance_id: int, model_id: str,
