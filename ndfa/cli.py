@@ -105,13 +105,13 @@ def ingest_sim_command(
 
         summaries = ingest_sim(config, out, models=user_models, on_progress=on_progress)
 
-    table = Table(title=f"ndfa ingest sim --preset {preset} --seed {seed}")
-    for column in ("session", "frames", "mugs", "added", "removed", "moved", "switched", "file", "size"):
-        table.add_column(column, justify="left" if column in ("session", "file") else "right")
+    table = Table(title=f"{config.preset} scene, seed {config.seed}: {config.table_rows * config.table_cols} tables -> {out}")
+    for column in ("session", "frames", "mugs", "added", "removed", "moved", "switched", "size"):
+        table.add_column(column, justify="left" if column == "session" else "right")
     for s in summaries:
-        table.add_row(s.session, str(s.frames), str(s.objects),
-                      *(str(s.changes.get(k, "-")) for k in ("added", "removed", "moved", "switched")),
-                      str(s.path), f"{s.size_bytes / 1e6:.1f} MB")
+        table.add_row(s.path.name, str(s.frames), str(s.objects),
+                      *(str(s.changes.get(k, "")) for k in ("added", "removed", "moved", "switched")),
+                      f"{s.size_bytes / 1e6:.1f} MB")
     console.print(table)
 
 

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from ndfa.errors import SimError
+from ndfa.geometry import rotation_z
 from ndfa.sim.mesh import Mesh
 from ndfa.sim.mesh_io import load_mug_dir, load_mug_mesh
 from ndfa.sim.mug import (
@@ -50,6 +51,14 @@ def test_every_part_is_watertight(split, index):
         assert part.is_watertight()
 
 
+def test_parts_wind_outward():
+    for mug in all_mugs():
+        for part in mug.parts:
+            corners = part.vertices[part.triangles]  # (F, 3 corners, 3)
+            signed_volume = np.einsum("ij,ij->i", corners[:, 0], np.cross(corners[:, 1], corners[:, 2])).sum() / 6
+            assert signed_volume > 0
+
+
 def test_dimensions_are_those_of_a_mug():
     for mug in all_mugs():
         p, body = mug.params, mug.parts[0]
@@ -65,7 +74,8 @@ def test_dimensions_are_those_of_a_mug():
             handle = mug.parts[1]
             assert handle.vertices[:, 0].min() > 0
             assert np.abs(handle.vertices[:, 1]).max() <= p.handle_width / 2 + 1e-9
-            assert handle.vertices[:, 0].max() > body_radius + 0.01
+            z_mid = (p.handle_bottom_z + p.handle_top_z) / 2
+            assert handle.vertices[:, 0].max() > outer_radius(p, np.array([z_mid]))[0] + 0.01
 
 
 def test_meshes_stay_small():
@@ -197,8 +207,9 @@ def _write(mesh: Mesh, path) -> None:
 
 def test_loading_rescales_turns_and_centres_a_mesh(tmp_path):
     mug = make_mug(11)
-    # Into a y-up file frame ((x, y, z) -> (x, z, -y)), ten times too big, off-centre.
-    v = mug.mesh.vertices
+    # Handle turned away from +x, into a y-up file frame ((x, y, z) -> (x, z, -y)), ten times
+    # too big, off-centre.
+    v = mug.mesh.vertices @ rotation_z(0.8).T
     file_vertices = 10.0 * np.c_[v[:, 0], v[:, 2], -v[:, 1]] + np.array([0.3, -0.2, 0.5])
     path = tmp_path / "big_mug.ply"
     _write(Mesh(file_vertices, mug.mesh.triangles), path)
@@ -213,7 +224,7 @@ def test_loading_rescales_turns_and_centres_a_mesh(tmp_path):
     assert high[2] == pytest.approx(0.1) and low[2] == pytest.approx(0.0, abs=1e-9)
     probes = _probes(mug)
     points, _ = probes["centre of the handle's tube"]
-    assert loaded.occupancy(scale * points).all()  # handle still on +x, still solid
+    assert loaded.occupancy(scale * points).all()  # handle back on +x, still solid
 
 
 @pytest.mark.parametrize("suffix", [".obj", ".ply", ".stl"])

@@ -10,8 +10,8 @@ body axis on the z axis, handle on +x. A loaded mesh is brought into it by
 3. moving the body's axis to x = y = 0: the axis is the centre of the xy bounding box of the
    vertices in the lowest 20% of the height, where only the base is, not the handle;
 4. moving the base to z = 0;
-5. turning it about z so that the point farthest from the axis (the handle, if there is one)
-   lies on +x.
+5. turning it about z so that the part farthest from the axis (the handle, if there is one)
+   lies on +x: the mean of the vertices in the outermost centimetre.
 
 Each connected piece of the mesh becomes one part, so a body and a handle modelled as separate
 overlapping shells keep exact occupancy. A mesh with a piece that is not closed still loads (it
@@ -20,6 +20,9 @@ renders fine) with `watertight=False` and a warning; its `occupancy` raises.
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
 import warnings
 from pathlib import Path
 
@@ -76,8 +79,10 @@ def _read_triangles(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (V, 3) float64 and triangles (F, 3) int32 of a mesh file, in the file's units."""
     import open3d as o3d
 
+    if path.stat().st_size == 0:
+        raise SimError(f"{path}: empty file")
     try:
-        with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
+        with _native_stderr_silenced():
             mesh = o3d.io.read_triangle_mesh(str(path))
     except Exception as error:  # Open3D raises plain RuntimeErrors for some broken files
         raise SimError(f"{path}: cannot read mesh: {error}") from error
@@ -91,6 +96,21 @@ def _read_triangles(path: Path) -> tuple[np.ndarray, np.ndarray]:
     if not np.all(np.isfinite(vertices)):
         raise SimError(f"{path}: vertices with NaN or infinite coordinates")
     return vertices.copy(), np.asarray(mesh.triangles, dtype=np.int32).copy()
+
+
+@contextlib.contextmanager
+def _native_stderr_silenced():
+    """Open3D's file readers print their own complaints from C++ (e.g. RPly's "Unable to read
+    magic number"); we report the problem ourselves in one line, so theirs is dropped."""
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with open(os.devnull, "w") as devnull:
+            os.dup2(devnull.fileno(), 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
 
 
 def to_mug_frame(vertices: np.ndarray, up: str, path: Path) -> np.ndarray:
@@ -107,8 +127,10 @@ def to_mug_frame(vertices: np.ndarray, up: str, path: Path) -> np.ndarray:
     base = vertices[vertices[:, 2] <= bottom + BASE_BAND * height]
     axis_xy = (base[:, :2].min(axis=0) + base[:, :2].max(axis=0)) / 2
     vertices = vertices - np.array([axis_xy[0], axis_xy[1], bottom])
-    farthest = vertices[np.argmax(np.linalg.norm(vertices[:, :2], axis=1))]
-    angle = -np.arctan2(farthest[1], farthest[0])
+    # The handle sticks out farthest from the axis: point the mean of the outermost centimetre at +x.
+    distance = np.linalg.norm(vertices[:, :2], axis=1)
+    handle_xy = vertices[distance >= distance.max() - 0.01, :2].mean(axis=0)
+    angle = -np.arctan2(handle_xy[1], handle_xy[0])
     c, s = np.cos(angle), np.sin(angle)
     return np.c_[c * vertices[:, 0] - s * vertices[:, 1], s * vertices[:, 0] + c * vertices[:, 1], vertices[:, 2]]
 

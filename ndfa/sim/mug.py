@@ -25,7 +25,7 @@ ray-parity occupancy over one scene holding overlapping parts would call the ove
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, fields, replace
 from functools import cached_property
 
 import numpy as np
@@ -67,7 +67,7 @@ class MugParams:
     bottom_fillet: float = 0.004  # radius of the rounded edge where the underside meets the outer wall (or foot)
     inner_fillet: float = 0.006  # radius of the rounded corner between the cavity floor and the inner wall
     recess_depth: float = 0.0  # how far the centre of the underside is raised ("recessed", "foot_ring")
-    contact_ring_width: float = 0.006  # width of the ring the mug stands on when the underside is recessed
+    contact_ring_width: float = 0.006  # width of the flat ring the mug stands on when the underside is recessed
     foot_height: float = 0.0  # height of the foot ring under the body ("foot_ring" only)
     foot_inset: float = 0.0  # how far the foot ring's outer edge sits inside the wall ("foot_ring" only)
     # --- Handle: a centre-line in the xz plane from the lower to the upper attachment, made of
@@ -147,11 +147,14 @@ def sample_mug_params(rng: np.random.Generator) -> MugParams:
     """Random parameters spanning a real mug category: widest body radius 3-5.5 cm, height
     6-13 cm, walls 3-8 mm, four wall profiles, three base styles, four handle shapes (and about
     5% without a handle, tagged `handle_shape="none"`)."""
-    body = _sample_body(rng)
-    return _sample_handle(rng, body)
+    params = _sample_handle(rng, _sample_body(rng))
+    # Plain Python floats, not numpy scalars: a readable repr and JSON-ready fields.
+    values = {f.name: getattr(params, f.name) for f in fields(params)}
+    return MugParams(**{name: float(v) if isinstance(v, np.floating) else v for name, v in values.items()})
 
 
 def _sample_body(rng: np.random.Generator) -> MugParams:
+    """Body and base parameters; the handle is left at `"none"`."""
     height = rng.uniform(0.06, 0.13)
     profile = str(rng.choice(PROFILES, p=[0.35, 0.25, 0.2, 0.2]))
     shape = dict(bottom_radius_ratio=1.0, flare_exponent=1.0, belly=0.0, belly_height=0.5)
@@ -203,6 +206,7 @@ def _sample_body(rng: np.random.Generator) -> MugParams:
 
 
 def _sample_handle(rng: np.random.Generator, body: MugParams) -> MugParams:
+    """`body` with a handle (or, rarely, none) that fits its height and wall."""
     shape = str(rng.choice(HANDLE_SHAPES, p=[0.27, 0.26, 0.22, 0.20, 0.05]))
     if shape == "none":
         return body
@@ -217,15 +221,16 @@ def _sample_handle(rng: np.random.Generator, body: MugParams) -> MugParams:
     thickness = min(thickness, (top_edge - bottom_edge - min_hole) / 2)
     longest_span = top_edge - bottom_edge - thickness
     shortest_span = thickness + min_hole
-    if shape == "round":
+    if shape == "round":  # its reach is half its span: keep both sensible
         shortest_span = max(shortest_span, thickness + 0.02 + body.wall_thickness)
+        longest_span = min(longest_span, 0.065)
     if is_ear:
         span = min(rng.uniform(0.02, 0.032), longest_span)
         top_z = top_edge - thickness / 2 - rng.uniform(0.0, min(0.004, longest_span - span))
     else:
-        span = rng.uniform(max(shortest_span, 0.5 * longest_span), max(shortest_span, min(longest_span, 0.065 if shape == "round" else 0.09)))
-        span = min(span, longest_span)
-        bottom_z = bottom_edge + thickness / 2 + rng.random() * (longest_span - span)
+        longest_span = max(longest_span, shortest_span)
+        span = min(rng.uniform(max(shortest_span, 0.5 * longest_span), longest_span), top_edge - bottom_edge - thickness)
+        bottom_z = bottom_edge + thickness / 2 + rng.random() * (top_edge - bottom_edge - thickness - span)
         top_z = bottom_z + span
 
     if shape == "round":  # a half circle: the reach follows from the span
@@ -318,7 +323,7 @@ def body_profile(params: MugParams) -> np.ndarray:
         wall_start = p.bottom_fillet
         contact_outer = radius_at(wall_start)
     if p.recess_depth > 0:
-        recess_edge = contact_outer - p.contact_ring_width - p.recess_depth
+        recess_edge = contact_outer - p.bottom_fillet - p.contact_ring_width - p.recess_depth  # 45 degree slope
         pieces.append(np.array([[recess_edge, p.recess_depth], [recess_edge + p.recess_depth, 0.0]]))
     pieces.append(np.array([[contact_outer - p.bottom_fillet, 0.0]]))
     pieces.append(_arc((contact_outer - p.bottom_fillet, p.bottom_fillet), (p.bottom_fillet,) * 2, -np.pi / 2, 0.0, 4))
@@ -355,17 +360,24 @@ def revolve_profile(profile: np.ndarray, segments: int = BODY_SEGMENTS) -> Mesh:
         axis=-1,
     ).reshape(-1, 3)
     vertices = np.concatenate([[[0.0, 0.0, profile[0, 1]]], rings, [[0.0, 0.0, profile[-1, 1]]]])
-    n_rings, bottom, top = len(ring_r), 0, len(vertices) - 1
+    return Mesh(vertices, capped_rings_triangles(len(ring_r), segments))
+
+
+def capped_rings_triangles(n_rings: int, segments: int) -> np.ndarray:
+    """Triangles (F, 3) closing a stack of rings into one genus-0 surface: the shared layout of
+    the body and the handle. Vertex 0 is the first pole, then come `n_rings` rings of `segments`
+    vertices each, then the last pole. Ring i + 1 follows ring i, and vertex j + 1 follows vertex j
+    around each ring, so that (next around) x (next ring) points outward."""
     j = np.arange(segments)
     j_next = (j + 1) % segments
     ring = lambda i, jj: 1 + i * segments + jj  # noqa: E731 - vertex index of ring i, angle jj
-    triangles = [np.c_[np.full(segments, bottom), ring(0, j_next), ring(0, j)]]
-    for i in range(n_rings - 1):
-        # Quad (i, j), (i, j+1), (i+1, j), (i+1, j+1): "next angle" x "next ring" points outward.
+    last_pole = 1 + n_rings * segments
+    triangles = [np.c_[np.zeros(segments, dtype=int), ring(0, j_next), ring(0, j)]]
+    for i in range(n_rings - 1):  # two triangles per quad (i, j), (i, j+1), (i+1, j+1), (i+1, j)
         triangles.append(np.c_[ring(i, j), ring(i, j_next), ring(i + 1, j)])
         triangles.append(np.c_[ring(i, j_next), ring(i + 1, j_next), ring(i + 1, j)])
-    triangles.append(np.c_[ring(n_rings - 1, j), ring(n_rings - 1, j_next), np.full(segments, top)])
-    return Mesh(vertices, np.concatenate(triangles).astype(np.int32))
+    triangles.append(np.c_[ring(n_rings - 1, j), ring(n_rings - 1, j_next), np.full(segments, last_pole)])
+    return np.concatenate(triangles).astype(np.int32)
 
 
 def body_mesh(params: MugParams) -> Mesh:
@@ -409,7 +421,7 @@ def handle_centerline(params: MugParams) -> tuple[np.ndarray, np.ndarray]:
     ])
     # The stubs stay straight until 0.5 mm outside the outer wall before they bend away.
     radii, turns = _fit_bends(corners, p.handle_bend_radius, straight_ends=p.wall_thickness / 2 + 0.0005)
-    bends = turns > 1e-9
+    bends = turns >= np.radians(1.0)  # smaller turns stay kinks (see `_rounded_polyline`)
     if np.any(radii[bends] < 0.55 * p.handle_thickness):  # a tighter bend would fold the tube's inner side
         raise SimError(
             f"{p.handle_shape!r} handle: bends of radius {radii[bends].min():.4f} m are too tight for a "
@@ -458,14 +470,15 @@ def _rounded_polyline(corners: np.ndarray, radii: np.ndarray, turns: np.ndarray)
     points, tangents = [corners[0]], [directions[0]]
     for c in range(1, len(corners) - 1):
         d_in, d_out, radius, turn = directions[c - 1], directions[c], radii[c - 1], turns[c - 1]
+        if turn < np.radians(1.0):  # nearly straight on: a kink this small needs no bend
+            _append_line(points, tangents, corners[c], d_in)
+            continue
         start = corners[c] - d_in * radius * np.tan(turn / 2)
         _append_line(points, tangents, start, d_in)
-        if turn < 1e-9:  # straight on: no bend
-            continue
         # The bend's centre lies on the inner side of the turn, one radius from the tangent points.
         side = np.sign(d_in[0] * d_out[1] - d_in[1] * d_out[0])  # +1: a left (counter-clockwise) turn
         center = start + side * radius * np.array([-d_in[1], d_in[0]])
-        for angle in side * np.linspace(0.0, turn, max(2, int(np.ceil(turn / np.radians(10)))) + 1)[1:]:
+        for angle in side * np.linspace(0.0, turn, int(np.ceil(turn / np.radians(10))) + 1)[1:]:
             rotation = np.array([[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]])
             points.append(center + rotation @ (start - center))
             tangents.append(rotation @ d_in)
@@ -500,19 +513,9 @@ def sweep_tube(points: np.ndarray, tangents: np.ndarray, half_thickness: float, 
         + half_thickness * np.cos(angles)[None, :, None] * in_plane[:, None, :]
         + half_width * np.sin(angles)[None, :, None] * across[None, None, :]
     ).reshape(-1, 3)
-    vertices = np.concatenate([rings, points[:1], points[-1:]])
-    first_cap, last_cap = len(rings), len(rings) + 1
-    j = np.arange(segments)
-    j_next = (j + 1) % segments
-    ring = lambda k, jj: k * segments + jj  # noqa: E731 - vertex index of ring k, angle jj
-    last = len(points) - 1
-    triangles = [np.c_[np.full(segments, first_cap), ring(0, j_next), ring(0, j)]]
-    for k in range(last):
-        # Quad (k, j), (k, j+1), (k+1, j), (k+1, j+1): "around" x "along" points outward.
-        triangles.append(np.c_[ring(k, j), ring(k, j_next), ring(k + 1, j)])
-        triangles.append(np.c_[ring(k, j_next), ring(k + 1, j_next), ring(k + 1, j)])
-    triangles.append(np.c_[ring(last, j), ring(last, j_next), np.full(segments, last_cap)])
-    return Mesh(vertices, np.concatenate(triangles).astype(np.int32))
+    # The cap centres are the "poles": the first and last centre-line points.
+    vertices = np.concatenate([points[:1], rings, points[-1:]])
+    return Mesh(vertices, capped_rings_triangles(len(points), segments))
 
 
 def handle_mesh(params: MugParams) -> Mesh:

@@ -82,7 +82,7 @@ def _sample(seed: int) -> SimConfig:
         total_mugs=None,
         mug_models=8,
         changes={"added": 1, "removed": 1, "switched": 2, "moved": 1},
-        trajectory=TrajectoryConfig(step_m=0.2),
+        trajectory=TrajectoryConfig(step_m=0.3),
         camera=PinholeCamera().scaled(0.5),
     )
 
