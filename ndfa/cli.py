@@ -49,6 +49,7 @@ def ingest_sim_command(
     target_route: Optional[str] = typer.Option(None, help="perimeter | corridor | weave | circles."),
     step: Optional[float] = typer.Option(None, help="Camera travel between frames, metres."),
     noise: Optional[bool] = typer.Option(None, "--noise/--no-noise", help="Depth sensor noise on or off."),
+    noise_scale: Optional[float] = typer.Option(None, help="Depth noise std as a multiple of the default sensor's."),
     offset: Optional[float] = typer.Option(None, help="Target pose offset: max translation per axis, metres."),
     offset_yaw: Optional[float] = typer.Option(None, help="Target pose offset: max yaw, degrees."),
     drift: Optional[float] = typer.Option(None, help="Target drift: random-walk translation step std, metres/frame."),
@@ -79,8 +80,10 @@ def ingest_sim_command(
         overrides["target_route"] = target_route
     if step is not None:
         overrides["trajectory"] = dataclasses.replace(config.trajectory, step_m=step)
-    if noise is not None:
-        overrides["depth_noise"] = DepthNoise() if noise else DepthNoise.off()
+    if noise is not None or noise_scale is not None:
+        overrides["depth_noise"] = DepthNoise().scaled(1.0 if noise_scale is None else noise_scale)
+        if noise is False:
+            overrides["depth_noise"] = DepthNoise.off()
     error = {k: v for k, v in dict(offset_translation_m=offset, offset_yaw_deg=offset_yaw,
                                    drift_translation_m=drift, drift_yaw_deg=drift_yaw).items() if v is not None}
     if error:

@@ -150,3 +150,31 @@ def test_cli_info_on_a_truncated_recording(noiseless, tmp_path):
     one_line_error(run_cli("info", str(cut)), "cut.mcap")
     ok = run_cli("info", str(out / "source.mcap"))
     assert ok.returncode == 0 and "source" in ok.stdout
+
+
+def test_user_meshes_are_placed_and_open_ones_only_warn(tmp_path):
+    from ndfa.sim.mesh_io import load_mug_dir
+    from ndfa.sim.mug import make_mug
+
+    meshes = tmp_path / "meshes"
+    meshes.mkdir()
+    for seed, suffix in zip((11, 12, 13), (".ply", ".obj", ".stl")):
+        mesh = make_mug(seed).mesh.to_open3d()
+        mesh.scale(1000.0, center=(0, 0, 0))  # millimetres, as CAD files often are
+        mesh.compute_triangle_normals()
+        assert o3d.io.write_triangle_mesh(str(meshes / f"mug{seed}{suffix}"), mesh)
+    open_mesh = make_mug(14).parts[0].to_open3d()
+    open_mesh.triangles = o3d.utility.Vector3iVector(np.asarray(open_mesh.triangles)[:-40])
+    o3d.io.write_triangle_mesh(str(meshes / "open.ply"), open_mesh)
+
+    with pytest.warns(UserWarning, match="open.ply"):
+        models = load_mug_dir(meshes)
+    assert [m.watertight for m in models] == [True, True, True, False]
+    for model in models:
+        lo, hi = model.mesh.bounds
+        assert lo[2] == pytest.approx(0.0, abs=1e-9) and 0.06 <= hi[2] <= 0.13
+
+    summaries = ingest_sim(small_config(), tmp_path / "out", models=models)
+    truth = RecordingReader(summaries[0].path).ground_truth
+    used = {o["model_id"] for o in truth["objects"]}
+    assert used <= {m.model_id for m in models} and "file:open" in {m["model_id"] for m in truth["models"]}

@@ -11,6 +11,7 @@ The model, applied per pixel in this order (vectorised, deterministic given the 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -73,6 +74,11 @@ class DepthNoise:
     def off() -> "DepthNoise":
         """A model that leaves depth exactly as rendered."""
         return DepthNoise(enabled=False)
+
+    def scaled(self, factor: float) -> "DepthNoise":
+        """The same sensor with `factor` times the Gaussian noise (a knob for sweeps)."""
+        return dataclasses.replace(self, sigma_base_m=self.sigma_base_m * factor,
+                                   sigma_quadratic_per_m=self.sigma_quadratic_per_m * factor)
 
     def sigma(self, depth: np.ndarray) -> np.ndarray:
         """Standard deviation (m) of the Gaussian noise at z-depth `depth` (m)."""

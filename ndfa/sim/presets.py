@@ -114,7 +114,7 @@ def _random(seed: int) -> SimConfig:
         switch_within_table=bool(rng.random() < 0.5),
         source_route=str(source_route),
         target_route=str(target_route),
-        depth_noise=DepthNoise(),
+        depth_noise=DepthNoise().scaled(float(rng.uniform(0.5, 2.0))),
         target_pose_error=PoseError(
             offset_translation_m=float(rng.uniform(0.0, 1.0)),
             offset_yaw_deg=float(rng.uniform(0.0, 180.0)),
