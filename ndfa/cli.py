@@ -144,6 +144,29 @@ def info_command(recording: Path = typer.Argument(..., help="An ndfa recording (
     console.print(table)
 
 
+@app.command("bench")
+def bench_command(
+    what: str = typer.Argument("sim", help="What to time: sim (render, noise, write, read)."),
+    frames: int = typer.Option(60, help="Frames to time."),
+) -> None:
+    """Time each stage of a pipeline and print milliseconds per frame."""
+    if what != "sim":
+        raise typer.BadParameter(f"unknown benchmark {what!r}; expected: sim")
+    from ndfa.bench import bench_sim
+
+    result = bench_sim(frames=frames)
+    table = Table(title="ndfa bench sim (paper scene)",
+                  caption=f"{result['frames']} frames {result['width']}x{result['height']}, "
+                          f"{result['triangles']:,} triangles; {result['machine']}")
+    table.add_column("stage")
+    table.add_column("median ms", justify="right")
+    for stage in ("world", "render", "noise", "write", "read", "total"):
+        key = "world_ms" if stage == "world" else "total_ms_per_frame" if stage == "total" else f"{stage}_ms"
+        label = "build world (once)" if stage == "world" else "render + noise + write" if stage == "total" else f"{stage} / frame"
+        table.add_row(label, f"{result[key]:.1f}")
+    console.print(table)
+
+
 def main() -> None:
     """Entry point: run the app, turning ndfa's own errors into one line on stderr."""
     try:

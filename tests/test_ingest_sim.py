@@ -178,3 +178,12 @@ def test_user_meshes_are_placed_and_open_ones_only_warn(tmp_path):
     truth = RecordingReader(summaries[0].path).ground_truth
     used = {o["model_id"] for o in truth["objects"]}
     assert used <= {m.model_id for m in models} and "file:open" in {m["model_id"] for m in truth["models"]}
+
+
+def test_bench_reports_every_stage():
+    from ndfa.bench import bench_sim
+
+    result = bench_sim(frames=3)
+    assert result["frames"] == 3 and result["triangles"] > 100_000
+    for stage in ("world", "render", "noise", "write", "read"):
+        assert result[f"{stage}_ms"] > 0
