@@ -16,3 +16,11 @@ class SimError(NdfaError):
 
 class IngestError(NdfaError):
     """An importer cannot turn its input into a recording."""
+
+
+class ModelError(NdfaError):
+    """An NDF model cannot be built or loaded (bad config, missing or corrupt checkpoint)."""
+
+
+class DataError(NdfaError):
+    """NDF training data cannot be generated as asked, or a dataset file is missing or corrupt."""

@@ -1,0 +1,119 @@
+"""Inference: partial object point clouds -> `ObjectCode` (shape code, world center, latent z,
+mean occupancy, reconstruction). Pure computation: no files are read here except the weights.
+
+Each observation is resampled to the model's point count, centred on its mean (the translation),
+encoded, and decoded on a grid around the predicted center; everything is moved to the world
+frame with the camera pose.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ndfa.errors import ModelError
+from ndfa.geometry import transform_points
+from ndfa.ndf.model import load_model
+
+WEIGHTS_DIR = Path(__file__).parent / "weights"
+DEFAULT_WEIGHTS = WEIGHTS_DIR / "ndf_mugs.pt"
+CENTER_METHODS = ("head", "reconstruction", "weighted")
+MIN_POINTS = 10  # fewer points than this carry too little shape to encode
+
+
+@dataclass(frozen=True)
+class ObjectCode:
+    """One observation as the NDF sees it. Frames: world (via the camera pose)."""
+
+    shape_code: np.ndarray       # [D] rotation-invariant shape descriptor
+    center_world: np.ndarray     # [3] center of the completed full shape, metres
+    z: np.ndarray                # [k, 3] equivariant latent, rotated into the world frame
+    mean_occupancy: float        # mean predicted occupancy over the reconstruction (confidence)
+    reconstruction: np.ndarray   # [M, 3] grid points with occupancy > v0, world frame
+
+
+@dataclass(frozen=True)
+class EncoderConfig:
+    v0: float = 0.5                  # occupancy threshold of the reconstruction
+    center: str = "head"             # head | reconstruction | weighted (see `ndfa ndf-eval`)
+    grid_resolution: int = 20        # reconstruction grid cells per axis
+    grid_half_extent_m: float = 0.11  # the grid spans +-this around the predicted center
+    seed: int = 0                    # of the point resampling, so encoding is deterministic
+
+
+class NDFEncoder:
+    """The trained NDF as a function of observations; loads the shipped weights by default."""
+
+    def __init__(self, weights: Path | None = None, config: EncoderConfig = EncoderConfig()):
+        if config.center not in CENTER_METHODS:
+            raise ModelError(f"unknown center method {config.center!r}; expected one of {CENTER_METHODS}")
+        self.weights = Path(weights) if weights is not None else DEFAULT_WEIGHTS
+        self.model, extra = load_model(self.weights)
+        self.model.eval()
+        self.n_points = int(extra.get("n_points", 400))
+        self.config = config
+        axis = np.linspace(-1.0, 1.0, config.grid_resolution, dtype=np.float32) * config.grid_half_extent_m
+        self._grid = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
+
+    def encode(self, points_camera: np.ndarray, pose_world_camera: np.ndarray) -> ObjectCode:
+        """One observation: points [N, 3] in the camera frame, camera-to-world pose [4, 4]."""
+        return self.encode_batch([points_camera], [pose_world_camera])[0]
+
+    @torch.inference_mode()
+    def encode_batch(self, clouds: list[np.ndarray], poses_world_camera: list[np.ndarray]) -> list[ObjectCode]:
+        """Several observations at once (faster per observation than one by one)."""
+        if len(clouds) != len(poses_world_camera):
+            raise ModelError(f"{len(clouds)} point clouds but {len(poses_world_camera)} camera poses")
+        if not clouds:
+            return []
+        points = np.stack([self.resample(_checked_cloud(c, i)) for i, c in enumerate(clouds)])
+        centroids = points.mean(axis=1, keepdims=True)
+        centred = torch.from_numpy(points - centroids)
+        z = self.model.encode(centred)
+        codes = self.model.shape_code(z).numpy()
+        offsets = self.model.center_offset(z)
+        queries = offsets[:, None, :] + torch.from_numpy(self._grid)[None]
+        occupancy = torch.sigmoid(self.model.occupancy_logits(z, queries)).numpy()
+        queries = queries.numpy()
+
+        results = []
+        for i, pose in enumerate(poses_world_camera):
+            inside = occupancy[i] > self.config.v0
+            center_local = self._center(offsets[i].numpy(), queries[i], occupancy[i], inside)
+            rotation = np.asarray(pose)[:3, :3]
+            results.append(ObjectCode(
+                shape_code=codes[i],
+                center_world=transform_points(pose, (centroids[i, 0] + center_local)[None])[0],
+                z=z[i].numpy() @ rotation.T,
+                mean_occupancy=float(occupancy[i][inside].mean()) if inside.any() else 0.0,
+                reconstruction=transform_points(pose, queries[i][inside] + centroids[i, 0]),
+            ))
+        return results
+
+    def _center(self, head: np.ndarray, queries: np.ndarray, occupancy: np.ndarray, inside: np.ndarray) -> np.ndarray:
+        if self.config.center == "head" or not inside.any():
+            return head
+        if self.config.center == "reconstruction":  # the paper: mean of the reconstructed points
+            return queries[inside].mean(axis=0)
+        weights = occupancy[inside]
+        return (queries[inside] * weights[:, None]).sum(axis=0) / weights.sum()
+
+    def resample(self, cloud: np.ndarray) -> np.ndarray:
+        """`cloud` [N, 3] resampled to the model's point count, the same way for the same N."""
+        rng = np.random.default_rng([self.config.seed, len(cloud)])
+        chosen = rng.choice(len(cloud), size=self.n_points, replace=len(cloud) < self.n_points)
+        return cloud[chosen].astype(np.float32)
+
+
+def _checked_cloud(cloud: np.ndarray, index: int) -> np.ndarray:
+    cloud = np.asarray(cloud)
+    if cloud.ndim != 2 or cloud.shape[1] != 3:
+        raise ModelError(f"observation {index}: expected points of shape [N, 3], got {cloud.shape}")
+    if not np.all(np.isfinite(cloud)):
+        raise ModelError(f"observation {index}: {int((~np.isfinite(cloud)).any(axis=1).sum())} points are NaN or infinite")
+    if len(cloud) < MIN_POINTS:
+        raise ModelError(f"observation {index}: {len(cloud)} points; at least {MIN_POINTS} are needed to encode a shape")
+    return cloud

@@ -1,0 +1,42 @@
+"""Training losses of the NDF: occupancy, the paper's batch-hard shape loss, and the center loss."""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+
+
+def occupancy_loss(logits: torch.Tensor, occupied: torch.Tensor) -> torch.Tensor:
+    """Binary cross-entropy of predicted occupancy logits [B, Q] against labels [B, Q]."""
+    return F.binary_cross_entropy_with_logits(logits, occupied.float())
+
+
+def batch_hard_shape_loss(codes: torch.Tensor, labels: torch.Tensor, margin: float | None = None) -> torch.Tensor:
+    """The paper's L_b_shape (Sec. III-B, after Hermans et al.): every observation is an anchor,
+    paired with its least similar positive (same object) and most similar negative (another
+    object), similarity D being the cosine of the shape codes:
+
+        L = mean_anchors( -min_pos D(a, p) + max_neg D(a, n) )
+
+    With `margin`, the hinge form max(0, margin - D(a, p) + D(a, n)) instead, which stops pushing
+    once the negatives are `margin` below the positives. codes [M, D], labels [M] (object ids);
+    every object must appear at least twice in the batch.
+    """
+    unit = F.normalize(codes, dim=1)
+    similarity = unit @ unit.T
+    same = labels[:, None] == labels[None, :]
+    eye = torch.eye(len(labels), dtype=torch.bool, device=codes.device)
+    positives = same & ~eye
+    if not bool(positives.any(dim=1).all()):
+        raise ValueError("batch-hard shape loss needs at least two observations of every object")
+    hardest_positive = similarity.masked_fill(~positives, float("inf")).min(dim=1).values
+    hardest_negative = similarity.masked_fill(same, float("-inf")).max(dim=1).values
+    if margin is None:
+        return (hardest_negative - hardest_positive).mean()
+    return F.relu(margin - hardest_positive + hardest_negative).mean()
+
+
+def center_loss(predicted_offset: torch.Tensor, true_offset: torch.Tensor, scale: float) -> torch.Tensor:
+    """Mean Euclidean error of the predicted center offsets [B, 3] (metres), measured in the
+    model's scaled units (`scale` x metres) so that it weighs like the occupancy loss."""
+    return torch.linalg.vector_norm((predicted_offset - true_offset) * scale, dim=1).mean()

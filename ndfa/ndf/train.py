@@ -1,0 +1,193 @@
+"""`ndfa train`: fit the NDF on partial views of train-split procedural mugs, on the CPU.
+
+The loop, top to bottom: render (or load the cached) training and validation views; then for each
+step draw a batch of mugs with two views each, centre every view on its points' mean, and
+minimise
+
+    L = L_occ + alpha * L_b_shape + w_center * L_center
+
+(the paper's objective plus an equivariant center head, see `losses.py`). Every
+`steps_per_epoch` steps: validate, append a metrics row, save a checkpoint (model, optimizer,
+step, RNG state), so that an interrupted run resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import polars as pl
+import torch
+
+from ndfa.errors import ModelError
+from ndfa.ndf.data import ViewConfig, generate_views, load_dataset, sample_batch, write_dataset
+from ndfa.ndf.losses import batch_hard_shape_loss, center_loss, occupancy_loss
+from ndfa.ndf.metrics import center_errors_mm, pair_separation, retrieval_top1
+from ndfa.ndf.model import NDFConfig, NDFModel, load_model, save_checkpoint
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    model: NDFConfig = field(default_factory=NDFConfig)
+    view: ViewConfig = field(default_factory=ViewConfig)
+    train_mugs: int = 400            # train-split mug indices [0, train_mugs)
+    views_per_mug: int = 24
+    val_mugs: int = 24               # held-out train-split mugs, right after the training ones
+    val_views_per_mug: int = 8
+    batch_mugs: int = 16             # mugs per batch, two views each
+    steps: int = 8000
+    steps_per_epoch: int = 250       # validation, metrics row and checkpoint every epoch
+    lr: float = 6e-4                 # the paper's Adam learning rate
+    alpha: float = 0.01              # the paper's shape-loss weight
+    shape_margin: float | None = None  # None: the paper's loss; a number: hinge with this margin
+    center_weight: float = 1.0
+    shape_threshold: float = 0.9     # delta_s, for the validation figures
+    seed: int = 0
+    threads: int = 2
+
+
+def train(
+    config: TrainConfig,
+    out_dir: Path,
+    resume: bool = False,
+    data_dir: Path | None = None,
+    on_step: Callable[[int, int, dict], None] | None = None,
+    on_epoch: Callable[[dict], None] | None = None,
+) -> pl.DataFrame:
+    """Train into `out_dir` (checkpoint.pt, metrics.parquet, config.json); returns the metrics.
+
+    `data_dir` caches rendered views (default `out_dir/data`); a cache is reused only when it
+    was made with the same view settings, mugs and seed.
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    torch.set_num_threads(config.threads)
+    torch.manual_seed(config.seed)
+    train_set, val_set = _datasets(config, Path(data_dir or out_dir / "data"))
+
+    model = NDFModel(config.model)
+    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+    rng = np.random.default_rng([config.seed, 100])
+    step, rows, elapsed = 0, [], 0.0
+    checkpoint_path = out_dir / "checkpoint.pt"
+    if resume and checkpoint_path.exists():
+        model, extra = load_model(checkpoint_path)
+        if extra.get("train_config") != _jsonable(config):
+            raise ModelError(f"{checkpoint_path}: was trained with other settings; use another --out or no --resume")
+        optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+        optimizer.load_state_dict(extra["optimizer"])
+        rng.bit_generator.state = json.loads(extra["rng_state"])
+        torch.set_rng_state(extra["torch_rng_state"])
+        step, rows, elapsed = extra["step"], json.loads(extra["metrics"]), extra["elapsed_s"]
+    (out_dir / "config.json").write_text(json.dumps(_jsonable(config), indent=2))
+
+    losses: list[dict] = []
+    started = time.perf_counter() - elapsed
+    while step < config.steps:
+        model.train()
+        batch = sample_batch(train_set, config.batch_mugs, rng)
+        terms = _loss_terms(model, batch, config)
+        loss = terms["occ"] + config.alpha * terms["shape"] + config.center_weight * terms["center"]
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        step += 1
+        losses.append({k: v.item() for k, v in terms.items()} | {"loss": loss.item()})
+        if on_step is not None:
+            on_step(step, config.steps, losses[-1])
+        if step % config.steps_per_epoch == 0 or step == config.steps:
+            row = {"epoch": len(rows) + 1, "step": step, "elapsed_s": time.perf_counter() - started}
+            row |= {f"train_{k}": float(np.mean([l[k] for l in losses])) for k in losses[0]}
+            row |= {f"val_{k}": v for k, v in validate(model, val_set, config.shape_threshold).items()}
+            rows.append(row)
+            losses = []
+            save_checkpoint(checkpoint_path, model, config.model, {
+                "train_config": _jsonable(config),
+                "n_points": config.view.n_points,
+                "optimizer": optimizer.state_dict(),
+                "rng_state": json.dumps(rng.bit_generator.state),
+                "torch_rng_state": torch.get_rng_state(),
+                "step": step,
+                "metrics": json.dumps(rows),
+                "elapsed_s": row["elapsed_s"],
+            })
+            metrics = pl.DataFrame(rows)
+            _write_parquet(metrics, out_dir / "metrics.parquet")
+            if on_epoch is not None:
+                on_epoch(row)
+    return pl.DataFrame(rows)
+
+
+def _loss_terms(model: NDFModel, batch: dict[str, torch.Tensor], config: TrainConfig) -> dict[str, torch.Tensor]:
+    # The model sees each view centred on its points' mean (the translation part of SE(3)
+    # equivariance); queries and the true center are expressed relative to the same mean.
+    centroid = batch["points"].mean(dim=1, keepdim=True)
+    out = model(batch["points"] - centroid, batch["queries"] - centroid)
+    return {
+        "occ": occupancy_loss(out["occupancy_logits"], batch["occupancy"]),
+        "shape": batch_hard_shape_loss(out["shape_code"], batch["mug_index"], config.shape_margin),
+        "center": center_loss(out["center_offset"], batch["center"] - centroid[:, 0], config.model.input_scale),
+    }
+
+
+@torch.inference_mode()
+def validate(model: NDFModel, dataset: dict[str, np.ndarray], shape_threshold: float, batch_size: int = 64) -> dict[str, float]:
+    """Occupancy accuracy on the views' query points, center error and shape-code retrieval."""
+    model.eval()
+    codes, centers, correct = [], [], []
+    for start in range(0, len(dataset["points"]), batch_size):
+        points = torch.from_numpy(dataset["points"][start:start + batch_size])
+        queries = torch.from_numpy(dataset["queries"][start:start + batch_size])
+        centroid = points.mean(dim=1, keepdim=True)
+        out = model(points - centroid, queries - centroid)
+        codes.append(out["shape_code"].numpy())
+        centers.append((centroid[:, 0] + out["center_offset"]).numpy())
+        labels = dataset["occupancy"][start:start + batch_size]
+        correct.append(((out["occupancy_logits"] > 0).numpy() == labels).mean(axis=1))
+    codes = np.concatenate(codes)
+    labels = dataset["mug_index"]
+    separation = pair_separation(codes, labels, shape_threshold)
+    return {
+        "occ_accuracy": float(np.concatenate(correct).mean()),
+        **center_errors_mm(np.concatenate(centers), dataset["center"]),
+        "retrieval_top1": retrieval_top1(codes, labels),
+        "auc": separation["auc"],
+        "same_above": separation["same_above"],
+        "different_above": separation["different_above"],
+    }
+
+
+def _datasets(config: TrainConfig, data_dir: Path) -> tuple[dict, dict]:
+    train_indices = list(range(config.train_mugs))
+    val_indices = list(range(config.train_mugs, config.train_mugs + config.val_mugs))
+    return (
+        _cached_views(data_dir, "train", train_indices, config.views_per_mug, config.seed, config.view),
+        _cached_views(data_dir, "val", val_indices, config.val_views_per_mug, config.seed + 1, config.view),
+    )
+
+
+def _cached_views(data_dir: Path, name: str, indices: list[int], views_per_mug: int, seed: int, view: ViewConfig) -> dict:
+    key = json.dumps({"indices": [indices[0], indices[-1]], "views": views_per_mug, "seed": seed,
+                      "view": _jsonable(view)}, sort_keys=True)
+    path = data_dir / f"{name}-{hashlib.sha1(key.encode()).hexdigest()[:10]}.npz"
+    if not path.exists():
+        data_dir.mkdir(parents=True, exist_ok=True)
+        write_dataset(path, generate_views("train", indices, views_per_mug, seed, view))
+    return load_dataset(path)
+
+
+def _jsonable(value):
+    """Dataclasses (nested) as JSON-compatible data, for configs stored beside results."""
+    return json.loads(json.dumps(dataclasses.asdict(value), default=str))
+
+
+def _write_parquet(frame: pl.DataFrame, path: Path) -> None:
+    temp = path.with_name(f".{path.name}.tmp")
+    frame.write_parquet(temp)
+    temp.replace(path)

@@ -1,0 +1,115 @@
+"""Training, the losses, the inference API and the evaluation, on a tiny model and a few views."""
+
+import numpy as np
+import pytest
+import torch
+
+from ndfa.errors import ModelError
+from ndfa.ndf.data import ViewConfig, generate_views
+from ndfa.ndf.encoder import EncoderConfig, NDFEncoder
+from ndfa.ndf.losses import batch_hard_shape_loss
+from ndfa.ndf.metrics import pair_separation, retrieval_top1, roc_auc
+from ndfa.ndf.model import NDFConfig, NDFModel, save_checkpoint
+from ndfa.ndf.train import TrainConfig, train
+
+TINY = NDFConfig(hidden=8, latent=16, knn=8, encoder_blocks=1, decoder_width=32, decoder_blocks=1, code_dim=16, gram_channels=4)
+FEW_VIEWS = ViewConfig(n_points=128, n_queries=128)
+
+
+def test_batch_hard_loss_prefers_separated_codes():
+    labels = torch.tensor([0, 1, 0, 1])
+    separated = torch.tensor([[1.0, 0.0], [0.0, 1.0], [1.0, 0.1], [0.1, 1.0]])
+    mixed = torch.tensor([[1.0, 0.0], [1.0, 0.1], [0.0, 1.0], [0.1, 1.0]])
+    assert batch_hard_shape_loss(separated, labels) < 0 < batch_hard_shape_loss(mixed, labels)
+    assert batch_hard_shape_loss(separated, labels, margin=0.5) == 0
+    with pytest.raises(ValueError, match="two observations"):
+        batch_hard_shape_loss(separated[:3], torch.tensor([0, 1, 2]))
+
+
+def test_metrics_on_known_codes():
+    codes = np.array([[1.0, 0.0], [0.9, 0.1], [0.0, 1.0], [0.1, 0.9]])
+    labels = np.array([0, 0, 1, 1])
+    assert retrieval_top1(codes, labels) == 1.0
+    separation = pair_separation(codes, labels, 0.9)
+    assert separation["auc"] == 1.0 and separation["same_above"] == 1.0 and separation["different_above"] == 0.0
+    assert roc_auc(np.array([0.1, 0.4, 0.35, 0.8]), np.array([False, True, False, True])) == 1.0
+    assert roc_auc(np.array([0.5, 0.5]), np.array([True, False])) == 0.5
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("train")
+    config = TrainConfig(model=TINY, view=FEW_VIEWS, train_mugs=6, views_per_mug=3, val_mugs=3, val_views_per_mug=2,
+                         batch_mugs=4, steps=40, steps_per_epoch=20, lr=3e-3)
+    metrics = train(config, out)
+    return config, out, metrics
+
+
+def test_training_lowers_the_loss_and_writes_metrics(tiny_run):
+    config, out, metrics = tiny_run
+    assert metrics["step"].to_list() == [20, 40]
+    assert metrics["train_occ"][1] < metrics["train_occ"][0]
+    assert (out / "checkpoint.pt").exists() and (out / "metrics.parquet").exists()
+    for column in ("val_center_median_mm", "val_retrieval_top1", "val_auc", "val_occ_accuracy"):
+        assert column in metrics.columns
+
+
+def test_training_resumes_where_it_stopped(tiny_run, tmp_path):
+    config, out, metrics = tiny_run
+    import dataclasses
+    import shutil
+
+    shutil.copytree(out, tmp_path / "run")
+    longer = dataclasses.replace(config, steps=60)
+    with pytest.raises(ModelError, match="other settings"):
+        train(longer, tmp_path / "run", resume=True)
+    resumed = train(config, tmp_path / "run", resume=True)  # already complete: nothing to do
+    assert resumed["step"].to_list() == [20, 40]
+
+
+def test_encoder_gives_world_frame_codes(tiny_run):
+    _, out, _ = tiny_run
+    encoder = NDFEncoder(out / "checkpoint.pt")
+    views = generate_views("test", [0], 2, 0, FEW_VIEWS, workers=1)
+    pose = np.eye(4)
+    pose[:3, 3] = [1.0, 2.0, 3.0]
+    code, moved = encoder.encode_batch([views["points"][0]] * 2, [np.eye(4), pose])
+    assert code.shape_code.shape == (TINY.code_dim,) and code.z.shape == (TINY.latent, 3)
+    assert np.allclose(moved.center_world, code.center_world + [1.0, 2.0, 3.0], atol=1e-5)
+    assert np.allclose(moved.shape_code, code.shape_code, atol=1e-5)
+    assert 0.0 <= code.mean_occupancy <= 1.0
+    again = encoder.encode(views["points"][0], np.eye(4))
+    assert np.allclose(again.shape_code, code.shape_code, atol=1e-6)  # batched vs single: float rounding only
+
+
+def test_encoder_refuses_bad_input(tiny_run, tmp_path):
+    _, out, _ = tiny_run
+    encoder = NDFEncoder(out / "checkpoint.pt")
+    with pytest.raises(ModelError, match="at least"):
+        encoder.encode(np.zeros((1, 3)), np.eye(4))
+    with pytest.raises(ModelError, match="at least"):
+        encoder.encode(np.zeros((0, 3)), np.eye(4))
+    with pytest.raises(ModelError, match="NaN"):
+        encoder.encode(np.full((50, 3), np.nan), np.eye(4))
+    with pytest.raises(ModelError, match="shape"):
+        encoder.encode(np.zeros((50, 2)), np.eye(4))
+    with pytest.raises(ModelError, match="not found"):
+        NDFEncoder(tmp_path / "missing.pt")
+    corrupt = tmp_path / "corrupt.pt"
+    corrupt.write_bytes((out / "checkpoint.pt").read_bytes()[:1000])
+    with pytest.raises(ModelError, match="corrupt.pt"):
+        NDFEncoder(corrupt)
+    with pytest.raises(ModelError, match="center method"):
+        NDFEncoder(out / "checkpoint.pt", EncoderConfig(center="median"))
+
+
+def test_evaluation_reports_every_figure(tiny_run):
+    from ndfa.ndf.evaluate import evaluate_ndf
+
+    _, out, _ = tiny_run
+    views = generate_views("test", [0, 1], 2, 0, FEW_VIEWS, workers=1)
+    summary, per_view = evaluate_ndf(out / "checkpoint.pt", views=views, iou_grid=12)
+    for key in ("center_median_mm_head", "center_median_mm_reconstruction", "center_median_mm_weighted",
+                "retrieval_top1", "auc", "same_above", "different_above", "iou_mean"):
+        assert np.isfinite(summary[key]), key
+    assert len(per_view) == 4 and 0.0 <= summary["iou_mean"] <= 1.0
