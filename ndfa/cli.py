@@ -156,6 +156,7 @@ def train_command(
     code_head: str = typer.Option("gram", help="Shape code: gram (invariants of z) or norms (the paper's |z_i|)."),
     lr: float = typer.Option(6e-4, help="Adam learning rate (paper: 6e-4)."),
     seed: int = typer.Option(0, help="Seed of the views, the batches and the initial weights."),
+    threads: int = typer.Option(2, help="Torch CPU threads (1 when another job shares the cores)."),
     resume: bool = typer.Option(False, help="Continue from OUT/checkpoint.pt."),
     data_dir: Optional[Path] = typer.Option(None, help="Cache of rendered views (default OUT/data)."),
     log: Optional[Path] = typer.Option(None, help="Also log the metrics to this Rerun file (.rrd)."),
@@ -165,7 +166,8 @@ def train_command(
     from ndfa.ndf.train import TrainConfig, train
 
     config = TrainConfig(model=NDFConfig(code_head=code_head), train_mugs=train_mugs, views_per_mug=views_per_mug,
-                         batch_mugs=batch_mugs, steps=steps, alpha=alpha, shape_margin=shape_margin, lr=lr, seed=seed)
+                         batch_mugs=batch_mugs, steps=steps, alpha=alpha, shape_margin=shape_margin, lr=lr, seed=seed,
+                         threads=threads)
     recorder = None
     if log is not None:
         import rerun as rr

@@ -69,13 +69,14 @@ class NDFEncoder:
             raise ModelError(f"{len(clouds)} point clouds but {len(poses_world_camera)} camera poses")
         if not clouds:
             return []
+        # Centre in float64: float32 points a few metres from the camera lose digits otherwise.
         points = np.stack([self.resample(_checked_cloud(c, i)) for i, c in enumerate(clouds)])
         centroids = points.mean(axis=1, keepdims=True)
-        centred = torch.from_numpy(points - centroids)
+        centred = torch.from_numpy((points - centroids).astype(np.float32))
         z = self.model.encode(centred)
         codes = self.model.shape_code(z).numpy()
         offsets = self.model.center_offset(z)
-        queries = offsets[:, None, :] + torch.from_numpy(self._grid)[None]
+        queries = offsets[:, None, :] + torch.from_numpy(self._grid)[None]  # around each predicted center
         occupancy = torch.sigmoid(self.model.occupancy_logits(z, queries)).numpy()
         queries = queries.numpy()
 
@@ -105,7 +106,7 @@ class NDFEncoder:
         """`cloud` [N, 3] resampled to the model's point count, the same way for the same N."""
         rng = np.random.default_rng([self.config.seed, len(cloud)])
         chosen = rng.choice(len(cloud), size=self.n_points, replace=len(cloud) < self.n_points)
-        return cloud[chosen].astype(np.float32)
+        return cloud[chosen].astype(np.float64)
 
 
 def _checked_cloud(cloud: np.ndarray, index: int) -> np.ndarray:

