@@ -70,3 +70,30 @@ def _cpu_count() -> int:
     import os
 
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def bench_ndf(weights: Path | None = None, repeats: int = 30, points: int = 1000, threads: int = 2) -> dict[str, float]:
+    """Median milliseconds to encode one observation of `points` points, and a batch of 8, with
+    center recovery and the reconstruction grid (the full `NDFEncoder.encode_batch`)."""
+    import torch
+
+    from ndfa.ndf.encoder import NDFEncoder
+
+    torch.set_num_threads(threads)
+    encoder = NDFEncoder(weights)
+    rng = np.random.default_rng(0)
+    clouds = [rng.normal(scale=0.03, size=(points, 3)) + [0.0, 0.0, 1.0] for _ in range(8)]
+    poses = [np.eye(4)] * 8
+    result = {}
+    for name, count in (("one", 1), ("batch8", 8)):
+        encoder.encode_batch(clouds[:count], poses[:count])  # warm-up
+        times = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            encoder.encode_batch(clouds[:count], poses[:count])
+            times.append(time.perf_counter() - start)
+        result[f"{name}_ms"] = float(np.median(times) * 1e3)
+    result["batch8_ms_per_observation"] = result["batch8_ms"] / 8
+    result.update(points=points, threads=threads, grid=encoder.config.grid_resolution,
+                  machine=f"{platform.processor() or platform.machine()}, {_cpu_count()} cores")
+    return result

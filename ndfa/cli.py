@@ -199,6 +199,20 @@ def train_command(
     console.print(f"checkpoint and metrics in {out}")
 
 
+@app.command("ndf-export")
+def ndf_export_command(
+    checkpoint: Path = typer.Argument(..., help="A training checkpoint (RUN/checkpoint.pt)."),
+    to: Optional[Path] = typer.Option(None, help="Destination (default: the package's shipped weights)."),
+) -> None:
+    """Strip a training checkpoint to the weights the package ships and loads by default."""
+    from ndfa.ndf.encoder import DEFAULT_WEIGHTS
+    from ndfa.ndf.train import export_weights
+
+    destination = to or DEFAULT_WEIGHTS
+    export_weights(checkpoint, destination)
+    console.print(f"wrote {destination} ({destination.stat().st_size / 1e6:.2f} MB)")
+
+
 @app.command("ndf-eval")
 def ndf_eval_command(
     weights: list[Path] = typer.Option(None, "--weights", "-w", help="Checkpoint(s) to evaluate (default: the shipped weights)."),
@@ -235,23 +249,31 @@ def ndf_eval_command(
 
 @app.command("bench")
 def bench_command(
-    what: str = typer.Argument("sim", help="What to time: sim (render, noise, write, read)."),
-    frames: int = typer.Option(60, help="Frames to time."),
+    what: str = typer.Argument("sim", help="What to time: sim (render, noise, write, read) or ndf (encoding)."),
+    frames: int = typer.Option(60, help="sim: frames to time."),
+    weights: Optional[Path] = typer.Option(None, help="ndf: checkpoint to time (default: the shipped weights)."),
 ) -> None:
-    """Time each stage of a pipeline and print milliseconds per frame."""
-    if what != "sim":
-        raise typer.BadParameter(f"unknown benchmark {what!r}; expected: sim")
-    from ndfa.bench import bench_sim
+    """Time each stage of a pipeline and print milliseconds."""
+    from ndfa.bench import bench_ndf, bench_sim
 
-    result = bench_sim(frames=frames)
-    table = Table(title="ndfa bench sim (paper scene)",
-                  caption=f"{result['frames']} frames {result['width']}x{result['height']}, "
-                          f"{result['triangles']:,} triangles; {result['machine']}")
+    if what == "sim":
+        result = bench_sim(frames=frames)
+        table = Table(title="ndfa bench sim (paper scene)",
+                      caption=f"{result['frames']} frames {result['width']}x{result['height']}, "
+                              f"{result['triangles']:,} triangles; {result['machine']}")
+        rows = [("build world (once)", "world_ms"), ("render / frame", "render_ms"), ("noise / frame", "noise_ms"),
+                ("write / frame", "write_ms"), ("read / frame", "read_ms"), ("render + noise + write", "total_ms_per_frame")]
+    elif what == "ndf":
+        result = bench_ndf(weights)
+        table = Table(title="ndfa bench ndf (encode + center + reconstruction grid)",
+                      caption=f"{result['points']} points per observation, grid {result['grid']}^3, "
+                              f"{result['threads']} threads; {result['machine']}")
+        rows = [("one observation", "one_ms"), ("batch of 8", "batch8_ms"), ("batch of 8, per observation", "batch8_ms_per_observation")]
+    else:
+        raise typer.BadParameter(f"unknown benchmark {what!r}; expected sim or ndf")
     table.add_column("stage")
     table.add_column("median ms", justify="right")
-    for stage in ("world", "render", "noise", "write", "read", "total"):
-        key = "world_ms" if stage == "world" else "total_ms_per_frame" if stage == "total" else f"{stage}_ms"
-        label = "build world (once)" if stage == "world" else "render + noise + write" if stage == "total" else f"{stage} / frame"
+    for label, key in rows:
         table.add_row(label, f"{result[key]:.1f}")
     console.print(table)
 

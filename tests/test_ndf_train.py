@@ -60,11 +60,13 @@ def test_training_resumes_where_it_stopped(tiny_run, tmp_path):
     import shutil
 
     shutil.copytree(out, tmp_path / "run")
-    longer = dataclasses.replace(config, steps=60)
+    other = dataclasses.replace(config, alpha=0.5)
     with pytest.raises(ModelError, match="other settings"):
-        train(longer, tmp_path / "run", resume=True)
+        train(other, tmp_path / "run", resume=True)
     resumed = train(config, tmp_path / "run", resume=True)  # already complete: nothing to do
     assert resumed["step"].to_list() == [20, 40]
+    longer = train(dataclasses.replace(config, steps=60, threads=1), tmp_path / "run", resume=True)
+    assert longer["step"].to_list() == [20, 40, 60]
 
 
 def test_encoder_gives_world_frame_codes(tiny_run):

@@ -207,11 +207,15 @@ class GramCode(nn.Module):
         self.mlp = nn.Sequential(
             nn.Linear(m * (m + 1) // 2, 2 * config.code_dim), nn.ReLU(), nn.Linear(2 * config.code_dim, config.code_dim)
         )
+        # The codes leave the head standardised over the data (no affine part), so they cannot
+        # all coincide: any cosine-based loss has zero gradient at identical codes, and in
+        # training runs without this the codes collapsed to one vector within 250 steps.
+        self.whiten = nn.BatchNorm1d(config.code_dim, affine=False)
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         projected = self.project(z)
         gram = vn_invariant(projected, projected)  # [B, m, m]
-        return self.mlp(self.standardise(gram[:, self.upper[0], self.upper[1]]))
+        return self.whiten(self.mlp(self.standardise(gram[:, self.upper[0], self.upper[1]])))
 
 
 class NDFModel(nn.Module):

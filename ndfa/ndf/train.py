@@ -78,7 +78,8 @@ def train(
     checkpoint_path = out_dir / "checkpoint.pt"
     if resume and checkpoint_path.exists():
         model, extra = load_model(checkpoint_path)
-        if extra.get("train_config") != _jsonable(config):
+        # A run may be resumed longer or with other threads; anything else must match.
+        if _without(extra.get("train_config", {}), RESUMABLE) != _without(_jsonable(config), RESUMABLE):
             raise ModelError(f"{checkpoint_path}: was trained with other settings; use another --out or no --resume")
         optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
         optimizer.load_state_dict(extra["optimizer"])
@@ -182,6 +183,13 @@ def _cached_views(data_dir: Path, name: str, indices: list[int], views_per_mug: 
     return load_dataset(path)
 
 
+RESUMABLE = ("steps", "threads")  # TrainConfig fields a resumed run may change
+
+
+def _without(config: dict, keys: tuple[str, ...]) -> dict:
+    return {k: v for k, v in config.items() if k not in keys}
+
+
 def _jsonable(value):
     """Dataclasses (nested) as JSON-compatible data, for configs stored beside results."""
     return json.loads(json.dumps(dataclasses.asdict(value), default=str))
@@ -191,3 +199,11 @@ def _write_parquet(frame: pl.DataFrame, path: Path) -> None:
     temp = path.with_name(f".{path.name}.tmp")
     frame.write_parquet(temp)
     temp.replace(path)
+
+
+def export_weights(checkpoint: Path, destination: Path) -> None:
+    """The shippable part of a training checkpoint: model config and weights, the point count,
+    the training config and its metrics; no optimizer or RNG state."""
+    model, extra = load_model(checkpoint)
+    keep = {key: extra[key] for key in ("n_points", "train_config", "metrics", "step", "elapsed_s") if key in extra}
+    save_checkpoint(destination, model, model.config, keep)
