@@ -6,6 +6,7 @@ import math
 
 import pytest
 import torch
+from conftest import random_rotation, relative_error
 
 from ndfa.errors import ModelError
 from ndfa.ndf.model import NDFConfig, NDFModel, load_model, save_checkpoint
@@ -14,27 +15,6 @@ SEEDS = [0, 1, 2]
 SMALL = NDFConfig(hidden=16, latent=16, knn=8, encoder_blocks=2, decoder_width=32, decoder_blocks=1, code_dim=8)
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Tests use tiny tensors: a second thread costs more in synchronisation than it saves, and on a
-    shared machine a busy core makes every parallel op wait (the toy fit took 67 s instead of 2 s)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
-def random_rotation(seed: int) -> torch.Tensor:
-    g = torch.Generator().manual_seed(2000 + seed)
-    q, r = torch.linalg.qr(torch.randn(3, 3, generator=g, dtype=torch.float64))
-    q = q * torch.sign(torch.diagonal(r))
-    if torch.det(q) < 0:
-        q[:, 0] = -q[:, 0]
-    return q.float()
-
-
-def relative_error(a: torch.Tensor, b: torch.Tensor) -> float:
-    return float((a - b).norm() / b.norm())
 
 
 def view(seed: int, batch: int = 2, n: int = 300) -> torch.Tensor:

@@ -2,6 +2,7 @@
 
 import pytest
 import torch
+from conftest import random_rotation, relative_error
 
 from ndfa.ndf.vn import (
     VNEdgeConv,
@@ -17,33 +18,11 @@ from ndfa.ndf.vn import (
 SEEDS = [0, 1, 2, 3]
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Tests use tiny tensors: a second thread costs more in synchronisation than it saves, and on a
-    shared machine a busy core makes every parallel op wait (the toy fit took 67 s instead of 2 s)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
-
-
-def random_rotation(seed: int) -> torch.Tensor:
-    """A uniformly random proper rotation (float32), from the QR decomposition of a Gaussian matrix."""
-    g = torch.Generator().manual_seed(1000 + seed)
-    q, r = torch.linalg.qr(torch.randn(3, 3, generator=g, dtype=torch.float64))
-    q = q * torch.sign(torch.diagonal(r))  # unique QR: the distribution becomes uniform
-    if torch.det(q) < 0:
-        q[:, 0] = -q[:, 0]
-    return q.float()
-
-
 def rotate(x: torch.Tensor, rotation: torch.Tensor) -> torch.Tensor:
     """Rotate channels-last vector features `[..., 3, C]`: each channel x_c -> R x_c."""
     return torch.einsum("ij,...jc->...ic", rotation, x)
 
 
-def relative_error(a: torch.Tensor, b: torch.Tensor) -> float:
-    return float((a - b).norm() / b.norm())
 
 
 def features(seed: int, *shape: int) -> torch.Tensor:
