@@ -268,8 +268,8 @@ class NDFModel(nn.Module):
 def save_checkpoint(path: str | Path, model: NDFModel, config: NDFConfig, extra: dict | None = None) -> None:
     """Write `{"config", "state_dict", **extra}` with torch.save, atomically.
 
-    `extra` (e.g. step, losses, the training config) must hold only what `torch.load(...,
-    weights_only=True)` accepts: tensors, numbers, strings, lists, tuples and dicts of them.
+    `extra` (e.g. step, losses, the training config) must hold only what a weights-only load accepts
+    (`load_model` uses weights_only=True): tensors, numbers, strings, lists, tuples, dicts of them.
     The file is written next to `path` and renamed over it, so a crash never leaves half a file.
     """
     extra = dict(extra or {})
