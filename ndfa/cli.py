@@ -155,6 +155,8 @@ def train_command(
     shape_margin: Optional[float] = typer.Option(None, help="Hinge margin of the shape loss (default: the paper's form)."),
     code_head: str = typer.Option("gram", help="Shape code: gram (invariants of z) or norms (the paper's |z_i|)."),
     lr: float = typer.Option(6e-4, help="Adam learning rate (paper: 6e-4)."),
+    lr_final: float = typer.Option(1.0, help="Cosine-decay lr to this fraction of --lr by the last step (1: constant)."),
+    init: Optional[Path] = typer.Option(None, help="Start from these weights (e.g. the shipped ones) with a fresh optimizer."),
     seed: int = typer.Option(0, help="Seed of the views, the batches and the initial weights."),
     threads: int = typer.Option(2, help="Torch CPU threads (1 when another job shares the cores)."),
     resume: bool = typer.Option(False, help="Continue from OUT/checkpoint.pt."),
@@ -167,7 +169,7 @@ def train_command(
 
     config = TrainConfig(model=NDFConfig(code_head=code_head), train_mugs=train_mugs, views_per_mug=views_per_mug,
                          batch_mugs=batch_mugs, steps=steps, alpha=alpha, shape_margin=shape_margin, lr=lr, seed=seed,
-                         threads=threads)
+                         threads=threads, lr_final_fraction=lr_final, init_weights=str(init) if init else None)
     recorder = None
     if log is not None:
         import rerun as rr
@@ -245,6 +247,96 @@ def ndf_eval_command(
     console.print(table)
     pl.DataFrame(rows).write_parquet(out / "summary.parquet")
     console.print(f"tables in {out}")
+
+
+@app.command("detect")
+def detect_command(
+    source: Path = typer.Argument(..., help="Source session recording (.mcap)."),
+    target: Path = typer.Argument(..., help="Target session recording (.mcap)."),
+    log: Optional[Path] = typer.Option(None, help="Write every intermediate to this Rerun file (.rrd)."),
+    tables: Optional[Path] = typer.Option(None, help="Write the Polars tables (parquet) into this directory."),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the summary (scores, timings, changes) as JSON."),
+    weights: Optional[Path] = typer.Option(None, help="NDF checkpoint (default: the shipped weights)."),
+    frame_step: int = typer.Option(1, help="Use every N-th frame of both recordings."),
+    no_images: bool = typer.Option(False, "--no-images", help="Leave depth/colour/mask images out of the .rrd (smaller)."),
+    association_distance: Optional[float] = typer.Option(None, help="delta_d, metres (default 0.05)."),
+    shape_similarity: Optional[float] = typer.Option(None, help="delta_s (default 0.9, the paper's)."),
+    edge_distance: Optional[float] = typer.Option(None, help="delta_e, metres (default 0.03, the paper's)."),
+    tree_length: Optional[float] = typer.Option(None, help="Interval length l of the object trees, metres (default 1.2)."),
+) -> None:
+    """Detect added, removed and moved objects between two recordings (the paper's method)."""
+    import json
+
+    from ndfa.change.detector import DetectorConfig
+    from ndfa.detect import run_detection
+    from ndfa.evaluate import changed_instances
+    from ndfa.pipeline import PipelineConfig
+    from ndfa.recording import RecordingReader
+
+    overrides = {"association_distance_m": association_distance, "shape_similarity": shape_similarity,
+                 "edge_m": edge_distance, "tree_length_m": tree_length}
+    detector = DetectorConfig(**{k: v for k, v in overrides.items() if v is not None})
+    config = PipelineConfig(detector=detector, weights=weights)
+    if frame_step < 1:
+        raise typer.BadParameter(f"--frame-step must be >= 1, got {frame_step}")
+    sinks = []
+    if log is not None:
+        from ndfa.log.rerun_sink import RerunSink
+
+        sinks.append(RerunSink(log, log_images=not no_images))
+    if tables is not None:
+        from ndfa.log.table_sink import TableSink
+
+        truth = RecordingReader(target).ground_truth
+        sinks.append(TableSink(tables, changed_instances(truth) if truth and "objects" in truth else None))
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                  console=err_console, transient=True) as progress:
+        tasks = {}
+
+        def on_frame(session: str, done: int, total: int) -> None:
+            if session not in tasks:
+                tasks[session] = progress.add_task(session, total=total)
+            progress.update(tasks[session], completed=done)
+
+        result = run_detection(source, target, config, sinks, frame_step=frame_step, on_frame=on_frame)
+
+    table = Table(title="changes")
+    for column in ("kind", "session", "object", "frame", "position (source world)", "masks"):
+        table.add_column(column)
+    for c in result.changes:
+        position = c.center_source if c.center_source is not None else c.center_world
+        table.add_row(c.kind, c.session, str(c.object_id), str(c.frame_index),
+                      " ".join(f"{v:+.2f}" for v in position), ",".join(map(str, c.instance_ids)))
+    console.print(table)
+    summary = result.summary()
+    line = f"objects: source {summary['objects_source']}, target {summary['objects_target']}; " \
+           f"target pass {summary['fps']:.1f} frames/s (" + ", ".join(f"{k} {v:.1f} ms" for k, v in summary["stage_ms"].items()) + ")"
+    console.print(line)
+    if result.score is not None:
+        s = result.score
+        console.print(f"ground truth: TP {s.tp}  FP {s.fp}  FN {s.fn}  precision {s.precision:.2f}  recall {s.recall:.2f}")
+    for note in result.notes:
+        console.print(f"note: {note}")
+    if json_out is not None:
+        json_out.parent.mkdir(parents=True, exist_ok=True)
+        temporary = json_out.with_name(f".{json_out.name}.tmp")
+        temporary.write_text(json.dumps(summary, indent=2))
+        temporary.replace(json_out)
+    for path in (log, tables, json_out):
+        if path is not None:
+            console.print(f"wrote {path}")
+
+
+@app.command("view")
+def view_command(rrd: Path = typer.Argument(..., help="A Rerun recording written by `ndfa detect --log`.")) -> None:
+    """Open a .rrd in the Rerun viewer."""
+    import shutil
+    import subprocess
+
+    if not rrd.is_file():
+        raise NdfaError(f"{rrd}: no such file")
+    viewer = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
+    raise typer.Exit(subprocess.call([viewer, str(rrd)]))
 
 
 @app.command("bench")

@@ -44,6 +44,8 @@ class TrainConfig:
     steps: int = 8000
     steps_per_epoch: int = 250       # validation, metrics row and checkpoint every epoch
     lr: float = 6e-4                 # the paper's Adam learning rate
+    lr_final_fraction: float = 1.0   # cosine decay of lr to this fraction at the last step (1: constant, the paper's)
+    init_weights: str | None = None  # start from this checkpoint's weights (a fresh optimizer), e.g. to continue a shipped model
     alpha: float = 0.01              # the paper's shape-loss weight
     shape_margin: float | None = None  # None: the paper's loss; a number: hinge with this margin
     center_weight: float = 1.0
@@ -72,6 +74,11 @@ def train(
     train_set, val_set = _datasets(config, Path(data_dir or out_dir / "data"))
 
     model = NDFModel(config.model)
+    if config.init_weights is not None:
+        initial, _ = load_model(config.init_weights)
+        if initial.config != config.model:
+            raise ModelError(f"{config.init_weights}: its model config differs from this run's ({initial.config})")
+        model.load_state_dict(initial.state_dict())
     optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
     rng = np.random.default_rng([config.seed, 100])
     step, rows, elapsed = 0, [], 0.0
@@ -92,6 +99,8 @@ def train(
     started = time.perf_counter() - elapsed
     while step < config.steps:
         model.train()
+        for group in optimizer.param_groups:
+            group["lr"] = learning_rate(config, step)
         batch = sample_batch(train_set, config.batch_mugs, rng)
         terms = _loss_terms(model, batch, config)
         loss = terms["occ"] + config.alpha * terms["shape"] + config.center_weight * terms["center"]
@@ -123,6 +132,14 @@ def train(
             if on_epoch is not None:
                 on_epoch(row)
     return pl.DataFrame(rows)
+
+
+def learning_rate(config: TrainConfig, step: int) -> float:
+    """lr at `step`: cosine from `lr` down to `lr * lr_final_fraction` over the run's steps.
+    Decaying at the end lets the last steps settle instead of jittering at the full step size."""
+    progress = min(step / max(config.steps - 1, 1), 1.0)
+    fraction = config.lr_final_fraction + (1.0 - config.lr_final_fraction) * 0.5 * (1.0 + np.cos(np.pi * progress))
+    return float(config.lr * fraction)
 
 
 def _loss_terms(model: NDFModel, batch: dict[str, torch.Tensor], config: TrainConfig) -> dict[str, torch.Tensor]:

@@ -1,0 +1,1 @@
+"""The paper's Sec. IV: object trees, association, registration, graph comparison, decisions. Pure numpy, no I/O."""

@@ -1,0 +1,104 @@
+"""Intra-session update (paper Sec. IV-A): measurements (shape code, center) -> objects of one session.
+
+A measurement joins the object of its neighbourhood that is within `distance_m` and whose shape
+code is more cosine-similar than `shape_similarity` (the closest such object when several
+qualify); the object then takes the measurement's code and center if the measurement's mean
+occupancy (the NDF's confidence in its reconstruction) is higher than the object's. Otherwise the
+measurement starts a new object.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ndfa.change.tree import ObjectTree
+
+
+@dataclass(frozen=True)
+class Measurement:
+    """One encoded observation, in the session's world frame."""
+
+    frame_index: int
+    instance_id: int          # the mask's id (kept for analysis; the method does not use it)
+    shape_code: np.ndarray    # (D,)
+    center_world: np.ndarray  # (3,)
+    mean_occupancy: float
+
+
+@dataclass
+class SessionObject:
+    """An object of a session's map: the best measurement so far and its history."""
+
+    object_id: int
+    shape_code: np.ndarray
+    center_world: np.ndarray
+    mean_occupancy: float
+    first_frame: int
+    last_frame: int
+    n_measurements: int = 1
+    instance_ids: tuple[int, ...] = ()  # mask ids of the measurements it took, in order of first use
+
+
+@dataclass(frozen=True)
+class Association:
+    """What the update did with one measurement."""
+
+    object_id: int
+    created: bool           # a new object was started
+    replaced: bool          # the object took the measurement's code and center
+    distance_m: float       # to the object's center before the update (nan when created)
+    similarity: float       # shape cosine similarity to it (nan when created)
+    candidates: int         # objects in the measurement's neighbourhood
+
+
+def cosine_similarity(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cosine similarity of code `a` (D,) with each row of `b` (M, D) or with a single code `b` (D,)."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    denominator = np.linalg.norm(a) * np.linalg.norm(b, axis=-1)
+    return (b @ a) / np.maximum(denominator, 1e-12)
+
+
+class SessionMap:
+    """The objects of one session and their spatial object tree."""
+
+    def __init__(self, tree_length_m: float, distance_m: float, shape_similarity: float) -> None:
+        self.tree = ObjectTree(tree_length_m)
+        self.distance_m = distance_m
+        self.shape_similarity = shape_similarity
+        self.objects: dict[int, SessionObject] = {}
+
+    def __len__(self) -> int:
+        return len(self.objects)
+
+    def neighbourhood(self, point: np.ndarray) -> list[int]:
+        """Object ids around `point`, sorted (so that everything downstream is deterministic)."""
+        return sorted(self.tree.neighbourhood(point))
+
+    def update(self, m: Measurement) -> Association:
+        candidates = self.neighbourhood(m.center_world)
+        best, best_distance, best_similarity = None, np.inf, np.nan
+        for object_id in candidates:
+            obj = self.objects[object_id]
+            distance = float(np.linalg.norm(obj.center_world - m.center_world))
+            similarity = float(cosine_similarity(m.shape_code, obj.shape_code))
+            if distance < self.distance_m and similarity > self.shape_similarity and distance < best_distance:
+                best, best_distance, best_similarity = obj, distance, similarity
+        if best is None:
+            object_id = len(self.objects)
+            self.objects[object_id] = SessionObject(
+                object_id, m.shape_code, m.center_world, m.mean_occupancy, m.frame_index, m.frame_index,
+                instance_ids=(m.instance_id,))
+            self.tree.insert(object_id, m.center_world)
+            return Association(object_id, True, False, float("nan"), float("nan"), len(candidates))
+        best.n_measurements += 1
+        best.last_frame = m.frame_index
+        if m.instance_id not in best.instance_ids:
+            best.instance_ids += (m.instance_id,)
+        replaced = m.mean_occupancy > best.mean_occupancy
+        if replaced:
+            best.shape_code, best.center_world, best.mean_occupancy = m.shape_code, m.center_world, m.mean_occupancy
+            self.tree.insert(best.object_id, m.center_world)
+        return Association(best.object_id, False, replaced, best_distance, best_similarity, len(candidates))

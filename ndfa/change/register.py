@@ -1,0 +1,155 @@
+"""Sequence registration (paper Sec. IV-B): the rigid transform from the target's world frame to the
+source's, from object centers matched by shape.
+
+`rigid_transform` is the SVD (Kabsch) least-squares fit without scale; `ransac_registration`
+draws minimal samples of three candidate pairs and keeps the transform that the most pairs
+agree with (within `inlier_m`), refitted on its inliers.
+
+What we chose, and why. The paper pairs each target object with its most shape-similar source
+object and runs RANSAC once N = 6 pairs have accumulated. With mugs only, the most similar code
+is often another mug of similar size, so few of those pairs are right. Here every target object
+contributes up to `candidates` pairs (its most similar source objects above the shape
+threshold), and a sample is only fitted when its pairwise distances agree in both sessions
+(a rigid motion keeps them); one right pair per object is then enough, and the layout of the
+objects, not their codes alone, picks the transform. RANSAC starts once N
+target objects have candidates and reruns whenever a new target object arrives, until a
+transform has `min_inliers` inliers; after that the transform is kept (decisions already made
+used it, and re-estimating would let two halves of the run disagree about the frame).
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Registration:
+    """T_rel maps target-world points into the source world: p_source = R p_target + t."""
+
+    transform: np.ndarray       # (4, 4)
+    inliers: np.ndarray         # (K,) indices into the candidate pairs that agree with it
+    residual_m: float           # RMS distance of the inlier pairs after the fit
+    n_pairs: int                # candidate pairs it was chosen from
+    n_hypotheses: int           # minimal samples fitted
+
+
+def rigid_transform(target: np.ndarray, source: np.ndarray) -> np.ndarray:
+    """(4, 4) rotation + translation minimising sum |R target_i + t - source_i|^2 (Kabsch, no scale).
+
+    target, source: (M, 3) corresponding points, M >= 3 and not all on one line.
+    """
+    target_mean, source_mean = target.mean(axis=0), source.mean(axis=0)
+    covariance = (source - source_mean).T @ (target - target_mean)
+    u, _, vt = np.linalg.svd(covariance)
+    sign = np.sign(np.linalg.det(u @ vt)) or 1.0  # a reflection is not a motion: flip the last axis
+    rotation = u @ np.diag([1.0, 1.0, sign]) @ vt
+    transform = np.eye(4)
+    transform[:3, :3] = rotation
+    transform[:3, 3] = source_mean - rotation @ target_mean
+    return transform
+
+
+def apply(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
+    return points @ transform[:3, :3].T + transform[:3, 3]
+
+
+def ransac_registration(
+    pairs: list[tuple[int, int]],
+    target_centers: dict[int, np.ndarray],
+    source_centers: dict[int, np.ndarray],
+    inlier_m: float,
+    max_hypotheses: int = 2000,
+    seed: int = 0,
+) -> Registration | None:
+    """The best-supported T_rel from candidate (target id, source id) pairs, or None if none fits.
+
+    Hypotheses: three target objects and one candidate source object for each, such that the
+    three pairwise center distances agree in both sessions within 2 * inlier_m (a rigid motion
+    keeps them). Triples of target objects are tried exhaustively when few, else drawn at random;
+    for each, all agreeing candidate triples are fitted, up to `max_hypotheses` fits in all.
+    A pair counts as an inlier when its transformed target center is within `inlier_m` of its
+    source center; each target object and each source object counts once (its closest pair).
+    The winner (most inliers, then lowest residual) is refitted on its inliers.
+    """
+    if len(pairs) < 3:
+        return None
+    t = np.array([target_centers[a] for a, _ in pairs], dtype=np.float64)
+    s = np.array([source_centers[b] for _, b in pairs], dtype=np.float64)
+    target_ids = np.array([a for a, _ in pairs])
+    source_ids = np.array([b for _, b in pairs])
+    by_target = {a: np.flatnonzero(target_ids == a) for a in np.unique(target_ids)}
+    if len(by_target) < 3:
+        return None
+    rng = np.random.default_rng(seed)
+    tolerance = 2 * inlier_m
+    best: tuple[int, float, np.ndarray] | None = None
+    tried = 0
+    for triple in _target_triples(sorted(by_target), max_hypotheses, rng):
+        for sample in _agreeing_samples(triple, by_target, t, s, source_ids, tolerance):
+            tried += 1
+            transform = rigid_transform(t[sample], s[sample])
+            inliers = _unique_inliers(transform, t, s, target_ids, source_ids, inlier_m)
+            score = (len(inliers), -_rms(transform, t[inliers], s[inliers]))
+            if best is None or score > best[:2]:
+                best = (score[0], score[1], inliers)
+            if tried >= max_hypotheses:
+                break
+        if tried >= max_hypotheses:
+            break
+    if best is None or best[0] < 3:
+        return None
+    inliers = best[2]
+    transform = rigid_transform(t[inliers], s[inliers])
+    inliers = _unique_inliers(transform, t, s, target_ids, source_ids, inlier_m)
+    if len(inliers) >= 3:
+        transform = rigid_transform(t[inliers], s[inliers])
+    return Registration(transform, inliers, _rms(transform, t[inliers], s[inliers]), len(pairs), tried)
+
+
+def _target_triples(target_ids: list[int], max_triples: int, rng: np.random.Generator):
+    n = len(target_ids)
+    if n * (n - 1) * (n - 2) // 6 <= max_triples:
+        yield from itertools.combinations(target_ids, 3)
+        return
+    for _ in range(max_triples):
+        yield tuple(rng.choice(target_ids, size=3, replace=False))
+
+
+def _agreeing_samples(triple, by_target, t, s, source_ids, tolerance):
+    """Pair-index triples (one candidate pair per target object of `triple`) whose center
+    distances agree between the sessions, and whose source objects are distinct."""
+    a, b, c = (by_target[i] for i in triple)
+    ta, tb, tc = t[a[0]], t[b[0]], t[c[0]]
+    d_ab, d_ac, d_bc = np.linalg.norm(ta - tb), np.linalg.norm(ta - tc), np.linalg.norm(tb - tc)
+    ab = np.abs(np.linalg.norm(s[a][:, None] - s[b][None], axis=-1) - d_ab) <= tolerance
+    for i, j in zip(*np.nonzero(ab)):
+        ok = (np.abs(np.linalg.norm(s[c] - s[a[i]], axis=1) - d_ac) <= tolerance) & \
+             (np.abs(np.linalg.norm(s[c] - s[b[j]], axis=1) - d_bc) <= tolerance)
+        for k in np.flatnonzero(ok):
+            sample = [a[i], b[j], c[k]]
+            if len(set(source_ids[sample])) == 3:
+                yield sample
+
+
+def _unique_inliers(transform, t, s, target_ids, source_ids, inlier_m) -> np.ndarray:
+    """Inlier pair indices, at most one per target object and per source object (the closest)."""
+    error = np.linalg.norm(apply(transform, t) - s, axis=1)
+    used_target, used_source, chosen = set(), set(), []
+    for index in np.argsort(error, kind="stable"):
+        if error[index] > inlier_m:
+            break
+        if target_ids[index] in used_target or source_ids[index] in used_source:
+            continue
+        used_target.add(target_ids[index])
+        used_source.add(source_ids[index])
+        chosen.append(index)
+    return np.array(sorted(chosen), dtype=int)
+
+
+def _rms(transform: np.ndarray, t: np.ndarray, s: np.ndarray) -> float:
+    if len(t) == 0:
+        return float("nan")
+    return float(np.sqrt(np.mean(np.sum((apply(transform, t) - s) ** 2, axis=1))))

@@ -1,0 +1,146 @@
+"""Events -> a Rerun recording (.rrd) to open with `rerun out.rrd` or `ndfa view out.rrd`.
+
+Entity layout (world frame: the source's; `target/` is placed into it with T_rel once registered):
+
+    {session}/camera                  pose (Transform3D) + Pinhole; depth, color, instances under it
+    {session}/observations/{id}       the cleaned partial cloud and the NDF reconstruction of mask id
+    {session}/objects/{object}        object center (labelled) and its shape code (BarChart)
+    {session}/tree                    occupied tree cells (l x l boxes) and the interval nodes
+    registration                      inlier center pairs, as lines, and the T_rel text
+    graphs/{object}                   target object's edges (green: consistent, red: not) and its
+                                      shape match's source edges (blue), in the source world
+    decisions                         changes as labelled points, and a text log of every decision
+    timings/{stage}                   ms per frame
+
+Timelines: `frame` (the frame index within its session) and `step` (frames processed so far,
+source then target), so that each decision sits at the target frame that made it.
+
+The file is streamed to `PATH.partial` and renamed to PATH on close: an interrupted run leaves a
+readable `.partial` with everything up to the interruption, and never a half-written PATH.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+
+from ndfa.events import (AssociationEvent, DecisionEvent, FrameEvent, GraphEvent, ObservationEvent,
+                         RegistrationEvent, TimingEvent, TreeEvent)
+
+KIND_COLORS = {"added": (230, 60, 60), "removed": (240, 160, 30), "moved": (170, 80, 230), "unchanged": (90, 200, 90)}
+SESSION_COLORS = {"source": (80, 140, 255), "target": (255, 120, 80)}
+TABLE_HEIGHT_BOX_M = 0.3  # height of the tree-cell boxes drawn around the objects
+
+
+class RerunSink:
+    def __init__(self, path: Path, log_images: bool = True) -> None:
+        self.path = Path(path)
+        self.partial = self.path.with_name(self.path.name + ".partial")
+        self.log_images = log_images
+        self.rec = rr.RecordingStream("ndfa_detect")
+        self.rec.save(str(self.partial))
+        self.rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        self._step = 0
+        self._observation_entities: dict[str, set[str]] = {"source": set(), "target": set()}
+
+    def log(self, event) -> None:
+        handler = getattr(self, "_" + type(event).__name__, None)
+        if handler is not None:
+            handler(event)
+
+    def close(self) -> None:
+        self.rec.flush()
+        self.rec.disconnect()
+        os.replace(self.partial, self.path)
+
+    # -- one method per event type --------------------------------------------------------------
+
+    def _FrameEvent(self, e: FrameEvent) -> None:
+        self._step += 1
+        self.rec.set_time("step", sequence=self._step)
+        self.rec.set_time("frame", sequence=e.frame.index)
+        f, root = e.frame, f"{e.session}/camera"
+        height, width = f.image_size
+        self.rec.log(root, rr.Transform3D(translation=f.pose_world_camera[:3, 3], mat3x3=f.pose_world_camera[:3, :3]))
+        self.rec.log(root, rr.Pinhole(image_from_camera=f.K, resolution=[width, height], camera_xyz=rr.ViewCoordinates.RDF,
+                                      image_plane_distance=0.3))
+        if self.log_images:
+            self.rec.log(f"{root}/depth", rr.DepthImage(f.depth, meter=1.0))
+            if f.rgb is not None:
+                self.rec.log(f"{root}/color", rr.Image(f.rgb))
+            if f.instances is not None:
+                self.rec.log(f"{root}/instances", rr.SegmentationImage(f.instances))
+        # Last frame's observations vanish unless seen again.
+        for entity in self._observation_entities[e.session]:
+            self.rec.log(entity, rr.Clear(recursive=True))
+        self._observation_entities[e.session] = set()
+
+    def _ObservationEvent(self, e: ObservationEvent) -> None:
+        if e.skipped is not None or e.points_world is None:
+            return
+        entity = f"{e.session}/observations/{e.instance_id}"
+        self._observation_entities[e.session].add(entity)
+        self.rec.log(f"{entity}/partial", rr.Points3D(e.points_world, colors=SESSION_COLORS[e.session], radii=0.002))
+        if e.reconstruction_world is not None and len(e.reconstruction_world):
+            self.rec.log(f"{entity}/reconstruction", rr.Points3D(e.reconstruction_world, colors=(120, 220, 120), radii=0.003))
+        self.rec.log(f"{entity}/center", rr.Points3D([e.center_world], radii=0.006, labels=[f"mask {e.instance_id}"]))
+
+    def _AssociationEvent(self, e: AssociationEvent) -> None:
+        entity = f"{e.session}/objects/{e.object_id}"
+        self.rec.log(entity, rr.Points3D([e.center_world], colors=SESSION_COLORS[e.session], radii=0.01,
+                                         labels=[f"{e.session[0]}{e.object_id}"]))
+        self.rec.log(f"{entity}/shape_code", rr.BarChart(np.asarray(e.shape_code, dtype=np.float32)))
+
+    def _TreeEvent(self, e: TreeEvent) -> None:
+        if not e.cells:
+            return
+        mins, sizes, labels = [], [], []
+        for i, j, ids in e.cells:
+            (x0, x1), (y0, y1) = e.x_intervals[i], e.y_intervals[j]
+            mins.append([x0, y0, 0.0])
+            sizes.append([x1 - x0, y1 - y0, TABLE_HEIGHT_BOX_M])
+            labels.append(f"{len(ids)} objects")
+        # Cells sit on the floor of the session's frame; their height is only for display.
+        self.rec.log(f"{e.session}/tree/cells", rr.Boxes3D(mins=mins, sizes=sizes, labels=labels,
+                                                           colors=SESSION_COLORS[e.session]))
+
+    def _RegistrationEvent(self, e: RegistrationEvent) -> None:
+        if e.accepted and e.transform is not None:
+            # The target's world frame, placed into the source's: everything under target/ aligns.
+            self.rec.log("target", rr.Transform3D(translation=e.transform[:3, 3], mat3x3=e.transform[:3, :3]))
+            registered = e.target_centers @ e.transform[:3, :3].T + e.transform[:3, 3]
+            self.rec.log("registration/inliers", rr.LineStrips3D(np.stack([registered, e.source_centers], axis=1),
+                                                                 colors=(255, 255, 0)))
+        self.rec.log("registration/log", rr.TextLog(
+            f"frame {e.frame_index}: {'accepted' if e.accepted else 'rejected'}, {len(e.inlier_pairs)} inliers of "
+            f"{e.n_pairs} shape pairs, residual {e.residual_m * 1e3:.1f} mm", level="INFO" if e.accepted else "DEBUG"))
+
+    def _GraphEvent(self, e: GraphEvent) -> None:
+        entity = f"graphs/{e.target_id}"
+        if len(e.target_edges_source):
+            colors = [(60, 200, 60) if ok else (220, 60, 60) for *_, ok in e.edges]
+            self.rec.log(f"{entity}/target_edges", rr.Arrows3D(origins=np.repeat([e.center_source], len(e.edges), axis=0),
+                                                               vectors=e.target_edges_source, colors=colors))
+            self.rec.log(f"{entity}/source_edges", rr.Arrows3D(origins=np.repeat([e.partner_center_source], len(e.edges), axis=0),
+                                                               vectors=e.source_edges, colors=(80, 140, 255)))
+        else:
+            self.rec.log(f"{entity}/target_edges", rr.Clear(recursive=False))
+            self.rec.log(f"{entity}/source_edges", rr.Clear(recursive=False))
+        self.rec.log(f"{entity}/match", rr.LineStrips3D([[e.center_source, e.partner_center_source]],
+                                                        colors=(60, 200, 60) if e.consistent else (220, 60, 60)))
+
+    def _DecisionEvent(self, e: DecisionEvent) -> None:
+        position = e.center_source if e.center_source is not None else e.center_world
+        if e.kind != "unchanged":
+            self.rec.log(f"decisions/{e.session}_{e.object_id}", rr.Points3D(
+                [position], colors=KIND_COLORS[e.kind], radii=0.03, labels=[f"{e.kind} {e.session[0]}{e.object_id}"]))
+        self.rec.log("decisions/log", rr.TextLog(
+            f"frame {e.frame_index}: {e.session} object {e.object_id} {e.kind}: {e.reason}",
+            level="INFO" if e.kind == "unchanged" else "WARN"))
+
+    def _TimingEvent(self, e: TimingEvent) -> None:
+        for stage, ms in e.stage_ms.items():
+            self.rec.log(f"timings/{e.session}/{stage}", rr.Scalars(ms))

@@ -1,0 +1,132 @@
+"""Events -> Polars tables, written as parquet into one directory, for analysis in notebooks.
+
+    observations.parquet   one row per instance per frame: pixels, points, skip reason, code, center
+    associations.parquet   the intra-session update of each measurement
+    objects.parquet        each session's objects at the end (last state of every object)
+    tree_nodes.parquet     each session's interval-tree nodes at the end
+    registration.parquet   every registration attempt, with T_rel when found
+    graphs.parquet         every local-graph comparison, one row per compared edge pair (or one
+                           row without an edge for a fallback comparison)
+    decisions.parquet      every change test and the final removals/moves, with the ground-truth
+                           change of the object's mask when the recordings carry it
+    timings.parquet        ms per stage per frame
+
+Vectors are list columns (center_x/y/z as plain columns for easy filtering). The tables are
+rewritten every `flush_every` frames and at the end (each atomically), so an interrupted run
+leaves tables that are complete up to a recent frame.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+
+from ndfa.events import (AssociationEvent, DecisionEvent, FrameEvent, GraphEvent, ObservationEvent,
+                         RegistrationEvent, TimingEvent, TreeEvent)
+
+TABLES = ("observations", "associations", "objects", "tree_nodes", "registration", "graphs", "decisions", "timings")
+
+
+class TableSink:
+    def __init__(self, directory: Path, truth: dict[int, str] | None = None, flush_every: int = 100) -> None:
+        """truth: mask instance id -> ground-truth change ("unchanged", "added", ...), when known."""
+        self.directory = Path(directory)
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self.truth = truth
+        self.flush_every = flush_every
+        self.rows: dict[str, list[dict]] = {name: [] for name in TABLES if name not in ("objects", "tree_nodes")}
+        self._objects: dict[tuple[str, int], dict] = {}
+        self._trees: dict[str, TreeEvent] = {}
+        self._frames = 0
+
+    def log(self, event) -> None:
+        if isinstance(event, FrameEvent):
+            self._frames += 1
+            if self._frames % self.flush_every == 0:
+                self.flush()
+        elif isinstance(event, ObservationEvent):
+            self.rows["observations"].append({
+                "session": event.session, "frame": event.frame_index, "instance_id": event.instance_id,
+                "n_pixels": event.n_pixels, "n_points": event.n_points, "skipped": event.skipped,
+                "touches_border": event.touches_border, "mean_occupancy": event.mean_occupancy,
+                **_xyz("center", event.center_world), "shape_code": _list(event.shape_code),
+                "truth": self._truth(event.instance_id)})
+        elif isinstance(event, AssociationEvent):
+            row = {"session": event.session, "frame": event.frame_index, "instance_id": event.instance_id,
+                   "object_id": event.object_id, "created": event.created, "replaced": event.replaced,
+                   "distance_m": event.distance_m, "similarity": event.similarity, "candidates": event.candidates}
+            self.rows["associations"].append(row)
+            key = (event.session, event.object_id)
+            previous = self._objects.get(key, {"first_frame": event.frame_index, "measurements": 0, "instance_ids": []})
+            self._objects[key] = {
+                "session": event.session, "object_id": event.object_id, "first_frame": previous["first_frame"],
+                "last_frame": event.frame_index, "measurements": previous["measurements"] + 1,
+                "instance_ids": sorted(set(previous["instance_ids"]) | {event.instance_id}),
+                **_xyz("center", event.center_world), "shape_code": _list(event.shape_code),
+                "truth": self._truth(event.instance_id if not previous["instance_ids"] else previous["instance_ids"][0])}
+        elif isinstance(event, TreeEvent):
+            self._trees[event.session] = event
+        elif isinstance(event, RegistrationEvent):
+            self.rows["registration"].append({
+                "frame": event.frame_index, "accepted": event.accepted, "pairs": event.n_pairs,
+                "hypotheses": event.n_hypotheses, "inliers": len(event.inlier_pairs), "residual_m": event.residual_m,
+                "inlier_pairs": [list(p) for p in event.inlier_pairs],
+                "transform": _list(event.transform.ravel()) if event.transform is not None else None})
+        elif isinstance(event, GraphEvent):
+            base = {"frame": event.frame_index, "target_id": event.target_id, "source_id": event.source_id,
+                    "similarity": event.similarity, "mode": event.mode, "consistent": event.consistent,
+                    "distance_m": event.distance_m}
+            if not event.edges:
+                self.rows["graphs"].append(base | {"target_neighbour": None, "source_neighbour": None,
+                                                    "edge_error_m": None, "edge_consistent": None})
+            for target_neighbour, source_neighbour, error, ok in event.edges:
+                self.rows["graphs"].append(base | {"target_neighbour": target_neighbour, "source_neighbour": source_neighbour,
+                                                    "edge_error_m": error, "edge_consistent": ok})
+        elif isinstance(event, DecisionEvent):
+            position = event.center_source if event.center_source is not None else event.center_world
+            self.rows["decisions"].append({
+                "frame": event.frame_index, "session": event.session, "object_id": event.object_id, "kind": event.kind,
+                "reason": event.reason, **_xyz("position", position), "partner_id": event.partner_id,
+                "instance_ids": list(event.instance_ids),
+                "truth": self._truth(event.instance_ids[0]) if event.instance_ids else None})
+        elif isinstance(event, TimingEvent):
+            self.rows["timings"].append({"session": event.session, "frame": event.frame_index} | event.stage_ms)
+
+    def tables(self) -> dict[str, pl.DataFrame]:
+        tables = {name: pl.DataFrame(rows, infer_schema_length=None) for name, rows in self.rows.items()}
+        tables["objects"] = pl.DataFrame(list(self._objects.values()), infer_schema_length=None)
+        nodes = []
+        for session, tree in self._trees.items():
+            for axis, intervals in (("x", tree.x_intervals), ("y", tree.y_intervals)):
+                for index, (low, high) in enumerate(intervals):
+                    objects = sorted({o for i, j, ids in tree.cells if (i if axis == "x" else j) == index for o in ids})
+                    nodes.append({"session": session, "axis": axis, "node": index, "low": float(low),
+                                  "high": float(high), "objects": objects})
+        tables["tree_nodes"] = pl.DataFrame(nodes, infer_schema_length=None)
+        return tables
+
+    def flush(self) -> None:
+        for name, table in self.tables().items():
+            temporary = self.directory / f".{name}.parquet.tmp"
+            table.write_parquet(temporary)
+            temporary.replace(self.directory / f"{name}.parquet")
+
+    def close(self) -> None:
+        self.flush()
+
+    def _truth(self, instance_id: int) -> str | None:
+        if self.truth is None:
+            return None
+        return self.truth.get(int(instance_id), "unchanged")
+
+
+def _xyz(prefix: str, vector: np.ndarray | None) -> dict:
+    if vector is None:
+        return {f"{prefix}_x": None, f"{prefix}_y": None, f"{prefix}_z": None}
+    return {f"{prefix}_{axis}": float(v) for axis, v in zip("xyz", vector)}
+
+
+def _list(vector: np.ndarray | None) -> list[float] | None:
+    return None if vector is None else [float(v) for v in np.ravel(vector)]

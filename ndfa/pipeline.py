@@ -1,0 +1,75 @@
+"""The whole method for one frame at a time: observations -> NDF codes -> change detector -> events.
+
+    pipeline = ChangeDetectionPipeline(PipelineConfig())
+    for frame in source frames:  events = pipeline.process("source", frame)
+    for frame in target frames:  events = pipeline.process("target", frame)
+    events = pipeline.finish()
+
+Reading recordings and logging events happen outside (`ndfa.detect`, `ndfa.log`).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ndfa.change.associate import Measurement
+from ndfa.change.detector import ChangeDetector, DetectorConfig
+from ndfa.events import FrameEvent, ObservationEvent, TimingEvent
+from ndfa.geometry import transform_points
+from ndfa.ndf.encoder import EncoderConfig, NDFEncoder
+from ndfa.perception.observations import ObservationConfig, extract_observations
+from ndfa.recording import Frame
+
+SESSIONS = ("source", "target")
+
+
+@dataclass(frozen=True)
+class PipelineConfig:
+    observation: ObservationConfig = field(default_factory=ObservationConfig)
+    encoder: EncoderConfig = field(default_factory=EncoderConfig)
+    detector: DetectorConfig = field(default_factory=DetectorConfig)
+    weights: Path | None = None      # NDF checkpoint; None: the shipped one
+
+
+class ChangeDetectionPipeline:
+    def __init__(self, config: PipelineConfig = PipelineConfig(), encoder: NDFEncoder | None = None) -> None:
+        self.config = config
+        self.encoder = encoder or NDFEncoder(config.weights, config.encoder)
+        self.detector = ChangeDetector(config.detector)
+
+    def process(self, session: str, frame: Frame) -> list:
+        if session not in SESSIONS:
+            raise ValueError(f"session must be one of {SESSIONS}, got {session!r}")
+        started = time.perf_counter()
+        events: list = [FrameEvent(session, frame)]
+
+        observations, skipped = extract_observations(frame, self.config.observation)
+        perceived = time.perf_counter()
+        codes = self.encoder.encode_batch([o.points_camera for o in observations],
+                                          [frame.pose_world_camera] * len(observations))
+        encoded = time.perf_counter()
+
+        add = self.detector.add_source if session == "source" else self.detector.add_target
+        for skip in skipped:
+            events.append(ObservationEvent(session, frame.index, skip.instance_id, skip.n_pixels, skip.reason))
+        for observation, code in zip(observations, codes):
+            events.append(ObservationEvent(
+                session, frame.index, observation.instance_id, observation.n_pixels, None,
+                len(observation.points_camera), observation.touches_border,
+                transform_points(frame.pose_world_camera, observation.points_camera),
+                code.shape_code, code.center_world, code.mean_occupancy, code.reconstruction))
+            events += add(Measurement(frame.index, observation.instance_id, code.shape_code, code.center_world,
+                                      code.mean_occupancy))
+        detected = time.perf_counter()
+        events.append(TimingEvent(session, frame.index, {
+            "perception": (perceived - started) * 1e3,
+            "encoding": (encoded - perceived) * 1e3,
+            "detection": (detected - encoded) * 1e3,
+        }))
+        return events
+
+    def finish(self) -> list:
+        """Removals and moves, after the target's last frame."""
+        return self.detector.finish()
