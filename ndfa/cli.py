@@ -157,6 +157,8 @@ def train_command(
     lr: float = typer.Option(6e-4, help="Adam learning rate (paper: 6e-4)."),
     lr_final: float = typer.Option(1.0, help="Cosine-decay lr to this fraction of --lr by the last step (1: constant)."),
     init: Optional[Path] = typer.Option(None, help="Start from these weights (e.g. the shipped ones) with a fresh optimizer."),
+    proxy_weight: float = typer.Option(0.0, help="Weight of the proxy identity loss on the shape codes (0: off)."),
+    gram_eps: float = typer.Option(1e-10, help="Epsilon of the batch norm on the Gram invariants (see NDFConfig)."),
     seed: int = typer.Option(0, help="Seed of the views, the batches and the initial weights."),
     threads: int = typer.Option(2, help="Torch CPU threads (1 when another job shares the cores)."),
     resume: bool = typer.Option(False, help="Continue from OUT/checkpoint.pt."),
@@ -167,7 +169,7 @@ def train_command(
     from ndfa.ndf.model import NDFConfig
     from ndfa.ndf.train import TrainConfig, train
 
-    config = TrainConfig(model=NDFConfig(code_head=code_head), train_mugs=train_mugs, views_per_mug=views_per_mug,
+    config = TrainConfig(model=NDFConfig(code_head=code_head, gram_eps=gram_eps), proxy_weight=proxy_weight, train_mugs=train_mugs, views_per_mug=views_per_mug,
                          batch_mugs=batch_mugs, steps=steps, alpha=alpha, shape_margin=shape_margin, lr=lr, seed=seed,
                          threads=threads, lr_final_fraction=lr_final, init_weights=str(init) if init else None)
     recorder = None

@@ -51,7 +51,7 @@ class ChangeDetectionPipeline:
                                           [frame.pose_world_camera] * len(observations))
         encoded = time.perf_counter()
 
-        add = self.detector.add_source if session == "source" else self.detector.add_target
+        measurements = []
         for skip in skipped:
             events.append(ObservationEvent(session, frame.index, skip.instance_id, skip.n_pixels, skip.reason))
         for observation, code in zip(observations, codes):
@@ -60,8 +60,10 @@ class ChangeDetectionPipeline:
                 len(observation.points_camera), observation.touches_border,
                 transform_points(frame.pose_world_camera, observation.points_camera),
                 code.shape_code, code.center_world, code.mean_occupancy, code.reconstruction))
-            events += add(Measurement(frame.index, observation.instance_id, code.shape_code, code.center_world,
-                                      code.mean_occupancy))
+            measurements.append(Measurement(frame.index, observation.instance_id, code.shape_code, code.center_world,
+                                            code.mean_occupancy))
+        add = self.detector.add_source if session == "source" else self.detector.add_target
+        events += add(measurements)
         detected = time.perf_counter()
         events.append(TimingEvent(session, frame.index, {
             "perception": (perceived - started) * 1e3,

@@ -2,11 +2,11 @@
 
 Read it top to bottom as the paper's loop:
 
-    source pass   add_source(m)  for every measurement: intra-session update of the source map
-    target pass   add_target(m)  for every measurement:
-                    1. intra-session update of the target map -> object O
+    source pass   add_source(frame measurements): intra-session update of the source map
+    target pass   add_target(frame measurements):
+                    1. intra-session update of the target map with each -> the objects O touched
                     2. until T_rel exists: collect shape-matched pairs, try the registration
-                    3. if O is not marked changed: query the source neighbourhood at T_rel t_O,
+                    3. for each O not marked changed: query the source neighbourhood at T_rel t_O,
                        compare local graphs with each shape match; no neighbourhood, no match or
                        no consistent graph -> O is changed (reported now, never retracted)
     end           finish()       removed = source objects observed but never matched;
@@ -74,24 +74,32 @@ class ChangeDetector:
 
     # -- the two passes -------------------------------------------------------------------------
 
-    def add_source(self, m: Measurement) -> list:
-        return self._update("source", self.source, m)
+    def add_source(self, frame: list[Measurement]) -> list:
+        """One source frame's measurements: intra-session update of the source map."""
+        return [e for m in frame for e in self._update("source", self.source, m)]
 
-    def add_target(self, m: Measurement) -> list:
-        events = self._update("target", self.target, m)
-        object_id, created = events[0].object_id, events[0].created
-        self._last_frame = m.frame_index
-        if self.registration is None:
-            events += self._try_registration(m.frame_index)
-            if self.registration is not None:  # decide everything seen so far, in order
-                for earlier in sorted(self.target.objects):
-                    events += self._test(earlier, m.frame_index)
+    def add_target(self, frame: list[Measurement]) -> list:
+        """One target frame's measurements: update the target map with all of them first (mugs seen
+        together are each other's neighbours), then register if needed, then test the objects the
+        frame touched."""
+        events = [e for m in frame for e in self._update("target", self.target, m)]
+        if not frame:
             return events
-        if created:
-            events += self._try_registration(m.frame_index)  # more objects: maybe a better-supported T_rel
-            for pending in sorted(self.pending - {object_id}):  # a new neighbour may make them decidable
-                events += self._test(pending, m.frame_index)
-        return events + self._test(object_id, m.frame_index)
+        frame_index = frame[0].frame_index
+        self._last_frame = frame_index
+        touched = sorted({e.object_id for e in events if isinstance(e, AssociationEvent)})
+        created = any(e.created for e in events if isinstance(e, AssociationEvent))
+        if self.registration is None:
+            events += self._try_registration(frame_index)
+            if self.registration is None:
+                return events
+            touched = sorted(self.target.objects)  # just registered: decide everything seen so far
+        elif created:
+            events += self._try_registration(frame_index)  # more objects: maybe a better-supported T_rel
+            touched = sorted(set(touched) | self.pending)   # a new neighbour may make them decidable
+        for object_id in touched:
+            events += self._test(object_id, frame_index)
+        return events
 
     def finish(self) -> list[DecisionEvent]:
         """Objects still alone get the lone-object test; then removals and moves."""

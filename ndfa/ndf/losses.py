@@ -40,3 +40,14 @@ def center_loss(predicted_offset: torch.Tensor, true_offset: torch.Tensor, scale
     """Mean Euclidean error of the predicted center offsets [B, 3] (metres), measured in the
     model's scaled units (`scale` x metres) so that it weighs like the occupancy loss."""
     return torch.linalg.vector_norm((predicted_offset - true_offset) * scale, dim=1).mean()
+
+
+def proxy_identity_loss(codes: torch.Tensor, labels: torch.Tensor, proxies: torch.Tensor, scale: float) -> torch.Tensor:
+    """Cosine-softmax identity loss (NormFace-style): each training mug has a learned proxy code,
+    and a view's code must be more cosine-similar to its own mug's proxy than to any other's.
+
+    Unlike a batch-hard triplet over 16 mugs, every step compares each code with all training
+    mugs, which spreads the codes of different mugs over the whole sphere. codes [M, D], labels
+    [M] (indices into proxies), proxies [P, D]."""
+    logits = scale * F.normalize(codes, dim=1) @ F.normalize(proxies, dim=1).T
+    return F.cross_entropy(logits, labels)

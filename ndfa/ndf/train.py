@@ -27,7 +27,7 @@ import torch
 
 from ndfa.errors import ModelError
 from ndfa.ndf.data import ViewConfig, generate_views, load_dataset, sample_batch, write_dataset
-from ndfa.ndf.losses import batch_hard_shape_loss, center_loss, occupancy_loss
+from ndfa.ndf.losses import batch_hard_shape_loss, center_loss, occupancy_loss, proxy_identity_loss
 from ndfa.ndf.metrics import center_errors_mm, pair_separation, retrieval_top1
 from ndfa.ndf.model import NDFConfig, NDFModel, load_model, save_checkpoint
 
@@ -49,6 +49,8 @@ class TrainConfig:
     alpha: float = 0.01              # the paper's shape-loss weight
     shape_margin: float | None = None  # None: the paper's loss; a number: hinge with this margin
     center_weight: float = 1.0
+    proxy_weight: float = 0.0        # weight of the proxy (cosine-softmax) identity loss on the codes; 0: off
+    proxy_scale: float = 16.0        # its logit scale: cosine similarities are multiplied by this
     shape_threshold: float = 0.9     # delta_s, for the validation figures
     seed: int = 0
     threads: int = 2
@@ -76,10 +78,12 @@ def train(
     model = NDFModel(config.model)
     if config.init_weights is not None:
         initial, _ = load_model(config.init_weights)
-        if initial.config != config.model:
-            raise ModelError(f"{config.init_weights}: its model config differs from this run's ({initial.config})")
-        model.load_state_dict(initial.state_dict())
-    optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+        try:
+            model.load_state_dict(initial.state_dict())
+        except RuntimeError as exc:
+            raise ModelError(f"{config.init_weights}: its weights do not fit this run's model ({exc})") from exc
+    proxies = _proxies(config, model)
+    optimizer = torch.optim.Adam(_parameters(model, proxies), lr=config.lr)
     rng = np.random.default_rng([config.seed, 100])
     step, rows, elapsed = 0, [], 0.0
     checkpoint_path = out_dir / "checkpoint.pt"
@@ -88,7 +92,9 @@ def train(
         # A run may be resumed longer or with other threads; anything else must match.
         if _without(extra.get("train_config", {}), RESUMABLE) != _without(_jsonable(config), RESUMABLE):
             raise ModelError(f"{checkpoint_path}: was trained with other settings; use another --out or no --resume")
-        optimizer = torch.optim.Adam(model.parameters(), lr=config.lr)
+        if proxies is not None:
+            proxies = torch.nn.Parameter(extra["proxies"])
+        optimizer = torch.optim.Adam(_parameters(model, proxies), lr=config.lr)
         optimizer.load_state_dict(extra["optimizer"])
         rng.bit_generator.state = json.loads(extra["rng_state"])
         torch.set_rng_state(extra["torch_rng_state"])
@@ -102,8 +108,10 @@ def train(
         for group in optimizer.param_groups:
             group["lr"] = learning_rate(config, step)
         batch = sample_batch(train_set, config.batch_mugs, rng)
-        terms = _loss_terms(model, batch, config)
+        terms = _loss_terms(model, batch, config, proxies)
         loss = terms["occ"] + config.alpha * terms["shape"] + config.center_weight * terms["center"]
+        if proxies is not None:
+            loss = loss + config.proxy_weight * terms["proxy"]
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
@@ -126,7 +134,7 @@ def train(
                 "step": step,
                 "metrics": json.dumps(rows),
                 "elapsed_s": row["elapsed_s"],
-            })
+            } | ({"proxies": proxies.detach()} if proxies is not None else {}))
             metrics = pl.DataFrame(rows)
             _write_parquet(metrics, out_dir / "metrics.parquet")
             if on_epoch is not None:
@@ -142,7 +150,20 @@ def learning_rate(config: TrainConfig, step: int) -> float:
     return float(config.lr * fraction)
 
 
-def _loss_terms(model: NDFModel, batch: dict[str, torch.Tensor], config: TrainConfig) -> dict[str, torch.Tensor]:
+def _proxies(config: TrainConfig, model: NDFModel) -> torch.nn.Parameter | None:
+    """One learned proxy code per training mug, for the proxy loss (training only, not shipped)."""
+    if config.proxy_weight <= 0:
+        return None
+    code_dim = model.config.code_dim if model.config.code_head == "gram" else model.config.latent
+    return torch.nn.Parameter(torch.randn(config.train_mugs, code_dim))
+
+
+def _parameters(model: NDFModel, proxies: torch.nn.Parameter | None) -> list[torch.nn.Parameter]:
+    return list(model.parameters()) + ([proxies] if proxies is not None else [])
+
+
+def _loss_terms(model: NDFModel, batch: dict[str, torch.Tensor], config: TrainConfig,
+                proxies: torch.nn.Parameter | None = None) -> dict[str, torch.Tensor]:
     # The model sees each view centred on its points' mean (the translation part of SE(3)
     # equivariance); queries and the true center are expressed relative to the same mean.
     centroid = batch["points"].mean(dim=1, keepdim=True)
@@ -151,7 +172,8 @@ def _loss_terms(model: NDFModel, batch: dict[str, torch.Tensor], config: TrainCo
         "occ": occupancy_loss(out["occupancy_logits"], batch["occupancy"]),
         "shape": batch_hard_shape_loss(out["shape_code"], batch["mug_index"], config.shape_margin),
         "center": center_loss(out["center_offset"], batch["center"] - centroid[:, 0], config.model.input_scale),
-    }
+    } | ({"proxy": proxy_identity_loss(out["shape_code"], batch["mug_index"], proxies, config.proxy_scale)}
+         if proxies is not None else {})
 
 
 @torch.inference_mode()

@@ -1,0 +1,206 @@
+"""The change detector's parts (tree, association, registration, graphs) and the whole detector on
+hand-made measurements whose answer is known."""
+
+import time
+
+import numpy as np
+import pytest
+
+from ndfa.change.associate import Measurement, SessionMap, cosine_similarity
+from ndfa.change.detector import ChangeDetector, DetectorConfig
+from ndfa.change.graph import compare_graphs, local_graph
+from ndfa.change.register import apply, ransac_registration, rigid_transform
+from ndfa.change.tree import IntervalTree, ObjectTree
+from ndfa.geometry import axis_angle_to_matrix, make_pose, rotation_z
+
+
+# -- tree ---------------------------------------------------------------------------------------
+
+def test_interval_nodes_are_created_at_the_first_coordinate_and_never_overlap():
+    tree = IntervalTree(1.0)
+    first = tree.find_or_create(0.0)
+    assert (first.low, first.high) == (-0.5, 0.5)
+    assert tree.find_or_create(0.3) is first  # inside: same node
+    right = tree.find_or_create(0.8)          # would be [0.3, 1.3]: clipped at the first node
+    assert right.low > first.high and right.high == pytest.approx(1.3)
+    left = tree.find_or_create(-2.0)
+    assert [n.low for n in tree.nodes] == sorted(n.low for n in tree.nodes)
+    assert tree.find(-2.4) is left and tree.find(-1.2) is None and tree.find(5.0) is None
+
+
+def test_neighbourhood_is_the_objects_in_both_nodes():
+    tree = ObjectTree(1.2)
+    tree.insert(0, np.array([0.0, 0.0, 0.8]))
+    tree.insert(1, np.array([0.4, 0.3, 0.8]))    # same x node, same y node
+    tree.insert(2, np.array([0.3, 3.0, 0.8]))    # same x node, other y node
+    tree.insert(3, np.array([3.0, 0.2, 0.8]))    # other x node, same y node
+    assert tree.neighbourhood(np.array([0.1, 0.1, 0.0])) == {0, 1}
+    assert tree.neighbourhood(np.array([3.0, 3.0, 0.0])) == set()  # x and y nodes exist, share nothing
+    assert tree.neighbourhood(np.array([10.0, 0.0, 0.0])) == set()  # no node at all
+    tree.insert(1, np.array([3.1, 0.1, 0.8]))    # moving an object moves it between nodes
+    assert tree.neighbourhood(np.array([0.1, 0.1, 0.0])) == {0}
+    assert tree.neighbourhood(np.array([3.0, 0.0, 0.0])) == {1, 3}
+
+
+def test_tree_queries_match_brute_force_with_10000_objects():
+    rng = np.random.default_rng(0)
+    centers = rng.uniform(-60, 60, size=(10_000, 3))
+    tree = ObjectTree(1.2)
+    started = time.perf_counter()
+    for i, c in enumerate(centers):
+        tree.insert(i, c)
+    queries = rng.uniform(-60, 60, size=(200, 3))
+    for q in queries:
+        found = tree.neighbourhood(q)
+        node_x, node_y = tree.x.find(q[0]), tree.y.find(q[1])
+        expected = set() if node_x is None or node_y is None else {
+            i for i, c in enumerate(centers) if node_x.low <= c[0] <= node_x.high and node_y.low <= c[1] <= node_y.high}
+        assert found == expected
+    assert time.perf_counter() - started < 30  # a sanity bound, not a benchmark (see `ndfa bench detect`)
+
+
+# -- association --------------------------------------------------------------------------------
+
+def _code(seed: int, dim: int = 16) -> np.ndarray:
+    return np.random.default_rng(seed).normal(size=dim)
+
+
+def test_association_merges_near_similar_measurements_and_keeps_the_most_confident():
+    session = SessionMap(tree_length_m=1.2, distance_m=0.05, shape_similarity=0.9)
+    a = session.update(Measurement(0, 7, _code(1), np.array([1.0, 1.0, 0.8]), 0.6))
+    b = session.update(Measurement(1, 7, _code(1) + 0.01, np.array([1.02, 1.0, 0.8]), 0.9))  # better: replaces
+    c = session.update(Measurement(2, 7, _code(1), np.array([1.03, 1.0, 0.8]), 0.5))          # worse: kept out
+    d = session.update(Measurement(3, 8, _code(2), np.array([1.01, 1.0, 0.8]), 0.9))          # other shape: new
+    e = session.update(Measurement(4, 9, _code(1), np.array([1.2, 1.0, 0.8]), 0.9))           # too far: new
+    assert a.created and not b.created and b.replaced and not c.replaced
+    assert not d.created is False and d.object_id != a.object_id and e.created
+    obj = session.objects[a.object_id]
+    assert obj.n_measurements == 3 and obj.mean_occupancy == 0.9
+    np.testing.assert_allclose(obj.center_world, [1.02, 1.0, 0.8])
+    assert len(session) == 3
+
+
+# -- registration -------------------------------------------------------------------------------
+
+def _random_motion(rng) -> np.ndarray:
+    return make_pose(rotation_z(rng.uniform(-np.pi, np.pi)) @ axis_angle_to_matrix(np.r_[rng.uniform(-0.05, 0.05, 2), 0]),
+                     rng.uniform(-1, 1, 3))
+
+
+def test_rigid_transform_recovers_a_motion_exactly():
+    rng = np.random.default_rng(1)
+    motion = _random_motion(rng)
+    points = rng.normal(size=(6, 3))
+    np.testing.assert_allclose(rigid_transform(points, apply(motion, points)), motion, atol=1e-12)
+
+
+def test_ransac_finds_the_transform_among_wrong_pairs():
+    rng = np.random.default_rng(2)
+    motion = _random_motion(rng)  # target world -> source world
+    target = {i: np.r_[rng.uniform(-3, 3, 2), 0.8] for i in range(10)}
+    source = {i: apply(motion, target[i][None])[0] + rng.normal(scale=0.005, size=3) for i in range(10)}
+    # each target object offered its true partner and two wrong ones
+    pairs = [(i, j) for i in range(10) for j in {i, (i + 3) % 10, (i + 5) % 10}]
+    result = ransac_registration(pairs, target, source, inlier_m=0.05)
+    assert result is not None and len(result.inliers) == 10
+    assert all(pairs[k][0] == pairs[k][1] for k in result.inliers)
+    np.testing.assert_allclose(result.transform, motion, atol=0.02)
+    assert result.residual_m < 0.015
+
+
+def test_ransac_gives_up_without_a_consistent_layout():
+    rng = np.random.default_rng(3)
+    target = {i: rng.uniform(-3, 3, 3) for i in range(3)}
+    source = {i: rng.uniform(-3, 3, 3) for i in range(3)}
+    assert ransac_registration([(0, 0), (1, 1), (2, 2)], target, source, inlier_m=0.05) is None
+
+
+# -- graphs -------------------------------------------------------------------------------------
+
+def _objects(centers: dict[int, list[float]], codes: dict[int, np.ndarray]):
+    from ndfa.change.associate import SessionObject
+
+    return {i: SessionObject(i, codes[i], np.array(c, dtype=float), 0.5, 0, 0) for i, c in centers.items()}
+
+
+def test_graphs_agree_when_one_neighbour_kept_its_place_and_not_after_a_switch():
+    codes = {0: _code(10), 1: _code(11), 2: _code(12)}
+    source = _objects({0: [0, 0, 0], 1: [0.3, 0, 0], 2: [0, 0.4, 0]}, codes)
+    # target: object 0 unchanged, 1 still there, 2 moved away
+    target = _objects({0: [0, 0, 0], 1: [0.3, 0.01, 0], 2: [0.5, 0.5, 0]}, codes)
+    same = compare_graphs(local_graph(0, [0, 1, 2], target), local_graph(0, [0, 1, 2], source), 1.0, 0.0,
+                          np.eye(3), 0.9, 0.03, 0.05)
+    assert same.mode == "graph" and same.consistent
+    assert [p.consistent for p in same.edge_pairs] == [True, False]
+    # target: objects 0 and 1 switched places; seen from 0, its edge to 1 now points the other way
+    switched = _objects({0: [0.3, 0, 0], 1: [0, 0, 0], 2: [0, 0.4, 0]}, codes)
+    result = compare_graphs(local_graph(0, [0, 1, 2], switched), local_graph(0, [0, 1, 2], source), 1.0, 0.3,
+                            np.eye(3), 0.9, 0.03, 0.05)
+    assert not result.consistent
+
+
+def test_lone_objects_fall_back_to_distance():
+    codes = {0: _code(10)}
+    lone = local_graph(0, [0], _objects({0: [0, 0, 0]}, codes))
+    near = compare_graphs(lone, lone, 1.0, 0.02, np.eye(3), 0.9, 0.03, 0.05)
+    far = compare_graphs(lone, lone, 1.0, 0.2, np.eye(3), 0.9, 0.03, 0.05)
+    assert near.mode == "fallback" and near.consistent and not far.consistent
+
+
+# -- the whole detector -------------------------------------------------------------------------
+
+def _scene(rng):
+    """Three tables of four mugs, each mug with its own shape code; positions in metres."""
+    tables = [np.array([0.0, 0.0]), np.array([3.0, 0.0]), np.array([0.0, 3.0])]
+    mugs = {}
+    for t, center in enumerate(tables):
+        for k, offset in enumerate([(-0.2, -0.15), (0.2, -0.1), (-0.15, 0.2), (0.25, 0.2)]):
+            mugs[4 * t + k + 1] = np.r_[center + offset, 0.8]
+    return mugs
+
+
+def _table_of(center: np.ndarray) -> int:
+    return 1 if center[0] > 1.5 else 2 if center[1] > 1.5 else 0
+
+
+def test_detector_finds_added_removed_and_switched_mugs_under_an_unknown_offset():
+    rng = np.random.default_rng(4)
+    source = _scene(rng)
+    codes = {i: _code(100 + i) for i in range(1, 30)}
+    target = dict(source)
+    target.pop(2)                                          # removed
+    target[20] = np.r_[3.0, -0.3, 0.8]                     # added on table 2
+    target[5], target[6] = source[6], source[5]            # switched on table 2
+    offset = _random_motion(rng)                           # the target's world frame is off by this
+    detector = ChangeDetector(DetectorConfig(registration_pairs=4))
+
+    def frames(layout, pose, frame0):
+        """Each table in turn, seen in three frames, all its mugs in each, with centre noise."""
+        for table in range(3):
+            for view in range(3):
+                frame = frame0 + 3 * table + view
+                yield [Measurement(frame, i, codes[i] + rng.normal(scale=0.02, size=len(codes[i])),
+                                   apply(pose, (center + rng.normal(scale=0.004, size=3))[None])[0],
+                                   float(rng.uniform(0.5, 1)))
+                       for i, center in layout.items() if _table_of(center) == table]
+
+    for frame in frames(source, np.eye(4), 0):
+        detector.add_source(frame)
+    events = []
+    for frame in frames(target, offset, 10):
+        events += detector.add_target(frame)
+    events += detector.finish()
+    assert detector.registration is not None
+    np.testing.assert_allclose(detector.registration.transform, np.linalg.inv(offset), atol=0.02)
+    reported = {}
+    for e in events:
+        if getattr(e, "kind", "unchanged") != "unchanged":
+            reported.setdefault(e.kind, set()).update(e.instance_ids[:1])
+    assert reported.get("added", set()) | reported.get("moved", set()) == {20, 5, 6}
+    assert reported.get("removed", set()) == {2}
+    assert len(detector.source) == 12 and len(detector.target) == 12
+
+
+def test_cosine_similarity_of_one_against_many():
+    a = np.array([1.0, 0.0])
+    np.testing.assert_allclose(cosine_similarity(a, np.array([[2.0, 0.0], [0.0, 1.0], [-1.0, 0.0]])), [1, 0, -1])

@@ -1,0 +1,131 @@
+"""`ndfa detect` end to end on the shipped sample recordings: the summary, the Rerun file and the
+tables; and how it treats bad input and interruptions."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+import pytest
+from typer.testing import CliRunner
+
+from ndfa.cli import app
+from ndfa.detect import run_detection
+from ndfa.errors import RecordingError
+from ndfa.log.table_sink import TABLES, TableSink
+from ndfa.recording import Frame, RecordingWriter
+
+SAMPLE = Path(__file__).parents[1] / "recordings" / "sample"
+SUMMARY_KEYS = {"tp", "fp", "fn", "precision", "recall", "frames", "objects_source", "objects_target", "fps",
+                "stage_ms", "changes"}
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """One full `ndfa detect` of the sample pair through the CLI, with every output."""
+    out = tmp_path_factory.mktemp("detect")
+    result = CliRunner().invoke(app, ["detect", str(SAMPLE / "source.mcap"), str(SAMPLE / "target.mcap"),
+                                      "--log", str(out / "run.rrd"), "--tables", str(out / "tables"),
+                                      "--json", str(out / "summary.json")])
+    assert result.exit_code == 0, result.output
+    return out, result.output
+
+
+def test_summary_scores_the_sample_against_its_ground_truth(run):
+    out, output = run
+    summary = json.loads((out / "summary.json").read_text())
+    assert SUMMARY_KEYS <= summary.keys()
+    assert summary["tp"] + summary["fn"] == 5  # the sample scene has five changed mugs
+    assert summary["objects_source"] >= 10 and summary["objects_target"] >= 10
+    assert set(summary["stage_ms"]) == {"perception", "encoding", "detection"}
+    # the added mug (instance 14) stands where the source had nothing: it must be found
+    assert any(14 in change["instance_ids"] for change in summary["changes"])
+    assert summary["precision"] >= 0.75
+    assert "TP" in output and "changes" in output
+
+
+def test_rerun_file_holds_every_intermediate(run):
+    from rerun.chunk import RrdReader
+
+    out, _ = run
+    entities = {str(chunk.entity_path) for chunk in RrdReader(out / "run.rrd").store().stream().to_chunks()}
+    expected = ["/source/camera", "/source/camera/depth", "/source/camera/color", "/source/camera/instances",
+                "/target/camera", "/source/tree/cells", "/target/tree/cells", "/registration/inliers",
+                "/registration/log", "/decisions/log", "/timings/target/encoding"]
+    assert set(expected) <= entities
+    for prefix in ("/source/observations/", "/target/objects/", "/graphs/"):
+        assert any(e.startswith(prefix) for e in entities), prefix
+    assert any(e.endswith("/shape_code") for e in entities) and any(e.endswith("/reconstruction") for e in entities)
+    assert not (out / "run.rrd.partial").exists()
+
+
+def test_tables_agree_with_the_summary(run):
+    out, _ = run
+    tables = {name: pl.read_parquet(out / "tables" / f"{name}.parquet") for name in TABLES}
+    summary = json.loads((out / "summary.json").read_text())
+    assert set(tables["observations"]["session"]) == {"source", "target"}
+    assert tables["objects"].filter(pl.col("session") == "source").height == summary["objects_source"]
+    assert tables["registration"]["accepted"].any()
+    changes = tables["decisions"].filter(pl.col("kind") != "unchanged")
+    # a moved object is first decided "added" and then "moved": one reported change
+    reported = changes.unique(["session", "object_id"], keep="last")
+    assert reported.height == len(summary["changes"])
+    assert set(tables["decisions"]["truth"].drop_nulls()) <= {"unchanged", "added", "removed", "moved", "switched"}
+    assert tables["timings"].filter(pl.col("session") == "target").height == summary["frames_target"]
+
+
+def _frames(count: int, with_objects: bool) -> list[Frame]:
+    K = np.array([[300.0, 0, 80], [0, 300.0, 60], [0, 0, 1]])
+    frames = []
+    for i in range(count):
+        depth = np.full((120, 160), 2.0, dtype=np.float32)
+        instances = np.zeros((120, 160), dtype=np.uint16)
+        if with_objects:
+            instances[50:70, 70:90] = 1
+            depth[50:70, 70:90] = 1.0
+        frames.append(Frame(i, 1.0 + i, None, depth, K, np.eye(4), instances))
+    return frames
+
+
+def _write(path: Path, frames: list[Frame]) -> Path:
+    with RecordingWriter(path, {"source": "test", "session": path.stem}) as writer:
+        for frame in frames:
+            writer.write_frame(frame)
+    return path
+
+
+def test_a_target_without_objects_reports_nothing_and_says_why(tmp_path):
+    source = _write(tmp_path / "source.mcap", _frames(3, with_objects=True))
+    target = _write(tmp_path / "target.mcap", _frames(3, with_objects=False))
+    result = run_detection(source, target)
+    assert result.changes == [] and result.objects["target"] == 0
+    assert any("no objects" in note for note in result.notes)
+
+
+def test_missing_or_maskless_recordings_are_named(tmp_path):
+    source = _write(tmp_path / "source.mcap", _frames(2, with_objects=True))
+    with pytest.raises(RecordingError, match="nothing.mcap"):
+        run_detection(source, tmp_path / "nothing.mcap")
+    maskless = [Frame(f.index, f.timestamp, None, f.depth, f.K, f.pose_world_camera, None) for f in _frames(2, True)]
+    target = _write(tmp_path / "maskless.mcap", maskless)
+    with pytest.raises(RecordingError, match="maskless.mcap.*instance masks"):
+        run_detection(source, target)
+
+
+def test_an_interrupted_run_leaves_readable_outputs(tmp_path):
+    from rerun.chunk import RrdReader
+
+    from ndfa.log.rerun_sink import RerunSink
+
+    sinks = [RerunSink(tmp_path / "run.rrd"), TableSink(tmp_path / "tables", flush_every=5)]
+
+    def stop_after_ten(session: str, done: int, total: int) -> None:
+        if done == 10:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_detection(SAMPLE / "source.mcap", SAMPLE / "target.mcap", sinks=sinks, on_frame=stop_after_ten)
+    chunks = list(RrdReader(tmp_path / "run.rrd").store().stream().to_chunks())
+    assert any(str(c.entity_path) == "/source/camera/depth" for c in chunks)
+    observations = pl.read_parquet(tmp_path / "tables" / "observations.parquet")
+    assert observations["frame"].max() == 9 and set(observations["session"]) == {"source"}
