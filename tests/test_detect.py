@@ -129,3 +129,19 @@ def test_an_interrupted_run_leaves_readable_outputs(tmp_path):
     assert any(str(c.entity_path) == "/source/camera/depth" for c in chunks)
     observations = pl.read_parquet(tmp_path / "tables" / "observations.parquet")
     assert observations["frame"].max() == 9 and set(observations["session"]) == {"source"}
+
+
+def test_the_analysis_notebook_runs_on_the_tables(run, monkeypatch):
+    import nbformat
+    from nbclient import NotebookClient
+
+    out, _ = run
+    notebook_path = Path(__file__).parents[1] / "notebooks" / "detection.ipynb"
+    notebook = nbformat.read(notebook_path, as_version=4)
+    monkeypatch.setenv("NDFA_TABLES", str(out / "tables"))
+    NotebookClient(notebook, timeout=120, kernel_name="python3",
+                   resources={"metadata": {"path": str(notebook_path.parent)}}).execute()
+    outputs = [o for cell in notebook.cells if cell.cell_type == "code" for o in cell.outputs]
+    assert not [o for o in outputs if o.output_type == "error"]
+    text = "".join(o.get("text", "") + str(o.get("data", {}).get("text/plain", "")) for o in outputs)
+    assert "target object" in text  # the step-by-step section found a decision to follow
