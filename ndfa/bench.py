@@ -97,3 +97,58 @@ def bench_ndf(weights: Path | None = None, repeats: int = 30, points: int = 1000
     result.update(points=points, threads=threads, grid=encoder.config.grid_resolution,
                   machine=f"{platform.processor() or platform.machine()}, {_cpu_count()} cores")
     return result
+
+
+def bench_detect(source: Path, target: Path, threads: int = 2, frame_step: int = 1) -> dict:
+    """The whole target pass without sinks: frames per second, and ms per frame of each stage
+    (reading = the pass's wall time minus the stages)."""
+    import torch
+
+    from ndfa.detect import run_detection
+
+    torch.set_num_threads(threads)
+    result = run_detection(source, target, sinks=[], frame_step=frame_step)
+    per_frame_ms = result.seconds["target"] / result.frames["target"] * 1e3
+    stages = dict(result.stage_ms)
+    stages["reading"] = max(per_frame_ms - sum(stages.values()), 0.0)
+    return {"fps": result.target_fps, "frames": result.frames["target"], "total_ms": per_frame_ms,
+            "stage_ms": stages, "threads": threads,
+            "machine": f"{platform.processor() or platform.machine()}, {_cpu_count()} cores"}
+
+
+def bench_detection_scaling(sizes: tuple[int, ...] = (40, 100, 1000, 10_000), frames: int = 50,
+                            per_frame: int = 4, seed: int = 0) -> list[dict]:
+    """ms per target frame of the detection step alone (tree, association, graphs) with maps of
+    `size` objects: mugs in groups of four on tables 1.5 m apart, the target revisiting them."""
+    from ndfa.change.associate import Measurement
+    from ndfa.change.detector import ChangeDetector
+
+    rows = []
+    for size in sizes:
+        rng = np.random.default_rng(seed)
+        tables = int(np.ceil(size / 4))
+        side = int(np.ceil(np.sqrt(tables)))
+        centers = np.array([[1.5 * (t % side), 1.5 * (t // side), 0.8] for t in range(tables)])
+        offsets = np.array([[-0.2, -0.15, 0], [0.2, -0.1, 0], [-0.15, 0.2, 0], [0.25, 0.2, 0]])
+        positions = (centers[:, None] + offsets[None]).reshape(-1, 3)[:size]
+        codes = rng.normal(size=(size, 32))
+        detector = ChangeDetector()
+        for start in range(0, size, per_frame):
+            detector.add_source([Measurement(start, i, codes[i], positions[i], 0.5) for i in range(start, min(start + per_frame, size))])
+
+        def frame(index, start):
+            ids = range(start, min(start + per_frame, size))
+            return [Measurement(index, i, codes[i] + rng.normal(scale=0.02, size=32),
+                                positions[i] + rng.normal(scale=0.004, size=3), 0.6) for i in ids]
+
+        for k in range(4):  # enough objects to register
+            detector.add_target(frame(k, 4 * k % size))
+        times = []
+        for k in range(frames):
+            measurements = frame(100 + k, int(rng.integers(0, max(size // per_frame, 1))) * per_frame)
+            start = time.perf_counter()
+            detector.add_target(measurements)
+            times.append(time.perf_counter() - start)
+        rows.append({"objects": size, "ms_per_frame": float(np.median(times) * 1e3),
+                     "registered": detector.registration is not None})
+    return rows

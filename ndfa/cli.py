@@ -343,12 +343,34 @@ def view_command(rrd: Path = typer.Argument(..., help="A Rerun recording written
 
 @app.command("bench")
 def bench_command(
-    what: str = typer.Argument("sim", help="What to time: sim (render, noise, write, read) or ndf (encoding)."),
+    what: str = typer.Argument("sim", help="What to time: sim (render, noise, write, read), ndf (encoding) "
+                                            "or detect (the target pass, and the detection step's growth)."),
     frames: int = typer.Option(60, help="sim: frames to time."),
     weights: Optional[Path] = typer.Option(None, help="ndf: checkpoint to time (default: the shipped weights)."),
+    source: Path = typer.Option(Path("recordings/sample/source.mcap"), help="detect: source recording."),
+    target: Path = typer.Option(Path("recordings/sample/target.mcap"), help="detect: target recording."),
 ) -> None:
     """Time each stage of a pipeline and print milliseconds."""
-    from ndfa.bench import bench_ndf, bench_sim
+    from ndfa.bench import bench_detect, bench_detection_scaling, bench_ndf, bench_sim
+
+    if what == "detect":
+        result = bench_detect(source, target)
+        table = Table(title=f"ndfa bench detect: target pass of {target} (no sinks)",
+                      caption=f"{result['frames']} frames, {result['fps']:.1f} frames/s, {result['threads']} threads; "
+                              f"{result['machine']}")
+        table.add_column("stage")
+        table.add_column("ms / frame", justify="right")
+        for stage, ms in result["stage_ms"].items():
+            table.add_row(stage, f"{ms:.1f}")
+        table.add_row("total", f"{result['total_ms']:.1f}")
+        console.print(table)
+        scaling = Table(title="detection step (tree, association, graphs) vs map size")
+        scaling.add_column("objects", justify="right")
+        scaling.add_column("median ms / frame (4 measurements)", justify="right")
+        for row in bench_detection_scaling():
+            scaling.add_row(f"{row['objects']:,}", f"{row['ms_per_frame']:.2f}")
+        console.print(scaling)
+        return
 
     if what == "sim":
         result = bench_sim(frames=frames)
@@ -364,7 +386,7 @@ def bench_command(
                               f"{result['threads']} threads; {result['machine']}")
         rows = [("one observation", "one_ms"), ("batch of 8", "batch8_ms"), ("batch of 8, per observation", "batch8_ms_per_observation")]
     else:
-        raise typer.BadParameter(f"unknown benchmark {what!r}; expected sim or ndf")
+        raise typer.BadParameter(f"unknown benchmark {what!r}; expected sim, ndf or detect")
     table.add_column("stage")
     table.add_column("median ms", justify="right")
     for label, key in rows:

@@ -111,9 +111,10 @@ def run_detection(
                 if on_frame is not None:
                     on_frame(session, count, total)
             frames[session], seconds[session] = count, time.perf_counter() - started
-        final = pipeline.finish()
-        for event in final:
+        final_events = pipeline.finish()
+        for event in final_events:
             _emit(event, sinks)
+        final = [e for e in final_events if isinstance(e, DecisionEvent) and e.kind != "unchanged"]
         # A moved object was first reported as added: the final decision replaces it.
         moved = {e.object_id for e in final if e.kind == "moved"}
         changes = [c for c in changes if not (c.session == "target" and c.object_id in moved)] + final

@@ -55,11 +55,17 @@ class ChangeDetectionPipeline:
         for skip in skipped:
             events.append(ObservationEvent(session, frame.index, skip.instance_id, skip.n_pixels, skip.reason))
         for observation, code in zip(observations, codes):
+            # No grid point above v0: the NDF does not see a whole object in this view (on the
+            # `paper` scene such views gave centers several cm off); logged, not used.
+            empty = code.mean_occupancy <= 0.0
             events.append(ObservationEvent(
-                session, frame.index, observation.instance_id, observation.n_pixels, None,
+                session, frame.index, observation.instance_id, observation.n_pixels,
+                "empty reconstruction" if empty else None,
                 len(observation.points_camera), observation.touches_border,
                 transform_points(frame.pose_world_camera, observation.points_camera),
                 code.shape_code, code.center_world, code.mean_occupancy, code.reconstruction))
+            if empty:
+                continue
             measurements.append(Measurement(frame.index, observation.instance_id, code.shape_code, code.center_world,
                                             code.mean_occupancy))
         add = self.detector.add_source if session == "source" else self.detector.add_target

@@ -5,6 +5,13 @@ code is more cosine-similar than `shape_similarity` (the closest such object whe
 qualify); the object then takes the measurement's code and center if the measurement's mean
 occupancy (the NDF's confidence in its reconstruction) is higher than the object's. Otherwise the
 measurement starts a new object.
+
+One addition to the paper's rule: a measurement within `same_place_m` of an object joins it
+whatever the codes say. Two objects of the category cannot stand that close (two mugs' centers
+are at least a mug's diameter apart), and within one session nothing changes, so it can only
+be the same object; the codes of odd views (grazing, mostly hidden) can be far from the
+object's. On the `paper` scene this rule turned 43 source objects of 36 mugs into 36 (the
+duplicates, never matched in the target, were all reported "removed").
 """
 
 from __future__ import annotations
@@ -64,10 +71,11 @@ def cosine_similarity(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 class SessionMap:
     """The objects of one session and their spatial object tree."""
 
-    def __init__(self, tree_length_m: float, distance_m: float, shape_similarity: float) -> None:
+    def __init__(self, tree_length_m: float, distance_m: float, shape_similarity: float, same_place_m: float = 0.0) -> None:
         self.tree = ObjectTree(tree_length_m)
         self.distance_m = distance_m
         self.shape_similarity = shape_similarity
+        self.same_place_m = same_place_m
         self.objects: dict[int, SessionObject] = {}
 
     def __len__(self) -> int:
@@ -84,7 +92,8 @@ class SessionMap:
             obj = self.objects[object_id]
             distance = float(np.linalg.norm(obj.center_world - m.center_world))
             similarity = float(cosine_similarity(m.shape_code, obj.shape_code))
-            if distance < self.distance_m and similarity > self.shape_similarity and distance < best_distance:
+            same = distance < self.same_place_m or (distance < self.distance_m and similarity > self.shape_similarity)
+            if same and distance < best_distance:
                 best, best_distance, best_similarity = obj, distance, similarity
         if best is None:
             object_id = len(self.objects)

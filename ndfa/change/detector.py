@@ -39,11 +39,16 @@ class DetectorConfig:
         duplicates were reported removed. 0.05 m gave one object per mug and stays below the
         ~9 cm between the centers of two mugs standing side by side.
     shape_similarity: delta_s, the smallest cosine similarity of two codes of the same object.
+    same_place_m: within one session, a measurement this close to an object is that object
+        whatever the shape codes say (see `ndfa.change.associate`); 0 turns it off.
     edge_m: delta_e, the largest difference of two corresponding graph edges.
     registration_pairs: N, target objects with a shape match before the first registration.
     registration_candidates: shape matches per target object offered to RANSAC (the paper: 1).
     registration_inlier_m: a registered pair within this distance supports a transform.
     registration_min_inliers: inliers needed to accept T_rel; until then decisions wait.
+    registration_enough_inliers: T_rel is re-estimated as target objects arrive until it has this
+        many inliers (each re-estimate compares every target object's code with every source
+        object's, which large maps should not pay at every new object).
     fallback_distance_m: a lone object is unchanged when its registered center is this close to
         its shape match (the paper compares "spatial proximity" without a value).
     """
@@ -51,11 +56,13 @@ class DetectorConfig:
     tree_length_m: float = 1.2
     association_distance_m: float = 0.05
     shape_similarity: float = 0.9
+    same_place_m: float = 0.03
     edge_m: float = 0.03
     registration_pairs: int = 6
     registration_candidates: int = 10
     registration_inlier_m: float = 0.05
     registration_min_inliers: int = 4
+    registration_enough_inliers: int = 12
     fallback_distance_m: float = 0.05
     seed: int = 0
 
@@ -63,13 +70,16 @@ class DetectorConfig:
 class ChangeDetector:
     def __init__(self, config: DetectorConfig = DetectorConfig()) -> None:
         self.config = config
-        self.source = SessionMap(config.tree_length_m, config.association_distance_m, config.shape_similarity)
-        self.target = SessionMap(config.tree_length_m, config.association_distance_m, config.shape_similarity)
+        maps = (config.tree_length_m, config.association_distance_m, config.shape_similarity, config.same_place_m)
+        self.source = SessionMap(*maps)
+        self.target = SessionMap(*maps)
         self.registration: Registration | None = None
         self.changed: dict[int, DecisionEvent] = {}  # target object -> the decision that marked it
         self.observed: set[int] = set()   # source objects that took part in shape matching
         self.matched: dict[int, int] = {}  # source object -> the target object first found consistent with it
         self.pending: set[int] = set()    # target objects alone in their neighbourhood so far
+        self._registered = np.zeros((0, 3))  # target object centers in the source world (cache)
+        self._registered_for: np.ndarray | None = None
         self._last_frame = -1
 
     # -- the two passes -------------------------------------------------------------------------
@@ -95,7 +105,8 @@ class ChangeDetector:
                 return events
             touched = sorted(self.target.objects)  # just registered: decide everything seen so far
         elif created:
-            events += self._try_registration(frame_index)  # more objects: maybe a better-supported T_rel
+            if len(self.registration.inliers) < self.config.registration_enough_inliers:
+                events += self._try_registration(frame_index)  # more objects: maybe a better-supported T_rel
             touched = sorted(set(touched) | self.pending)   # a new neighbour may make them decidable
         for object_id in touched:
             events += self._test(object_id, frame_index)
@@ -141,6 +152,12 @@ class ChangeDetector:
                                          a.distance_m, a.similarity, a.candidates, obj.center_world, obj.shape_code)]
         if a.created or nodes_before != (len(session_map.tree.x), len(session_map.tree.y)):
             events.append(tree_event(session, m.frame_index, session_map))
+        if session == "target" and self._registered_for is not None and (a.created or a.replaced):
+            registered = apply(self._registered_for, obj.center_world[None])
+            if a.created and a.object_id == len(self._registered):
+                self._registered = np.vstack([self._registered, registered])
+            elif not a.created:
+                self._registered[a.object_id] = registered[0]
         return events
 
     def _shape_pairs(self) -> list[tuple[int, int]]:
@@ -182,11 +199,16 @@ class ChangeDetector:
     def _test(self, object_id: int, frame_index: int, final: bool = False) -> list:
         """The change test of target object O (paper Sec. IV-B), unless it is already marked changed.
 
-        Online, the first object seen on a table is alone in its target neighbourhood until its
-        neighbours come into view; comparing it object-wise right away (the paper's rule for
-        lone objects) would judge it on T_rel's absolute accuracy, which drift spoils. So a lone
-        O whose source neighbourhood has company waits ("pending") and is tested again as new
-        target objects appear; at the end (`final`), the object-wise test decides.
+        Online, the neighbours of an object come into view one by one. Two rules keep a decision
+        from being taken on half the evidence (never retracted, a premature "changed" would stay):
+        - a lone O whose source neighbourhood has company waits: the object-wise test would judge
+          it on T_rel's absolute accuracy alone, which drift spoils;
+        - an O whose graph agrees with no shape match waits while its target neighbourhood holds
+          fewer objects than the source's: the neighbour that stayed may not have been seen yet
+          (on the `paper` scene, a mug whose first-seen neighbours had all switched or been
+          added was called changed before its unchanged neighbour came into view).
+        Waiting objects ("pending") are tested again as new target objects appear, and at the end
+        (`final`) the test decides with what there is.
         """
         if object_id in self.changed:
             return []
@@ -204,7 +226,7 @@ class ChangeDetector:
                 f"no shape match among {len(neighbourhood_source)} source objects around it"
             return [self._mark_changed(frame_index, object_id, center_source, reason)]
 
-        target_graph = local_graph(object_id, self.target.neighbourhood(obj.center_world), self.target.objects)
+        target_graph = local_graph(object_id, self._target_neighbourhood(center_source), self.target.objects)
         if len(target_graph.neighbour_ids) == 0 and len(neighbourhood_source) > 1 and not final:
             self.pending.add(object_id)
             return []
@@ -223,7 +245,9 @@ class ChangeDetector:
                 consistent_with = source_id
                 self.matched.setdefault(source_id, object_id)
                 break
-        if consistent_with is None:
+        if consistent_with is None and len(target_graph.neighbour_ids) < len(neighbourhood_source) - 1 and not final:
+            self.pending.add(object_id)
+        elif consistent_with is None:
             events.append(self._mark_changed(frame_index, object_id, center_source,
                                              f"no consistent local graph with {len(matches)} shape matches"))
         else:
@@ -231,6 +255,29 @@ class ChangeDetector:
                                         f"consistent with source object {consistent_with}", obj.center_world,
                                         center_source, consistent_with, obj.instance_ids))
         return events
+
+    def _target_neighbourhood(self, center_source: np.ndarray) -> list[int]:
+        """Target objects whose registered centers fall in the source tree cell of `center_source`.
+
+        The paper takes O's neighbourhood from the target's own tree. But each tree's nodes start
+        where that session first saw an object, and the target's world frame is turned against
+        the source's, so the two cells cover different ground: on the `paper` scene, unchanged
+        mugs were compared with neighbours that the other cell did not hold, and called changed.
+        Cutting both neighbourhoods with the source's cell compares like with like.
+        """
+        node_x = self.source.tree.x.find(float(center_source[0]))
+        node_y = self.source.tree.y.find(float(center_source[1]))
+        if node_x is None or node_y is None:
+            return []
+        transform = self.registration.transform
+        n = len(self.target.objects)  # object ids are 0 .. n-1
+        if self._registered_for is not transform or len(self._registered) != n:
+            centers = np.array([self.target.objects[i].center_world for i in range(n)]).reshape(n, 3)
+            self._registered = apply(transform, centers)
+            self._registered_for = transform
+        x, y = self._registered[:, 0], self._registered[:, 1]
+        inside = (x >= node_x.low) & (x <= node_x.high) & (y >= node_y.low) & (y <= node_y.high)
+        return np.flatnonzero(inside).tolist()
 
     def _mark_changed(self, frame_index: int, object_id: int, center_source: np.ndarray, reason: str) -> DecisionEvent:
         obj = self.target.objects[object_id]

@@ -29,7 +29,11 @@ class ObservationConfig:
 
     min_depth_m, max_depth_m: depth range kept. Beyond ~4 m a mug covers a few hundred pixels
         and the sensor noise (growing with depth squared) is a sizeable fraction of its size.
-    min_pixels: smaller masks are skipped: too little of the shape to encode reliably.
+    min_pixels: smaller masks are skipped: too little of the shape to encode reliably. On the
+        `paper` scene the shipped NDF's centers from masks of <= 300 pixels erred by 13 mm
+        (median; 41 mm p90), from larger ones by 3 mm (8 mm p90), in the horizontal plane.
+    skip_border: skip masks that touch the image border: the object may be cut off, and the
+        center of a cut-off view is pulled toward the part in view (median error 2-3x larger).
     max_points: the cloud is subsampled to this before cleaning (the encoder resamples to its own
         count, 400 for the shipped model), which keeps cleaning at a few ms per object.
     cluster_radius_m: neighbours closer than this belong to one cluster. A 640-px-wide 60 degree
@@ -40,7 +44,8 @@ class ObservationConfig:
 
     min_depth_m: float = 0.1
     max_depth_m: float = 4.0
-    min_pixels: int = 100
+    min_pixels: int = 300
+    skip_border: bool = True
     max_points: int = 1000
     cluster_radius_m: float = 0.02
     min_cluster_fraction: float = 0.5
@@ -89,6 +94,11 @@ def extract_observations(frame: Frame, config: ObservationConfig = ObservationCo
             reason = "no depth in range" if n_pixels == 0 else f"{n_pixels} pixels < min_pixels {config.min_pixels}"
             skipped.append(SkippedObservation(frame.index, int(instance_id), n_pixels, reason))
             continue
+        height, width = ids.shape
+        border = bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, width - 1].any())
+        if border and config.skip_border:
+            skipped.append(SkippedObservation(frame.index, int(instance_id), n_pixels, "touches the image border"))
+            continue
         rng = np.random.default_rng([config.seed, frame.index, int(instance_id)])
         if n_pixels > config.max_points:
             keep = np.sort(rng.choice(n_pixels, size=config.max_points, replace=False))
@@ -100,8 +110,6 @@ def extract_observations(frame: Frame, config: ObservationConfig = ObservationCo
                 frame.index, int(instance_id), n_pixels,
                 f"fragmented: largest cluster holds {len(cluster)} of {len(points)} points"))
             continue
-        height, width = ids.shape
-        border = bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, width - 1].any()) if height else False
         observations.append(Observation(frame.index, int(instance_id), points[cluster], n_pixels, border))
     return observations, skipped
 
