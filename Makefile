@@ -1,15 +1,16 @@
 # The two commands of the README. Both set everything up first (scripts/setup.sh is idempotent).
 VENV ?= .venv
-DEMO_OUT ?= out/paper
+DEMO_OUT ?= out/demo
 
 .PHONY: setup demo test
 setup:
 	bash scripts/setup.sh
 
-# The main job on the shipped default: render the paper's synthetic scene pair and summarise it.
+# The main job on the shipped default: detect the changes between the sample recordings
+# (recordings/sample, synthetic), with every intermediate logged to Rerun and to Polars tables.
 demo: setup
-	$(VENV)/bin/ndfa ingest sim --preset paper --seed 0 --out $(DEMO_OUT)
-	$(VENV)/bin/ndfa info $(DEMO_OUT)/target.mcap
+	$(VENV)/bin/ndfa detect recordings/sample/source.mcap recordings/sample/target.mcap \
+		--log $(DEMO_OUT).rrd --tables $(DEMO_OUT)-tables --json $(DEMO_OUT).json
 
 test: setup
 	$(VENV)/bin/python -m pytest -q
