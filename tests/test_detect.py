@@ -145,3 +145,13 @@ def test_the_analysis_notebook_runs_on_the_tables(run, monkeypatch):
     assert not [o for o in outputs if o.output_type == "error"]
     text = "".join(o.get("text", "") + str(o.get("data", {}).get("text/plain", "")) for o in outputs)
     assert "target object" in text  # the step-by-step section found a decision to follow
+
+
+def test_sessions_from_different_cameras_are_compared_and_noted(tmp_path):
+    source = _write(tmp_path / "source.mcap", _frames(2, with_objects=True))
+    other = [Frame(f.index, f.timestamp, None, f.depth, f.K * [[1.1], [1.1], [1]], f.pose_world_camera, f.instances)
+             for f in _frames(2, with_objects=True)]
+    target = _write(tmp_path / "target.mcap", other)
+    result = run_detection(source, target)
+    assert any("cameras differ" in note for note in result.notes)
+    assert result.frames == {"source": 2, "target": 2}
