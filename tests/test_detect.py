@@ -155,3 +155,15 @@ def test_sessions_from_different_cameras_are_compared_and_noted(tmp_path):
     result = run_detection(source, target)
     assert any("cameras differ" in note for note in result.notes)
     assert result.frames == {"source": 2, "target": 2}
+
+
+def test_cli_errors_name_the_file(tmp_path):
+    import subprocess
+    import sys
+
+    ndfa = Path(sys.executable).with_name("ndfa")
+    for args in (["view", str(tmp_path / "none.rrd")],
+                 ["detect", str(tmp_path / "a.mcap"), str(SAMPLE / "target.mcap")]):
+        result = subprocess.run([str(ndfa), *args], capture_output=True, text=True, timeout=120)
+        assert result.returncode == 2, result.stderr
+        assert str(tmp_path) in result.stderr and "Traceback" not in result.stderr
