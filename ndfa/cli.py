@@ -262,7 +262,7 @@ def detect_command(
     frame_step: int = typer.Option(1, help="Use every N-th frame of both recordings."),
     no_images: bool = typer.Option(False, "--no-images", help="Leave depth/colour/mask images out of the .rrd (smaller)."),
     association_distance: Optional[float] = typer.Option(None, help="delta_d, metres (default 0.05)."),
-    shape_similarity: Optional[float] = typer.Option(None, help="delta_s (default 0.9, the paper's)."),
+    shape_similarity: Optional[float] = typer.Option(None, help="delta_s (default 0.7; the paper: 0.9)."),
     edge_distance: Optional[float] = typer.Option(None, help="delta_e, metres (default 0.03, the paper's)."),
     tree_length: Optional[float] = typer.Option(None, help="Interval length l of the object trees, metres (default 1.2)."),
 ) -> None:
