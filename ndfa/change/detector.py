@@ -190,7 +190,8 @@ class ChangeDetector:
     def _try_registration(self, frame_index: int) -> list[RegistrationEvent]:
         """Estimate T_rel; once one is accepted, a new estimate replaces it only with more inliers."""
         pairs = self._shape_pairs()
-        if len({t for t, _ in pairs}) < self.config.registration_pairs:
+        # A small source map may have fewer objects than N: then all of them are enough.
+        if len({t for t, _ in pairs}) < min(self.config.registration_pairs, len(self.source.objects)):
             return []
         result = ransac_registration(
             pairs,
