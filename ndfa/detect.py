@@ -18,7 +18,7 @@ from ndfa.errors import RecordingError
 from ndfa.evaluate import Score, score
 from ndfa.events import DecisionEvent, TimingEvent
 from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
-from ndfa.recording import RecordingReader
+from ndfa.recording import INSTANCES, RecordingReader
 
 
 class Sink(Protocol):
@@ -69,7 +69,7 @@ def open_pair(source: Path, target: Path) -> tuple[RecordingReader, RecordingRea
     for name, path in (("source", source), ("target", target)):
         reader = RecordingReader(path)
         if not reader.has_instances:
-            raise RecordingError(f"{path}: has no instance masks ({'/camera/instances'}); "
+            raise RecordingError(f"{path}: has no instance masks ({INSTANCES}); "
                                  "segmentation without masks is not available yet")
         if len(reader) == 0:
             raise RecordingError(f"{path}: has no frames")

@@ -53,7 +53,7 @@ class SessionObject:
     n_measurements: int = 1
     instance_ids: tuple[int, ...] = ()  # mask ids of the measurements it took, in order of first use
     code_sum: np.ndarray | None = None   # sum of the unit codes of its measurements ("mean" fusion)
-    centers: list = None                 # centers of its measurements ("mean" fusion)
+    centers: list[np.ndarray] | None = None  # centers of its measurements ("mean" fusion)
 
 
 @dataclass(frozen=True)
@@ -122,7 +122,7 @@ class SessionMap:
         if self.fusion == "mean":
             best.code_sum = best.code_sum + _unit(m.shape_code)
             best.centers.append(m.center_world)
-            best.shape_code = best.code_sum / len(best.centers)
+            best.shape_code = best.code_sum / best.n_measurements
             best.center_world = np.median(np.array(best.centers), axis=0)
             best.mean_occupancy = max(best.mean_occupancy, m.mean_occupancy)
             self.tree.insert(best.object_id, best.center_world)
