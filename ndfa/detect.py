@@ -14,9 +14,10 @@ from typing import Callable, Protocol
 
 import numpy as np
 
+from ndfa.change.detector import reported_changes
 from ndfa.errors import RecordingError
-from ndfa.evaluate import Score, score
-from ndfa.events import DecisionEvent, TimingEvent
+from ndfa.evaluate import VISIBLE_PIXELS, Score, score
+from ndfa.events import DecisionEvent, ObservationEvent, TimingEvent
 from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
 from ndfa.recording import INSTANCES, RecordingReader
 
@@ -94,7 +95,8 @@ def run_detection(
     """Source pass, target pass, finish. Sinks are closed at the end, also when interrupted."""
     source_reader, target_reader, notes = open_pair(Path(source), Path(target))
     pipeline = pipeline or ChangeDetectionPipeline(config)
-    frames, seconds, stage_totals, changes = {}, {}, {}, []
+    frames, seconds, stage_totals, decisions, changes = {}, {}, {}, [], []
+    visible: dict[str, set[int]] = {"source": set(), "target": set()}  # for scoring (`ndfa.evaluate`)
     try:
         for session, reader in (("source", source_reader), ("target", target_reader)):
             total = len(range(0, len(reader), frame_step))
@@ -102,8 +104,10 @@ def run_detection(
             for frame in reader.frames(step=frame_step):
                 for event in pipeline.process(session, frame):
                     _emit(event, sinks)
-                    if isinstance(event, DecisionEvent) and event.kind != "unchanged":
-                        changes.append(event)
+                    if isinstance(event, DecisionEvent):
+                        decisions.append(event)
+                    if isinstance(event, ObservationEvent) and event.n_pixels >= VISIBLE_PIXELS:
+                        visible[session].add(event.instance_id)
                     if isinstance(event, TimingEvent) and session == "target":
                         for stage, ms in event.stage_ms.items():
                             stage_totals[stage] = stage_totals.get(stage, 0.0) + ms
@@ -114,10 +118,7 @@ def run_detection(
         final_events = pipeline.finish()
         for event in final_events:
             _emit(event, sinks)
-        final = [e for e in final_events if isinstance(e, DecisionEvent) and e.kind != "unchanged"]
-        # A moved object was first reported as added: the final decision replaces it.
-        moved = {e.object_id for e in final if e.kind == "moved"}
-        changes = [c for c in changes if not (c.session == "target" and c.object_id in moved)] + final
+        changes = reported_changes(decisions + [e for e in final_events if isinstance(e, DecisionEvent)])
     finally:
         for sink in sinks:
             sink.close()
@@ -138,7 +139,7 @@ def run_detection(
     )
     truth = target_reader.ground_truth
     if truth is not None and "objects" in truth:
-        result.score = score([i for c in changes for i in c.reported_instances], truth)
+        result.score = score([i for c in changes for i in c.reported_instances], truth, visible)
     return result
 
 

@@ -8,6 +8,13 @@ mug in both sessions). A ground-truth change is a mug that was added, removed, m
         place, or both counts once)
     FN  changed mugs without a report
     FP  unchanged mugs with at least one report (object level: two reports of one mug are one FP)
+
+Only mugs whose change the recordings can show are scored: an added mug must be visible in the
+target, a removed one in the source, and every other mug in both sessions ("visible": its mask
+holds at least `VISIBLE_PIXELS` pixels with depth in at least one frame). A mug the source
+never saw and the target did is "added" to any detector; a mug removed where the source never
+looked cannot be missed. The others are listed as unscored, not dropped silently: with the
+`random` preset's routes, a table can be seen only from afar in one session.
 """
 
 from __future__ import annotations
@@ -23,6 +30,7 @@ class Score:
     true_positive_ids: tuple[int, ...]
     false_positive_ids: tuple[int, ...]
     false_negative_ids: tuple[int, ...]
+    unscored_ids: tuple[int, ...] = ()  # mugs not visible in a session they would need to be
 
     @property
     def precision(self) -> float:
@@ -33,7 +41,8 @@ class Score:
         return self.tp / (self.tp + self.fn) if self.tp + self.fn else 1.0
 
     def as_dict(self) -> dict:
-        return {"tp": self.tp, "fp": self.fp, "fn": self.fn, "precision": self.precision, "recall": self.recall}
+        return {"tp": self.tp, "fp": self.fp, "fn": self.fn, "precision": self.precision, "recall": self.recall,
+                "unscored": list(self.unscored_ids)}
 
 
 def changed_instances(ground_truth: dict) -> dict[int, str]:
@@ -42,11 +51,32 @@ def changed_instances(ground_truth: dict) -> dict[int, str]:
             if o.get("change") not in (None, "unchanged")}
 
 
-def score(reported_instances: list[int], ground_truth: dict) -> Score:
-    """Score the instance ids of the reported changes (one per report, repeats allowed)."""
+VISIBLE_PIXELS = 300  # = ObservationConfig.min_pixels: smaller views are not encoded
+
+
+def scorable_instances(ground_truth: dict, visible: dict[str, set[int]]) -> set[int]:
+    """Instances whose change (or lack of one) the recordings show; `visible[session]` holds the
+    instance ids seen with at least `VISIBLE_PIXELS` pixels in that session."""
+    needs = {"added": ("target",), "removed": ("source",)}
+    out = set()
+    for o in ground_truth.get("objects", []):
+        instance_id = int(o["instance_id"])
+        if all(instance_id in visible.get(s, ()) for s in needs.get(o.get("change"), ("source", "target"))):
+            out.add(instance_id)
+    return out
+
+
+def score(reported_instances: list[int], ground_truth: dict, visible: dict[str, set[int]] | None = None) -> Score:
+    """Score the instance ids of the reported changes (one per report, repeats allowed).
+
+    `visible`: per session, the instances visible in it; None scores every mug of the ground truth.
+    """
     truth = changed_instances(ground_truth)
-    reported = set(reported_instances)
+    everything = {int(o["instance_id"]) for o in ground_truth.get("objects", [])} | set(reported_instances)
+    scored = everything if visible is None else scorable_instances(ground_truth, visible)
+    reported = set(reported_instances) & scored
+    truth = {i: kind for i, kind in truth.items() if i in scored}
     tp = sorted(reported & truth.keys())
     fp = sorted(reported - truth.keys())
     fn = sorted(truth.keys() - reported)
-    return Score(len(tp), len(fp), len(fn), tuple(tp), tuple(fp), tuple(fn))
+    return Score(len(tp), len(fp), len(fn), tuple(tp), tuple(fp), tuple(fn), tuple(sorted(everything - scored)))

@@ -91,7 +91,7 @@ class GraphEvent:
     target_id: int
     source_id: int
     similarity: float
-    mode: str                                # "graph" or "fallback"
+    mode: str                                # "graph", "in place" or "fallback" (ndfa.change.graph)
     consistent: bool
     distance_m: float
     center_source: np.ndarray                # T_rel t_O, source world

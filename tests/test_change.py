@@ -147,6 +147,21 @@ def test_lone_objects_fall_back_to_distance():
     assert near.mode == "fallback" and near.consistent and not far.consistent
 
 
+def test_an_object_whose_neighbours_all_changed_is_unchanged_when_it_is_in_place():
+    codes = {0: _code(10), 1: _code(11), 2: _code(12)}
+    source = _objects({0: [0, 0, 0], 1: [0.3, 0, 0], 2: [0, 0.4, 0]}, codes)
+    # target: 1 and 2 left, two unlike mugs took other places; 0 stayed, 1 cm off after registration
+    others = {0: codes[0], 1: _code(21), 2: _code(22)}
+    target = _objects({0: [0.01, 0, 0], 1: [-0.3, 0, 0], 2: [0, -0.4, 0]}, others)
+    graphs = local_graph(0, [0, 1, 2], target), local_graph(0, [0, 1, 2], source)
+    paper = compare_graphs(*graphs, 1.0, 0.01, np.eye(3), 0.9, 0.03, 0.05)
+    in_place = compare_graphs(*graphs, 1.0, 0.01, np.eye(3), 0.9, 0.03, 0.05, in_place_m=0.05)
+    moved = compare_graphs(*graphs, 1.0, 0.2, np.eye(3), 0.9, 0.03, 0.05, in_place_m=0.05)
+    assert not paper.consistent and paper.mode == "graph"
+    assert in_place.consistent and in_place.mode == "in place"
+    assert not moved.consistent
+
+
 # -- the whole detector -------------------------------------------------------------------------
 
 def _scene(rng):
@@ -204,3 +219,38 @@ def test_detector_finds_added_removed_and_switched_mugs_under_an_unknown_offset(
 def test_cosine_similarity_of_one_against_many():
     a = np.array([1.0, 0.0])
     np.testing.assert_allclose(cosine_similarity(a, np.array([[2.0, 0.0], [0.0, 1.0], [-1.0, 0.0]])), [1, 0, -1])
+
+
+def _two_tables(rng, codes, unlike_first_views: int):
+    """Source and target measurements of two tables of three mugs, each table seen in 10 frames
+    (the target sees the second table first, so that it is registered when mug 1 comes into view);
+    in the target, mug 1's first `unlike_first_views` views give a code unlike its own."""
+    centers = {1: [0, 0, 0.8], 2: [0.3, 0, 0.8], 3: [0, 0.3, 0.8], 4: [3, 0, 0.8], 5: [3.3, 0, 0.8], 6: [3, 0.3, 0.8]}
+
+    def frames(frame0, odd, first_table_first):
+        seen = {}
+        for k in range(20):
+            frame = []
+            for i, c in centers.items():
+                if ((k < 10) == first_table_first) != (c[0] < 1):
+                    continue
+                seen[i] = seen.get(i, 0) + 1
+                code = _code(900) if (i == 1 and seen[i] <= odd) else codes[i] + rng.normal(scale=0.02, size=16)
+                frame.append(Measurement(frame0 + k, i, code, np.array(c) + rng.normal(scale=0.003, size=3), 0.7))
+            yield frame
+
+    return frames(0, 0, True), frames(100, unlike_first_views, False)
+
+
+@pytest.mark.parametrize("confirm, reported", [(3, {1}), (8, set())])
+def test_a_changed_verdict_waits_for_confirm_measurements(confirm, reported):
+    """Mug 1's first three target views are unlike it; a verdict on them would be a false report."""
+    rng = np.random.default_rng(5)
+    codes = {i: _code(200 + i) for i in range(1, 7)}
+    source_frames, target_frames = _two_tables(rng, codes, unlike_first_views=3)
+    detector = ChangeDetector(DetectorConfig(confirm_measurements=confirm, min_measurements=3, registration_pairs=3))
+    for frame in source_frames:
+        detector.add_source(frame)
+    events = [e for frame in target_frames for e in detector.add_target(frame)] + detector.finish()
+    changed = {e.instance_ids[0] for e in events if getattr(e, "kind", "unchanged") != "unchanged"}
+    assert changed == reported

@@ -45,6 +45,23 @@ def test_summary_scores_the_sample_against_its_ground_truth(run):
     assert "TP" in output and "changes" in output
 
 
+def test_replaying_the_observations_table_reproduces_the_run(run):
+    from ndfa.change.detector import DetectorConfig
+    from ndfa.replay import replay
+
+    out, _ = run
+    summary = json.loads((out / "summary.json").read_text())
+    observations = pl.read_parquet(out / "tables" / "observations.parquet")
+    same = replay(observations)
+    assert sorted((c.session, c.object_id, c.kind) for c in same.changes) == \
+        sorted((c["session"], c["object"], c["kind"]) for c in summary["changes"])
+    assert (same.score.tp, same.score.fp, same.score.fn) == (summary["tp"], summary["fp"], summary["fn"])
+    # another config gives another answer: without registration no target object is tested
+    never_registered = replay(observations, DetectorConfig(registration_min_inliers=1000))
+    assert never_registered.detector.registration is None
+    assert all(c.session == "source" for c in never_registered.changes)
+
+
 def test_rerun_file_holds_every_intermediate(run):
     from rerun.chunk import RrdReader
 

@@ -54,5 +54,5 @@ def test_largest_cluster_is_the_biggest_connected_group():
     rng = np.random.default_rng(0)
     a = rng.normal(scale=0.005, size=(300, 3))
     b = rng.normal(scale=0.005, size=(100, 3)) + [0, 0, 1.0]
-    chosen = largest_cluster(np.vstack([a, b]), radius=0.02)
+    chosen = largest_cluster(np.vstack([a, b]), voxel_m=0.02)
     assert set(chosen) == set(range(300))

@@ -2,8 +2,8 @@
 
 For each instance id in the mask: the depth pixels of the instance, within the depth range,
 back-projected with K to the camera frame; subsampled to at most `max_points` (the encoder uses
-fewer); cleaned by keeping the largest cluster of points closer than `cluster_radius_m` to each
-other (single-linkage, i.e. DBSCAN with min_samples 1, as the paper's real pipeline cleans its
+fewer); cleaned by keeping the largest cluster of points linked through occupied voxels of
+`cluster_voxel_m` (close to single linkage / DBSCAN, as the paper's real pipeline cleans its
 segments: depth noise at mask edges throws some pixels onto the background far behind). A mask
 that is too small or falls apart is skipped, with the reason, so that every instance seen in a
 frame is accounted for in the tables.
@@ -18,7 +18,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from ndfa.recording import Frame
 
@@ -35,9 +34,11 @@ class ObservationConfig:
     skip_border: skip masks that touch the image border: the object may be cut off, and the
         center of a cut-off view is pulled toward the part in view (median error 2-3x larger).
     max_points: the cloud is subsampled to this before cleaning (the encoder resamples to its own
-        count, 400 for the shipped model), which keeps cleaning at a few ms per object.
-    cluster_radius_m: neighbours closer than this belong to one cluster. A 640-px-wide 60 degree
-        camera samples a surface 3 m away every ~5 mm, so 2 cm joins a mug's points up to ~10 m.
+        count, 400 for the shipped model), which bounds the cost of cleaning per object.
+    cluster_voxel_m: points are grouped in voxels of this size, and touching voxels join one
+        cluster (see `largest_cluster`). A 640-px-wide 60 degree camera samples a surface 3 m
+        away every ~5 mm (every ~11 mm once subsampled to `max_points`), so 1.5 cm voxels join a
+        mug's points at any depth in range.
     min_cluster_fraction: the largest cluster must hold at least this share of the points, else
         the mask is skipped as fragmented (e.g. split by an occluder into two unrelated pieces).
     """
@@ -47,7 +48,7 @@ class ObservationConfig:
     min_pixels: int = 300
     skip_border: bool = True
     max_points: int = 1000
-    cluster_radius_m: float = 0.02
+    cluster_voxel_m: float = 0.015
     min_cluster_fraction: float = 0.5
     seed: int = 0
 
@@ -81,36 +82,43 @@ def extract_observations(frame: Frame, config: ObservationConfig = ObservationCo
     """
     if frame.instances is None:
         return [], []
-    depth = frame.depth
-    in_range = np.isfinite(depth) & (depth >= config.min_depth_m) & (depth <= config.max_depth_m)
     ids = frame.instances
+    height, width = ids.shape
+    # One pass over the labelled pixels, grouped by id (a scan of the whole image per instance
+    # was most of the perception time).
+    labelled = np.flatnonzero(ids.ravel())
+    labels = ids.ravel()[labelled]
+    order = np.argsort(labels, kind="stable")
+    labelled, labels = labelled[order], labels[order]
+    depth = frame.depth.ravel()[labelled]
+    in_range = np.isfinite(depth) & (depth >= config.min_depth_m) & (depth <= config.max_depth_m)
+    on_border = set(np.unique(np.concatenate([ids[0], ids[-1], ids[:, 0], ids[:, -1]])).tolist())
+    instance_ids, starts, counts = np.unique(labels, return_index=True, return_counts=True)
+
     observations, skipped = [], []
-    labelled = ids != 0
-    for instance_id in np.unique(ids[labelled]):
-        mask = ids == instance_id
-        rows, cols = np.nonzero(mask & in_range)
-        n_pixels = len(rows)
+    for instance_id, start, count in zip(instance_ids.tolist(), starts, counts):
+        pixels = labelled[start:start + count][in_range[start:start + count]]
+        n_pixels = len(pixels)
         if n_pixels < config.min_pixels:
             reason = "no depth in range" if n_pixels == 0 else f"{n_pixels} pixels < min_pixels {config.min_pixels}"
-            skipped.append(SkippedObservation(frame.index, int(instance_id), n_pixels, reason))
+            skipped.append(SkippedObservation(frame.index, instance_id, n_pixels, reason))
             continue
-        height, width = ids.shape
-        border = bool(mask[0].any() or mask[-1].any() or mask[:, 0].any() or mask[:, width - 1].any())
+        border = instance_id in on_border
         if border and config.skip_border:
-            skipped.append(SkippedObservation(frame.index, int(instance_id), n_pixels, "touches the image border"))
+            skipped.append(SkippedObservation(frame.index, instance_id, n_pixels, "touches the image border"))
             continue
-        rng = np.random.default_rng([config.seed, frame.index, int(instance_id)])
         if n_pixels > config.max_points:
-            keep = np.sort(rng.choice(n_pixels, size=config.max_points, replace=False))
-            rows, cols = rows[keep], cols[keep]
-        points = backproject_pixels(depth, frame.K, rows, cols)
-        cluster = largest_cluster(points, config.cluster_radius_m)
+            rng = np.random.default_rng([config.seed, frame.index, instance_id])
+            pixels = pixels[np.sort(rng.choice(n_pixels, size=config.max_points, replace=False))]
+        rows, cols = np.divmod(pixels, width)
+        points = backproject_pixels(frame.depth, frame.K, rows, cols)
+        cluster = largest_cluster(points, config.cluster_voxel_m)
         if len(cluster) < config.min_cluster_fraction * len(points):
             skipped.append(SkippedObservation(
-                frame.index, int(instance_id), n_pixels,
+                frame.index, instance_id, n_pixels,
                 f"fragmented: largest cluster holds {len(cluster)} of {len(points)} points"))
             continue
-        observations.append(Observation(frame.index, int(instance_id), points[cluster], n_pixels, border))
+        observations.append(Observation(frame.index, instance_id, points[cluster], n_pixels, border))
     return observations, skipped
 
 
@@ -122,11 +130,29 @@ def backproject_pixels(depth: np.ndarray, K: np.ndarray, rows: np.ndarray, cols:
     return np.stack([x, y, z], axis=1)
 
 
-def largest_cluster(points: np.ndarray, radius: float) -> np.ndarray:
-    """Indices of the largest single-linkage cluster of `points` (N, 3) at distance `radius`."""
+def largest_cluster(points: np.ndarray, voxel_m: float) -> np.ndarray:
+    """Indices of the points of the largest 26-connected group of occupied voxels of size `voxel_m`.
+
+    Points closer than `voxel_m` along every axis always fall in the same or neighbouring voxels,
+    so this joins at least what single linkage at `voxel_m` joins (and some pairs up to
+    2 sqrt(3) voxel_m apart). Linking points pairwise (a k-d tree's pairs within the radius) found
+    the same clusters but cost ~7 ms per 1,000-point object; the voxels are ~50 per mug.
+    """
     if len(points) < 2:
         return np.arange(len(points))
-    pairs = cKDTree(points).query_pairs(radius, output_type="ndarray")
-    graph = coo_matrix((np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])), shape=(len(points),) * 2)
-    _, labels = connected_components(graph, directed=False)
-    return np.flatnonzero(labels == np.bincount(labels).argmax())
+    keys = np.floor(points / voxel_m).astype(np.int64)
+    keys -= keys.min(axis=0) - 1                 # >= 1, so that every neighbour's key is >= 0
+    span = keys.max(axis=0) + 2
+    encode = lambda k: (k[..., 0] * span[1] + k[..., 1]) * span[2] + k[..., 2]  # noqa: E731
+    cell_codes, cell_of_point = np.unique(encode(keys), return_inverse=True)
+    cells = np.stack(np.unravel_index(cell_codes, tuple(span)), axis=1)
+    # Half of the 26 neighbour offsets: the graph is undirected.
+    offsets = np.array([o for o in np.ndindex(3, 3, 3) if o > (1, 1, 1)]) - 1
+    neighbour_codes = encode(cells[:, None, :] + offsets[None])   # (cells, 13)
+    position = np.minimum(np.searchsorted(cell_codes, neighbour_codes), len(cell_codes) - 1)
+    found = cell_codes[position] == neighbour_codes
+    rows = np.broadcast_to(np.arange(len(cells))[:, None], found.shape)[found]
+    graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, position[found])), shape=(len(cells),) * 2)
+    _, cell_label = connected_components(graph, directed=False)
+    point_label = cell_label[cell_of_point.ravel()]
+    return np.flatnonzero(point_label == np.bincount(point_label).argmax())
