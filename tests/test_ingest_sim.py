@@ -187,3 +187,10 @@ def test_bench_reports_every_stage():
     assert result["frames"] == 3 and result["triangles"] > 100_000
     for stage in ("world", "render", "noise", "write", "read"):
         assert result[f"{stage}_ms"] > 0
+
+
+def test_a_bad_option_value_is_one_line_not_a_traceback(tmp_path):
+    done = subprocess.run([sys.executable, "-c", "from ndfa.cli import main; main()", "ingest", "sim",
+                           "--tables", "foo", "--out", str(tmp_path / "x")], capture_output=True, text=True)
+    assert done.returncode == 2
+    assert "--tables must be ROWSxCOLS" in done.stderr and "Traceback" not in done.stderr
