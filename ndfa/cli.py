@@ -118,6 +118,187 @@ def ingest_sim_command(
     console.print(table)
 
 
+def _parse_intrinsics(text: Optional[str]) -> object:
+    """None, a TUM preset name (fr1, fr2, fr3) or 'fx,fy,cx,cy' -> what ingest_tum takes."""
+    if text is None or text.lower() in ("fr1", "fr2", "fr3"):
+        return text.lower() if text else None
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 4:
+        raise NdfaError(f"--intrinsics must be fr1, fr2, fr3 or fx,fy,cx,cy, got {text!r}")
+    return values
+
+
+@ingest_app.command("tum")
+def ingest_tum_command(
+    folder: Path = typer.Argument(..., help="A TUM RGB-D folder (rgb.txt, depth.txt, groundtruth.txt, rgb/, depth/)."),
+    out: Path = typer.Option(..., "--out", "-o", help="The recording to write (.mcap)."),
+    intrinsics: Optional[str] = typer.Option(None, help="fr1 | fr2 | fr3 | fx,fy,cx,cy (default: the folder's "
+                                                        "calibration.txt, else TUM's ROS default 525,525,319.5,239.5)."),
+    depth_scale: float = typer.Option(5000.0, help="Depth PNG units per metre (TUM: 5000)."),
+    masks: Optional[Path] = typer.Option(None, help="Instance masks: 16-bit PNGs named as the depth PNGs, 0 = none "
+                                                    "(default: the folder's masks/ if any)."),
+    max_dt: float = typer.Option(0.02, help="Largest rgb-depth timestamp difference to pair them, seconds."),
+    poses: str = typer.Option("given", help="given (groundtruth.txt) | kiss-icp (estimated from depth; "
+                                            "groundtruth.txt, if any, is kept as the true poses)."),
+    session: Optional[str] = typer.Option(None, help="Session name (default: the folder's name)."),
+) -> None:
+    """Import a TUM RGB-D folder into one recording, and say what was dropped and why."""
+    import warnings
+
+    from ndfa.ingest.tum import TumWarning, ingest_tum
+
+    estimator = None
+    if poses == "kiss-icp":
+        try:
+            from ndfa.trajectory.kiss import estimate_poses as estimator
+        except ImportError as error:
+            raise NdfaError(f"--poses kiss-icp needs ndfa.trajectory.kiss, which cannot be imported: {error}") from None
+    elif poses != "given":
+        raise NdfaError(f"--poses must be given or kiss-icp, got {poses!r}")
+    camera = _parse_intrinsics(intrinsics)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", TumWarning)  # listed under the table instead
+        with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                      TimeRemainingColumn(), console=err_console, transient=True) as progress:
+            task = progress.add_task(f"writing {out.name}", total=None)
+            summary = ingest_tum(folder, out, intrinsics=camera, depth_scale=depth_scale,
+                                 masks=masks, max_dt=max_dt, session=session, estimate_poses=estimator,
+                                 on_progress=lambda done, total: progress.update(task, completed=done, total=total))
+
+    table = Table(title=f"{folder} -> {out}", show_header=False)
+    table.add_column("what")
+    table.add_column("value", justify="right")
+    table.add_row("session", summary.session)
+    table.add_row("depth frames in depth.txt", str(summary.indexed))
+    table.add_row("frames written", str(summary.written))
+    for reason, count in summary.dropped.items():
+        table.add_row(f"dropped: {reason}", str(count))
+    table.add_row("depth without rgb (kept)", str(summary.depth_without_rgb))
+    table.add_row("poses", summary.poses)
+    table.add_row("intrinsics", summary.intrinsics)
+    table.add_row("timestamps", summary.timestamps)
+    table.add_row("instance masks", "yes" if summary.has_instances else "no")
+    table.add_row("ground truth", "yes" if summary.has_ground_truth else "no")
+    console.print(table)
+    for message in summary.warnings:
+        console.print(f"[yellow]warning:[/yellow] {message}", highlight=False, soft_wrap=True)
+
+
+@ingest_app.command("bag")
+def ingest_bag_command(
+    bag: Path = typer.Argument(..., help="A ROS1 .bag file or a ROS2 bag directory (sqlite3 or mcap)."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="The recording to write (.mcap)."),
+    list_only: bool = typer.Option(False, "--list", help="List the bag's topics and the role each would get; write nothing."),
+    rgb_topic: Optional[str] = typer.Option(None, help="Colour images (Image or CompressedImage)."),
+    depth_topic: Optional[str] = typer.Option(None, help="Depth images (16UC1 mm, 32FC1 m, or compressedDepth)."),
+    info_topic: Optional[str] = typer.Option(None, help="The depth camera's sensor_msgs/CameraInfo."),
+    mask_topic: Optional[str] = typer.Option(None, help="Instance masks (mono16/16UC1, 0 = none)."),
+    pose_topic: Optional[str] = typer.Option(None, help="tf, or a nav_msgs/Odometry or geometry_msgs/PoseStamped topic "
+                                                        "(default: tf when the bag has it)."),
+    world_frame: Optional[str] = typer.Option(None, help="tf frame of the world (default: map, odom or world)."),
+    camera_frame: Optional[str] = typer.Option(None, help="tf frame of the camera (default: the depth images' frame_id)."),
+    max_dt: float = typer.Option(0.02, help="Largest depth-colour (and depth-mask) stamp difference, seconds."),
+    poses: str = typer.Option("given", help="given (from the bag) | kiss-icp (estimated from depth)."),
+) -> None:
+    """Import a ROS1 or ROS2 bag into one recording, and say what was skipped and why."""
+    from ndfa.ingest.bag import ingest_bag, list_topics
+
+    if list_only:
+        topics = list_topics(bag)
+        table = Table(title=str(bag))
+        for column in ("topic", "type", "messages", "encoding", "role"):
+            table.add_column(column, justify="right" if column == "messages" else "left")
+        for topic in topics:
+            table.add_row(topic.name, topic.msgtype, str(topic.count), topic.encoding or "", topic.role or "")
+        console.print(table)
+        return
+    if out is None:
+        raise typer.BadParameter("--out is required (or --list)")
+    estimator = None
+    if poses == "kiss-icp":
+        try:
+            from ndfa.trajectory.kiss import DepthOdometry
+        except ImportError as error:
+            raise NdfaError(f"--poses kiss-icp needs ndfa.trajectory.kiss, which cannot be imported: {error}") from None
+        estimator = DepthOdometry().update
+    elif poses != "given":
+        raise NdfaError(f"--poses must be given or kiss-icp, got {poses!r}")
+
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TimeRemainingColumn(), console=err_console, transient=True) as progress:
+        task = progress.add_task(f"writing {out.name}", total=None)
+        summary = ingest_bag(bag, out, rgb_topic=rgb_topic, depth_topic=depth_topic, info_topic=info_topic,
+                             mask_topic=mask_topic, pose_source=pose_topic, world_frame=world_frame,
+                             camera_frame=camera_frame, max_dt=max_dt, estimate_poses=estimator,
+                             on_progress=lambda done, total: progress.update(task, completed=done, total=total))
+
+    table = Table(title=f"{bag} -> {out}", show_header=False)
+    table.add_column("what")
+    table.add_column("value", justify="right")
+    for role, topic in summary.topics.items():
+        table.add_row(f"{role} topic", topic)
+    table.add_row("depth messages", str(summary.depth_messages))
+    table.add_row("frames written", str(summary.frames))
+    for reason, count in summary.skipped.items():
+        table.add_row(f"skipped: {reason}", str(count))
+    table.add_row("poses", summary.pose_source)
+    table.add_row("frames", f"{summary.camera_frame} in {summary.world_frame or '-'}")
+    table.add_row("instance masks", "yes" if summary.instances else "no")
+    table.add_row("ground truth", "yes" if summary.ground_truth else "no")
+    table.add_row("size", f"{summary.size_bytes / 1e6:.1f} MB")
+    console.print(table)
+
+
+export_app = typer.Typer(no_args_is_help=True, help="Write ndfa recordings out in other formats.")
+app.add_typer(export_app, name="export")
+
+
+@export_app.command("tum")
+def export_tum_command(
+    recording: Path = typer.Argument(..., help="An ndfa recording (.mcap)."),
+    out: Path = typer.Option(..., "--out", "-o", help="The TUM folder to create (must not exist, or be empty)."),
+    depth_scale: float = typer.Option(5000.0, help="Depth PNG units per metre (TUM: 5000)."),
+) -> None:
+    """Write a recording as a TUM RGB-D folder (plus calibration.txt, masks/ and ground truth)."""
+    from ndfa.export.tum import export_tum
+
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TimeRemainingColumn(), console=err_console, transient=True) as progress:
+        task = progress.add_task(f"writing {out.name}", total=None)
+        summary = export_tum(recording, out, depth_scale=depth_scale,
+                             on_progress=lambda done, total: progress.update(task, completed=done, total=total))
+    console.print(f"wrote {summary.frames} frames ({summary.with_rgb} with colour"
+                  f"{', masks' if summary.with_masks else ''}{', ground truth' if summary.with_ground_truth else ''}) "
+                  f"to {summary.folder}")
+    if summary.depth_clipped:
+        console.print(f"[yellow]warning:[/yellow] {summary.depth_clipped} depth pixels beyond "
+                      f"{65535 / depth_scale:.2f} m written as 0 (invalid)")
+
+
+@export_app.command("bag")
+def export_bag_command(
+    recording: Path = typer.Argument(..., help="An ndfa recording (.mcap)."),
+    out: Path = typer.Option(..., "--out", "-o", help="The bag to create: a .bag file, or a directory with --ros2."),
+    ros2: bool = typer.Option(False, "--ros2", help="Write a ROS2 bag (directory) instead of a ROS1 .bag."),
+    storage: str = typer.Option("sqlite3", help="ROS2 storage: sqlite3 | mcap."),
+    compressed: bool = typer.Option(False, "--compressed", help="Colour as CompressedImage, depth as compressedDepth PNG."),
+    color_format: str = typer.Option("jpeg", help="With --compressed: jpeg (lossy) | png."),
+) -> None:
+    """Write a recording as a ROS bag (images, CameraInfo, /tf, /tf_static, ground truth)."""
+    from ndfa.export.bag import export_bag
+
+    with Progress(TextColumn("[bold]{task.description}"), console=err_console, transient=True) as progress:
+        progress.add_task(f"writing {out.name}", total=None)
+        summary = export_bag(recording, out, version=2 if ros2 else 1, storage=storage, compressed=compressed,
+                             color_format=color_format)
+    console.print(f"wrote {summary.frames} frames to {summary.out} ({summary.size_bytes / 1e6:.1f} MB): "
+                  + ", ".join(summary.topics))
+
+
 @app.command("info")
 def info_command(recording: Path = typer.Argument(..., help="An ndfa recording (.mcap).")) -> None:
     """Summarise a recording: source, frames, image size, poses and ground-truth changes."""
@@ -329,6 +510,72 @@ def detect_command(
             console.print(f"wrote {path}")
 
 
+@app.command("segment")
+def segment_command(
+    recording: Path = typer.Argument(..., help="An ndfa recording (.mcap)."),
+    out: Path = typer.Option(..., "--out", "-o", help="The copy to write (.mcap)."),
+    keep_truth: bool = typer.Option(False, "--keep-truth", help="Evaluation only: relabel each segment with the "
+                                    "ground-truth instance it overlaps with IoU >= 0.5 (else 60000 + label)."),
+    stride: Optional[int] = typer.Option(None, help="Sample every N-th pixel along each axis (default: width // 320)."),
+) -> None:
+    """Copy a recording with its instance masks replaced by the geometric segmentation (planes + DBSCAN)."""
+    from ndfa.perception.segmentation import SegmentationConfig
+    from ndfa.segment import segment_recording
+
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                  console=err_console, transient=True) as progress:
+        task = progress.add_task("segmenting", total=None)
+        count = segment_recording(recording, out, SegmentationConfig(stride=stride), keep_truth=keep_truth,
+                                  on_frame=lambda done, total: progress.update(task, completed=done, total=total))
+    console.print(f"wrote {out}: {count} frames segmented")
+
+
+@app.command("eval")
+def eval_command(
+    source: Path = typer.Argument(..., help="Source session recording (.mcap), with instance masks."),
+    target: Path = typer.Argument(..., help="Target session recording (.mcap), with masks and ground truth."),
+    out: Path = typer.Option(..., "--out", "-o", help="Directory for table.parquet and table.md."),
+    nn_distance: float = typer.Option(0.002, help="NN: d, metres (the paper's 0.002)."),
+    nn_fraction: float = typer.Option(0.3, help="NN: r, share of change points that makes a view changed (paper: 0.3)."),
+    tsdf_voxel: float = typer.Option(0.01, help="PMT: submap voxel size, metres (PMT's small-object default: 0.02)."),
+    frame_step: int = typer.Option(1, help="Use every N-th frame of both recordings, for all methods."),
+) -> None:
+    """The paper's Table I: ndfa (given poses) and the NN and PMT baselines (true poses, ground-truth masks)."""
+    from ndfa.baselines.nn import NNConfig
+    from ndfa.baselines.table import evaluate_methods, write_table
+    from ndfa.baselines.tsdf import TSDFConfig
+
+    if frame_step < 1:
+        raise typer.BadParameter(f"--frame-step must be >= 1, got {frame_step}")
+    nn, tsdf = NNConfig(distance_m=nn_distance, changed_fraction=nn_fraction), TSDFConfig(voxel_m=tsdf_voxel)
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                  console=err_console, transient=True) as progress:
+        tasks = {}
+
+        def on_frame(method: str, session: str, done: int, total: int) -> None:
+            key = f"{method} {session}"
+            if key not in tasks:
+                tasks[key] = progress.add_task(key, total=total)
+            progress.update(tasks[key], completed=done)
+
+        result = evaluate_methods(source, target, nn, tsdf, frame_step=frame_step, on_frame=on_frame)
+
+    table = Table(title=f"change detection, {source.name} -> {target.name} (object level)")
+    for column in ("method", "poses", "TP", "FP", "FN", "precision", "recall", "seconds", "false positives", "missed"):
+        table.add_column(column, justify="left" if column in ("method", "poses") else "right")
+    for r in result.rows:
+        table.add_row(r.method, r.poses, str(r.tp), str(r.fp), str(r.fn), f"{r.precision:.1%}", f"{r.recall:.1%}",
+                      f"{r.seconds:.1f}", ",".join(map(str, r.false_positive_ids)) or "-",
+                      ",".join(map(str, r.false_negative_ids)) or "-")
+    console.print(table)
+    console.print(f"NN: d = {nn.distance_m * 1000:g} mm, r = {nn.changed_fraction:g}; "
+                  f"PMT: {tsdf.voxel_m * 100:g} cm voxels; the baselines get the true poses and the masks' ids")
+    for note in result.notes:
+        console.print(f"note: {note}")
+    for path in write_table(result, out):
+        console.print(f"wrote {path}")
+
+
 @app.command("view")
 def view_command(rrd: Path = typer.Argument(..., help="A Rerun recording written by `ndfa detect --log`.")) -> None:
     """Open a .rrd in the Rerun viewer."""
@@ -349,10 +596,23 @@ def bench_command(
     weights: Optional[Path] = typer.Option(None, help="ndf: checkpoint to time (default: the shipped weights)."),
     source: Path = typer.Option(Path("recordings/sample/source.mcap"), help="detect: source recording."),
     target: Path = typer.Option(Path("recordings/sample/target.mcap"), help="detect: target recording."),
+    recording: Path = typer.Option(Path("out/paper/target.mcap"), help="segment: recording with ground-truth masks."),
+    step: int = typer.Option(1, help="segment: use every N-th frame."),
 ) -> None:
     """Time each stage of a pipeline and print milliseconds."""
     from ndfa.bench import bench_detect, bench_detection_scaling, bench_ndf, bench_sim
 
+    if what == "segment":
+        from ndfa.perception.segmentation import SegmentationConfig, segmentation_recall
+        from ndfa.recording import RecordingReader
+
+        reader = RecordingReader(recording)
+        r = segmentation_recall(reader.frames(step=step), SegmentationConfig())
+        console.print(f"ndfa bench segment {recording} (every {step}. frame): {r.frames} frames; "
+                      f"recovered {r.recovered}/{r.observations} = {r.recall:.1%} of the ground-truth instances with "
+                      f">= 200 pixels of depth (IoU >= 0.5); {r.segments} segments, {r.spurious} matching no instance; "
+                      f"{r.ms_per_frame:.1f} ms/frame")
+        return
     if what == "detect":
         result = bench_detect(source, target)
         table = Table(title=f"ndfa bench detect: target pass of {target} (no sinks)",
@@ -386,7 +646,7 @@ def bench_command(
                               f"{result['threads']} threads; {result['machine']}")
         rows = [("one observation", "one_ms"), ("batch of 8", "batch8_ms"), ("batch of 8, per observation", "batch8_ms_per_observation")]
     else:
-        raise typer.BadParameter(f"unknown benchmark {what!r}; expected sim, ndf or detect")
+        raise typer.BadParameter(f"unknown benchmark {what!r}; expected sim, ndf, detect or segment")
     table.add_column("stage")
     table.add_column("median ms", justify="right")
     for label, key in rows:
@@ -404,10 +664,10 @@ def main() -> None:
     except typer.Abort:
         err_console.print("aborted")
         sys.exit(130)
-    except Exception as error:  # click's usage errors arrive here in non-standalone mode
-        import click
-
-        if isinstance(error, click.ClickException):
+    except Exception as error:  # usage errors arrive here in non-standalone mode
+        # typer >= 0.29 vendors its own click (typer.BadParameter is not a click.ClickException):
+        # recognise both by what they can do.
+        if callable(getattr(error, "show", None)) and isinstance(getattr(error, "exit_code", None), int):
             error.show()
             sys.exit(error.exit_code)
         raise

@@ -24,3 +24,12 @@ class ModelError(NdfaError):
 
 class DataError(NdfaError):
     """NDF training data cannot be generated as asked, or a dataset file is missing or corrupt."""
+
+
+class TrajectoryError(NdfaError):
+    """Poses cannot be estimated, compared or read/written as asked (bad config, unknown method,
+    trajectories of different lengths, a malformed TUM trajectory file)."""
+
+
+class ExportError(NdfaError):
+    """A recording cannot be written out in another format (a ROS bag, a TUM folder)."""
