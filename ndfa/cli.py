@@ -561,13 +561,15 @@ def eval_command(
         result = evaluate_methods(source, target, nn, tsdf, frame_step=frame_step, on_frame=on_frame)
 
     table = Table(title=f"change detection, {source.name} -> {target.name} (object level)")
-    for column in ("method", "poses", "TP", "FP", "FN", "precision", "recall", "seconds", "false positives", "missed"):
+    for column in ("method", "poses", "TP", "FP", "FN", "precision", "recall", "seconds"):
         table.add_column(column, justify="left" if column in ("method", "poses") else "right")
     for r in result.rows:
         table.add_row(r.method, r.poses, str(r.tp), str(r.fp), str(r.fn), f"{r.precision:.1%}", f"{r.recall:.1%}",
-                      f"{r.seconds:.1f}", ",".join(map(str, r.false_positive_ids)) or "-",
-                      ",".join(map(str, r.false_negative_ids)) or "-")
+                      f"{r.seconds:.1f}")
     console.print(table)
+    for r in result.rows:
+        console.print(f"{r.method}: false positives {', '.join(map(str, r.false_positive_ids)) or '-'}; "
+                      f"missed {', '.join(map(str, r.false_negative_ids)) or '-'}")
     console.print(f"NN: d = {nn.distance_m * 1000:g} mm, r = {nn.changed_fraction:g}; "
                   f"PMT: {tsdf.voxel_m * 100:g} cm voxels; the baselines get the true poses and the masks' ids")
     for note in result.notes:
