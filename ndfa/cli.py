@@ -613,7 +613,7 @@ def bench_command(
         console.print(f"ndfa bench segment {recording} (every {step}. frame): {r.frames} frames; "
                       f"recovered {r.recovered}/{r.observations} = {r.recall:.1%} of the ground-truth instances with "
                       f">= 200 pixels of depth (IoU >= 0.5); {r.segments} segments, {r.spurious} matching no instance; "
-                      f"{r.ms_per_frame:.1f} ms/frame")
+                      f"{r.ms_per_frame:.1f} ms/frame ({r.cpu_ms_per_frame:.1f} ms CPU)")
         return
     if what == "detect":
         result = bench_detect(source, target)
