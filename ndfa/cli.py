@@ -578,6 +578,49 @@ def eval_command(
         console.print(f"wrote {path}")
 
 
+@app.command("poses")
+def poses_command(
+    recording: Path = typer.Argument(..., help="An ndfa recording (.mcap)."),
+    out: Path = typer.Option(..., "--out", "-o", help="The copy with estimated poses (.mcap)."),
+    method: str = typer.Option("kiss-icp", help="Pose estimation method: kiss-icp."),
+    tum_out: Optional[Path] = typer.Option(None, help="Also write the estimate as a TUM trajectory file (evo)."),
+    voxel_size: Optional[float] = typer.Option(None, help="KISS-ICP map voxel, metres (default 0.03)."),
+    max_range: Optional[float] = typer.Option(None, help="Farthest point used, metres (default 4.0)."),
+    stride: Optional[int] = typer.Option(None, help="Depth averaged over STRIDE x STRIDE pixel blocks (default 4)."),
+    no_refine: bool = typer.Option(False, "--no-refine", help="KISS-ICP alone, without the point-to-plane refinement."),
+) -> None:
+    """Estimate camera poses from depth, write a copy of the recording with them, and print ATE/RPE."""
+    from ndfa.trajectory import OdometryConfig, rewrite_poses, write_tum
+
+    overrides = {"voxel_size_m": voxel_size, "max_range_m": max_range, "pixel_stride": stride}
+    config = OdometryConfig(**{k: v for k, v in overrides.items() if v is not None}, refine=not no_refine)
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                  console=err_console, transient=True) as progress:
+        task = progress.add_task(method, total=None)
+        report = rewrite_poses(recording, out, method, config,
+                               on_progress=lambda done, total: progress.update(task, completed=done, total=total))
+    if tum_out is not None:
+        write_tum(tum_out, report.timestamps, report.estimate)
+    table = Table(title=f"{method} on {recording}: {report.frames} frames, against the {report.truth}")
+    table.add_column("figure")
+    table.add_column("value", justify="right")
+    if report.ate is not None:
+        table.add_row("ATE RMSE (SE(3)-aligned)", f"{100 * report.ate.rmse_m:.2f} cm")
+        table.add_row("ATE max", f"{100 * report.ate.max_m:.2f} cm")
+    for rpe in report.rpe:
+        delta = f"{rpe.delta:g} {'frame' if rpe.unit == 'frames' else 'm'}"
+        table.add_row(f"RPE per {delta}: translation RMSE", f"{1000 * rpe.translation_rmse_m:.1f} mm")
+        table.add_row(f"RPE per {delta}: rotation RMSE", f"{rpe.rotation_rmse_deg:.3f} deg")
+    table.add_row("odometry time", f"{report.ms_per_frame:.0f} ms / frame")
+    table.add_row("frames with too little depth", str(report.starved_frames))
+    table.add_row("refinements rejected", str(report.refinements_rejected))
+    table.add_row("frames with a direction left to the motion prediction", str(report.degenerate_frames))
+    console.print(table)
+    for path in (out, tum_out):
+        if path is not None:
+            console.print(f"wrote {path}")
+
+
 @app.command("view")
 def view_command(rrd: Path = typer.Argument(..., help="A Rerun recording written by `ndfa detect --log`.")) -> None:
     """Open a .rrd in the Rerun viewer."""

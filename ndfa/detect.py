@@ -64,18 +64,23 @@ class DetectionResult:
         return out
 
 
-def open_pair(source: Path, target: Path) -> tuple[RecordingReader, RecordingReader, list[str]]:
-    """Open and check both recordings; notes say what differs between them but is allowed."""
-    readers = {}
+def open_pair(source: Path, target: Path, segment: bool = True) -> tuple[RecordingReader, RecordingReader, list[str]]:
+    """Open and check both recordings; notes say what differs between them but is allowed.
+
+    segment: a recording without instance masks is accepted (its frames are segmented
+    geometrically by the pipeline); False: it is an error.
+    """
+    readers, notes = {}, []
     for name, path in (("source", source), ("target", target)):
         reader = RecordingReader(path)
         if not reader.has_instances:
-            raise RecordingError(f"{path}: has no instance masks ({INSTANCES}); "
-                                 "segmentation without masks is not available yet")
+            if not segment:
+                raise RecordingError(f"{path}: has no instance masks ({INSTANCES}) and segmentation is off")
+            notes.append(f"the {name} has no instance masks: each of its frames is segmented geometrically "
+                         "(support planes removed, DBSCAN; ndfa.perception.segmentation)")
         if len(reader) == 0:
             raise RecordingError(f"{path}: has no frames")
         readers[name] = reader
-    notes = []
     first = {name: next(r.frames(stop=1)) for name, r in readers.items()}
     if not np.allclose(first["source"].K, first["target"].K) or first["source"].image_size != first["target"].image_size:
         notes.append("source and target cameras differ (intrinsics or image size); each frame is "
@@ -93,7 +98,7 @@ def run_detection(
     pipeline: ChangeDetectionPipeline | None = None,
 ) -> DetectionResult:
     """Source pass, target pass, finish. Sinks are closed at the end, also when interrupted."""
-    source_reader, target_reader, notes = open_pair(Path(source), Path(target))
+    source_reader, target_reader, notes = open_pair(Path(source), Path(target), segment=config.segmentation is not None)
     pipeline = pipeline or ChangeDetectionPipeline(config)
     frames, seconds, stage_totals, decisions, changes = {}, {}, {}, [], []
     visible: dict[str, set[int]] = {"source": set(), "target": set()}  # for scoring (`ndfa.evaluate`)
@@ -138,7 +143,11 @@ def run_detection(
         notes=notes,
     )
     truth = target_reader.ground_truth
-    if truth is not None and "objects" in truth:
+    segmented = not (source_reader.has_instances and target_reader.has_instances)
+    if truth is not None and "objects" in truth and segmented:
+        notes.append("not scored: without masks the objects' ids are segment labels, not ground-truth "
+                     "instances (`ndfa segment --keep-truth` relabels segments for scoring)")
+    elif truth is not None and "objects" in truth:
         result.score = score([i for c in changes for i in c.reported_instances], truth, visible)
     return result
 

@@ -13,6 +13,7 @@ from ndfa.cli import app
 from ndfa.detect import run_detection
 from ndfa.errors import RecordingError
 from ndfa.log.table_sink import TABLES, TableSink
+from ndfa.pipeline import PipelineConfig
 from ndfa.recording import Frame, RecordingWriter
 
 SAMPLE = Path(__file__).parents[1] / "recordings" / "sample"
@@ -127,7 +128,7 @@ def test_missing_or_maskless_recordings_are_named(tmp_path):
     maskless = [Frame(f.index, f.timestamp, None, f.depth, f.K, f.pose_world_camera, None) for f in _frames(2, True)]
     target = _write(tmp_path / "maskless.mcap", maskless)
     with pytest.raises(RecordingError, match="maskless.mcap.*instance masks"):
-        run_detection(source, target)
+        run_detection(source, target, PipelineConfig(segmentation=None))  # segmentation off: masks required
 
 
 def test_an_interrupted_run_leaves_readable_outputs(tmp_path):
