@@ -614,7 +614,6 @@ def poses_command(
     table.add_row("odometry time", f"{report.ms_per_frame:.0f} ms / frame")
     table.add_row("frames with too little depth", str(report.starved_frames))
     table.add_row("refinements rejected", str(report.refinements_rejected))
-    table.add_row("frames with a direction left to the motion prediction", str(report.degenerate_frames))
     console.print(table)
     for path in (out, tum_out):
         if path is not None:
