@@ -31,6 +31,17 @@ def _parse_range(text: str, what: str) -> tuple[int, int]:
         raise typer.BadParameter(f"{what} must be N or LO-HI, got {text!r}") from None
 
 
+def _pose_estimator(poses: str):
+    """The importers' `--poses`: None for "given" (the input's own), KISS-ICP odometry for "kiss-icp"."""
+    if poses == "given":
+        return None
+    if poses != "kiss-icp":
+        raise NdfaError(f"--poses must be given or kiss-icp, got {poses!r}")
+    from ndfa.trajectory.kiss import DepthOdometry
+
+    return DepthOdometry().update
+
+
 @ingest_app.command("sim")
 def ingest_sim_command(
     out: Path = typer.Option(..., "--out", "-o", help="Output directory for source.mcap and target.mcap."),
@@ -150,14 +161,7 @@ def ingest_tum_command(
 
     from ndfa.ingest.tum import TumWarning, ingest_tum
 
-    estimator = None
-    if poses == "kiss-icp":
-        try:
-            from ndfa.trajectory.kiss import estimate_poses as estimator
-        except ImportError as error:
-            raise NdfaError(f"--poses kiss-icp needs ndfa.trajectory.kiss, which cannot be imported: {error}") from None
-    elif poses != "given":
-        raise NdfaError(f"--poses must be given or kiss-icp, got {poses!r}")
+    estimator = _pose_estimator(poses)
     camera = _parse_intrinsics(intrinsics)
 
     with warnings.catch_warnings():
@@ -218,15 +222,7 @@ def ingest_bag_command(
         return
     if out is None:
         raise typer.BadParameter("--out is required (or --list)")
-    estimator = None
-    if poses == "kiss-icp":
-        try:
-            from ndfa.trajectory.kiss import DepthOdometry
-        except ImportError as error:
-            raise NdfaError(f"--poses kiss-icp needs ndfa.trajectory.kiss, which cannot be imported: {error}") from None
-        estimator = DepthOdometry().update
-    elif poses != "given":
-        raise NdfaError(f"--poses must be given or kiss-icp, got {poses!r}")
+    estimator = _pose_estimator(poses)
 
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TimeRemainingColumn(), console=err_console, transient=True) as progress:

@@ -213,9 +213,9 @@ def test_an_estimator_gives_the_poses(tmp_path):
     folder = make_folder(tmp_path / "tum", groundtruth=None)
     seen = []
 
-    def estimate(frames):
-        seen.extend(frames)
-        return [pose_at(f.timestamp) for f in frames]
+    def estimate(frame):
+        seen.append(frame)
+        return pose_at(frame.timestamp)
 
     summary = ingest_tum(folder, tmp_path / "out.mcap", estimate_poses=estimate)
     assert len(seen) == 5 and all(f.rgb is None for f in seen)
@@ -226,7 +226,7 @@ def test_an_estimator_gives_the_poses(tmp_path):
 
 def test_estimated_poses_keep_the_groundtruth_as_true_poses(tmp_path):
     folder = make_folder(tmp_path / "tum")
-    summary = ingest_tum(folder, tmp_path / "out.mcap", estimate_poses=lambda frames: [np.eye(4)] * len(frames))
+    summary = ingest_tum(folder, tmp_path / "out.mcap", estimate_poses=lambda frame: np.eye(4))
     reader = RecordingReader(tmp_path / "out.mcap")
     assert reader.meta["poses"] == summary.poses and "kept as the true poses" in summary.poses
     for frame in reader.frames():

@@ -43,7 +43,7 @@ from rosbags.typesys import Stores, get_typestore
 import ndfa
 from ndfa.errors import IngestError, RecordingError
 from ndfa.geometry import make_pose, matrix_from_quaternion_xyzw, quaternion_xyzw_from_matrix
-from ndfa.ingest import ros_images
+from ndfa.ingest import PoseEstimator, ros_images
 from ndfa.ingest.ros_images import ImageDecodeError, UnknownEncodingError
 from ndfa.ingest.tf_buffer import TfLookupError, TransformBuffer, frame_name, stamp_ns
 from ndfa.recording import Frame, RecordingWriter
@@ -69,9 +69,6 @@ _MASK_WORDS = ("instance", "mask", "label", "segment")
 # Bag errors rosbags raises for missing, truncated or malformed bags.
 _BAG_ERRORS = (AnyReaderError, Rosbag1Error, Rosbag2Error)
 
-# Called once per frame, in order, with the frame (its pose the bag's, or the identity where the bag
-# has none); returns the frame's camera-to-world pose. `DepthOdometry(...).update` fits.
-PoseEstimator = Callable[[Frame], np.ndarray]
 
 
 @dataclass(frozen=True)

@@ -17,11 +17,9 @@ import numpy as np
 import ndfa
 from ndfa.errors import IngestError, NdfaError
 from ndfa.ingest.tum_folder import GROUNDTRUTH, Intrinsics, TumFolder, no_poses_message
+from ndfa.ingest import PoseEstimator
 from ndfa.recording import Frame, RecordingWriter
 
-# Poses for a folder without groundtruth.txt: frames (depth and K; rgb and instances left out to
-# save memory; identity poses as placeholders) -> one 4x4 pose_world_camera per frame.
-PoseEstimator = Callable[[list[Frame]], list[np.ndarray]]
 ProgressCallback = Callable[[int, int], None]  # (frames written, frames to write)
 
 
@@ -86,7 +84,8 @@ def ingest_tum(
         raise IngestError(no_poses_message(tum.folder))
     if estimate_poses is not None:
         try:
-            tum.set_poses(estimate_poses(list(tum.frames(images=False))))
+            # Frames without rgb and instances (the estimator needs depth and K), one at a time.
+            tum.set_poses([np.asarray(estimate_poses(frame), dtype=np.float64) for frame in tum.frames(images=False)])
         except NdfaError:
             raise
         except Exception as error:  # the estimator is someone else's code: name it in the message
