@@ -538,15 +538,33 @@ def segment_command(
 
 @app.command("eval")
 def eval_command(
-    source: Path = typer.Argument(..., help="Source session recording (.mcap), with instance masks."),
-    target: Path = typer.Argument(..., help="Target session recording (.mcap), with masks and ground truth."),
-    out: Path = typer.Option(..., "--out", "-o", help="Directory for table.parquet and table.md."),
+    source: Optional[Path] = typer.Argument(None, help="Source session recording (.mcap), with instance masks."),
+    target: Optional[Path] = typer.Argument(None, help="Target session recording (.mcap), with masks and ground truth."),
+    out: Path = typer.Option(..., "--out", "-o", help="Directory for table.parquet and table.md (sweep: sweep.parquet, sweep_AXIS.png)."),
     nn_distance: float = typer.Option(0.002, help="NN: d, metres (the paper's 0.002)."),
     nn_fraction: float = typer.Option(0.3, help="NN: r, share of change points that makes a view changed (paper: 0.3)."),
     tsdf_voxel: float = typer.Option(0.01, help="PMT: submap voxel size, metres (PMT's small-object default: 0.02)."),
     frame_step: int = typer.Option(1, help="Use every N-th frame of both recordings, for all methods."),
+    sweep: Optional[str] = typer.Option(None, help="Instead of SOURCE TARGET: sweep an axis of synthetic scenes: "
+                                        "drift | noise | objects | overlap."),
+    values: Optional[str] = typer.Option(None, help="Sweep: comma-separated values of the axis."),
+    seeds: str = typer.Option("0-4", help="Sweep: seeds, N, LO-HI or a comma list."),
+    preset: str = typer.Option("sample", help="Sweep: scene preset of every cell (sample | paper | random)."),
+    step: Optional[float] = typer.Option(None, help="Sweep: camera travel between frames, metres (preset's default)."),
+    workers: Optional[int] = typer.Option(None, help="Sweep: cells in parallel (default: CPU count; 1 = in process)."),
+    address: Optional[str] = typer.Option(None, help="Sweep: Ray cluster address (needs the ndfa cluster extra: Ray)."),
+    ray: Optional[bool] = typer.Option(None, "--ray/--no-ray", help="Sweep: use Ray (default: when installed)."),
 ) -> None:
-    """The paper's Table I: ndfa (given poses) and the NN and PMT baselines (true poses, ground-truth masks)."""
+    """The paper's Table I: ndfa (given poses) and the NN and PMT baselines (true poses, ground-truth masks).
+
+    With --sweep: precision/recall/F1 of the three methods over an axis of synthetic scenes and seeds."""
+    if sweep is not None:
+        if source is not None or target is not None:
+            raise typer.BadParameter("--sweep renders its own scenes: give no SOURCE TARGET")
+        _eval_sweep(sweep, values, seeds, preset, step, workers, address, ray, out)
+        return
+    if source is None or target is None:
+        raise typer.BadParameter("give SOURCE and TARGET recordings, or --sweep AXIS --values ...")
     from ndfa.baselines.nn import NNConfig
     from ndfa.baselines.table import evaluate_methods, write_table
     from ndfa.baselines.tsdf import TSDFConfig
@@ -582,6 +600,44 @@ def eval_command(
         console.print(f"note: {note}")
     for path in write_table(result, out):
         console.print(f"wrote {path}")
+
+
+def _eval_sweep(axis: str, values: Optional[str], seeds: str, preset: str, step: Optional[float],
+                workers: Optional[int], address: Optional[str], use_ray: Optional[bool], out: Path) -> None:
+    """`ndfa eval --sweep`: run (or resume) the sweep, print the aggregated table, write parquet and PNG."""
+    from ndfa.sweep import aggregate, plot_sweep, run_sweep, spec_from_text
+
+    if values is None:
+        raise typer.BadParameter("--sweep needs --values, e.g. --values 0,0.001,0.002")
+    if workers is not None and workers < 1:
+        raise typer.BadParameter(f"--workers must be >= 1, got {workers}")
+    spec = spec_from_text(axis, values, seeds, preset, step)
+
+    def on_cell(cell, error, done, total) -> None:
+        state = f"failed: {error}" if error else "done"
+        err_console.print(f"[{done}/{total}] {cell.axis}={cell.value} seed {cell.seed}: {state}")
+
+    run = run_sweep(spec, out, workers=workers, address=address, use_ray=use_ray, on_cell=on_cell)
+    summary = aggregate(run.table)
+    table = Table(title=f"sweep over {axis} ({preset}, seeds {', '.join(map(str, spec.seeds))}): mean over seeds")
+    for column in ("value", "method", "seeds", "TP", "FP", "FN", "P", "R", "F1", "F1 min-max", "s"):
+        table.add_column(column, justify="left" if column in ("value", "method") else "right",
+                         no_wrap=column in ("value", "F1 min-max"))
+    for r in summary.iter_rows(named=True):
+        table.add_row(r["value"], r["method"], str(r["seeds"]), str(r["tp"]), str(r["fp"]), str(r["fn"]),
+                      f"{r['precision']:.2f}", f"{r['recall']:.2f}", f"{r['f1']:.2f}",
+                      f"{r['f1_min']:.2f}-{r['f1_max']:.2f}", f"{r['seconds']:.1f}")
+    table.caption = "TP/FP/FN summed over seeds; P, R, F1 mean over seeds; s: mean seconds of the method per cell"
+    console.print(table)
+    console.print(f"{run.computed} cells computed, {run.skipped} already done, {len(run.failed)} failed "
+                  f"({run.backend}, {run.seconds:.0f} s)")
+    for key, error in run.failed.items():
+        console.print(f"failed: {key}: {error}")
+    console.print(f"wrote {out / 'sweep.parquet'}")
+    if not run.table.is_empty():
+        console.print(f"wrote {plot_sweep(run.table, out / f'sweep_{axis}.png')}")
+    if run.failed:
+        raise typer.Exit(1)
 
 
 @app.command("poses")
