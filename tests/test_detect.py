@@ -186,3 +186,12 @@ def test_cli_errors_name_the_file(tmp_path):
         result = subprocess.run([str(ndfa), *args], capture_output=True, text=True, timeout=120)
         assert result.returncode == 2, result.stderr
         assert str(tmp_path) in result.stderr and "Traceback" not in result.stderr
+
+
+def test_outputs_go_into_folders_that_do_not_exist_yet(tmp_path):
+    """`make demo` in a fresh checkout writes to out/, which is not in the repository."""
+    from ndfa.log.rerun_sink import RerunSink
+
+    sink = RerunSink(tmp_path / "out" / "demo.rrd")
+    sink.close()
+    assert (tmp_path / "out" / "demo.rrd").exists()

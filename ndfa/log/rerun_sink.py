@@ -41,6 +41,7 @@ class RerunSink:
         self.partial = self.path.with_name(self.path.name + ".partial")
         self.log_images = log_images
         self.rec = rr.RecordingStream("ndfa_detect")
+        self.path.parent.mkdir(parents=True, exist_ok=True)  # `--log out/run.rrd` in a fresh checkout
         self.rec.save(str(self.partial))
         self.rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         self._step = 0
