@@ -29,6 +29,13 @@ def transform_points(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
     return points @ pose[:3, :3].T + pose[:3, 3]
 
 
+def backproject(K: np.ndarray, rows: np.ndarray, cols: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Camera-frame points (N, 3) at depth `z` of pixel coordinates (rows, cols) (OpenCV pinhole
+    model, pixel centres at integers; sub-pixel coordinates allowed)."""
+    z = np.asarray(z, dtype=np.float64)
+    return np.stack([(cols - K[0, 2]) / K[0, 0] * z, (rows - K[1, 2]) / K[1, 1] * z, z], axis=1)
+
+
 def rotation_z(angle: float) -> np.ndarray:
     """Rotation about the z axis by `angle` radians."""
     c, s = np.cos(angle), np.sin(angle)

@@ -37,7 +37,7 @@ import numpy as np
 import open3d as o3d
 
 from ndfa.baselines.common import BaselineDecision, BaselineError, require_masks, true_pose
-from ndfa.geometry import invert_pose
+from ndfa.geometry import backproject, invert_pose
 from ndfa.recording import Frame
 
 _NO_COLOR = o3d.pipelines.integration.TSDFVolumeColorType.NoColor
@@ -343,9 +343,7 @@ class TSDFBaseline:
 def _centroid(view: DepthView, depth: np.ndarray) -> np.ndarray:
     """World centroid of the valid pixels of `depth` (a masked copy of the view's depth)."""
     rows, cols = np.nonzero(depth)
-    z = depth[rows, cols].astype(np.float64)
-    K = view.K
-    camera = np.stack([(cols - K[0, 2]) / K[0, 0] * z, (rows - K[1, 2]) / K[1, 1] * z, z], axis=1)
+    camera = backproject(view.K, rows, cols, depth[rows, cols])
     pose = view.pose_world_camera
     return (camera @ pose[:3, :3].T + pose[:3, 3]).mean(axis=0)
 

@@ -12,9 +12,11 @@ contributes up to `candidates` pairs (its most similar source objects above the 
 threshold), and a sample is only fitted when its pairwise distances agree in both sessions
 (a rigid motion keeps them); one right pair per object is then enough, and the layout of the
 objects, not their codes alone, picks the transform. RANSAC starts once N
-target objects have candidates and reruns whenever a new target object arrives, until a
-transform has `min_inliers` inliers; after that the transform is kept (decisions already made
-used it, and re-estimating would let two halves of the run disagree about the frame).
+target objects have candidates and reruns whenever a new target object arrives (and every
+`registration_retry_frames` frames, `ndfa.change.detector`), until a
+transform has `min_inliers` inliers; after that a new estimate replaces it only with more
+inliers, and only until it has `registration_enough_inliers` (the detector's config): decisions
+already made used it, and frequent re-estimates would let parts of the run disagree about the frame.
 """
 
 from __future__ import annotations

@@ -19,6 +19,7 @@ import bisect
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
 
 from ndfa.geometry import invert_pose, make_pose, matrix_from_quaternion_xyzw
 
@@ -67,7 +68,9 @@ class _Edge:
         left = right - 1
         s = (stamp_ns - stamps[left]) / (stamps[right] - stamps[left])
         translation = (1 - s) * self.translations[left] + s * self.translations[right]
-        rotation = matrix_from_quaternion_xyzw(slerp(self.quaternions[left], self.quaternions[right], s))
+        # scipy's slerp, as the TUM importer's (it takes the shorter way round).
+        pair = Rotation.from_quat([self.quaternions[left], self.quaternions[right]])
+        rotation = Slerp([0.0, 1.0], pair)([s]).as_matrix()[0]
         return make_pose(rotation, translation)
 
     def _sort(self) -> None:
@@ -77,18 +80,6 @@ class _Edge:
             self.translations = [self.translations[i] for i in order]
             self.quaternions = [self.quaternions[i] for i in order]
             self._sorted = True
-
-
-def slerp(q0: np.ndarray, q1: np.ndarray, s: float) -> np.ndarray:
-    """Spherical linear interpolation between unit quaternions (x, y, z, w), the shorter way round."""
-    dot = float(np.dot(q0, q1))
-    if dot < 0.0:
-        q1, dot = -q1, -dot
-    if dot > 0.9995:  # nearly the same rotation: lerp is exact enough and avoids dividing by ~0
-        q = (1 - s) * q0 + s * q1
-        return q / np.linalg.norm(q)
-    angle = np.arccos(dot)
-    return (np.sin((1 - s) * angle) * q0 + np.sin(s * angle) * q1) / np.sin(angle)
 
 
 class TransformBuffer:

@@ -19,6 +19,7 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
+from ndfa.geometry import backproject
 from ndfa.recording import Frame
 
 
@@ -124,10 +125,7 @@ def extract_observations(frame: Frame, config: ObservationConfig = ObservationCo
 
 def backproject_pixels(depth: np.ndarray, K: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     """Camera-frame points (N, 3) of the given pixels (OpenCV pinhole model, pixel centres at integers)."""
-    z = depth[rows, cols].astype(np.float64)
-    x = (cols - K[0, 2]) / K[0, 0] * z
-    y = (rows - K[1, 2]) / K[1, 1] * z
-    return np.stack([x, y, z], axis=1)
+    return backproject(K, rows, cols, depth[rows, cols])
 
 
 def largest_cluster(points: np.ndarray, voxel_m: float) -> np.ndarray:

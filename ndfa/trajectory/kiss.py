@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ndfa.errors import TrajectoryError
+from ndfa.geometry import backproject
 from ndfa.recording.frame import Frame
 from ndfa.trajectory.refine import refine_point_to_plane
 
@@ -148,7 +149,7 @@ def depth_points(depth: np.ndarray, K: np.ndarray, block: int = 1, tolerance: fl
     z = z[rows, cols]
     u = cols * block + (block - 1) / 2.0
     v = rows * block + (block - 1) / 2.0
-    return np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=1)
+    return backproject(K, v, u, z)
 
 
 class DepthOdometry:
