@@ -9,7 +9,8 @@ import torch
 from conftest import random_rotation, relative_error
 
 from ndfa.errors import ModelError
-from ndfa.ndf.model import NDFConfig, NDFModel, load_model, save_checkpoint
+from ndfa.ndf.losses import frame_loss
+from ndfa.ndf.model import NDFConfig, NDFModel, load_model, object_frame, save_checkpoint
 
 SEEDS = [0, 1, 2]
 SMALL = NDFConfig(hidden=16, latent=16, knn=8, encoder_blocks=2, decoder_width=32, decoder_blocks=1, code_dim=8)
@@ -34,7 +35,7 @@ def trained_looking(model: NDFModel, seed: int) -> NDFModel:
 
 @pytest.mark.parametrize("seed", SEEDS)
 @pytest.mark.parametrize(
-    "config", [NDFConfig(), NDFConfig(code_head="norms", pooling="max")], ids=["default", "norms-max"]
+    "config", [NDFConfig(), NDFConfig(code_head="norms", pooling="mean", decoder="dots")], ids=["default", "norms-mean-dots"]
 )
 def test_rotating_the_view_rotates_z_and_center_and_keeps_code_and_occupancy(seed, config):
     model = trained_looking(NDFModel(config), seed)
@@ -71,6 +72,29 @@ def test_the_callers_centring_removes_a_translation():
         assert relative_error(outputs[1][key], outputs[0][key]) <= 1e-4, key
 
 
+def test_object_frame_is_orthonormal_right_handed_and_rotates_with_its_input():
+    vectors = torch.randn(5, 3, 2, generator=torch.Generator().manual_seed(3))
+    frame = object_frame(vectors)
+    assert torch.allclose(frame.transpose(-1, -2) @ frame, torch.eye(3).expand(5, 3, 3), atol=1e-5)
+    assert torch.allclose(torch.linalg.det(frame), torch.ones(5), atol=1e-5)
+    # The first axis follows the first vector; the second lies in the plane of the two.
+    assert torch.allclose(frame[..., 0], torch.nn.functional.normalize(vectors[..., 0], dim=-1), atol=1e-5)
+    assert torch.allclose((frame[..., 2] * vectors[..., 1]).sum(-1), torch.zeros(5), atol=1e-5)
+    rotation = random_rotation(3)
+    assert relative_error(object_frame(rotation @ vectors), rotation @ frame) <= 1e-5
+
+
+def test_frame_loss_is_zero_when_aligned_and_invariant_to_rotation():
+    rotation_camera_object = torch.stack([random_rotation(s) for s in range(4)])
+    aligned = rotation_camera_object[..., [2, 0]]  # axis (mug z) and handle (mug x) directions
+    assert frame_loss(2.0 * aligned, rotation_camera_object).item() == pytest.approx(0.0, abs=1e-6)
+    assert frame_loss(-aligned, rotation_camera_object).item() == pytest.approx(2.0, abs=1e-6)
+    guess = torch.randn(4, 3, 2, generator=torch.Generator().manual_seed(0))
+    rotation = random_rotation(9)
+    assert frame_loss(rotation @ guess, rotation @ rotation_camera_object).item() == pytest.approx(
+        frame_loss(guess, rotation_camera_object).item(), abs=1e-5)
+
+
 def test_center_offset_is_in_metres():
     model = trained_looking(NDFModel(SMALL), 0)
     doubled_scale = NDFModel(dataclasses.replace(SMALL, input_scale=2 * SMALL.input_scale))
@@ -89,6 +113,8 @@ def test_bad_config_is_refused():
         NDFConfig(code_head="pca")
     with pytest.raises(ModelError, match="pooling"):
         NDFConfig(pooling="sum")
+    with pytest.raises(ModelError, match="decoder"):
+        NDFConfig(decoder="grid")
     with pytest.raises(ModelError, match="positive"):
         NDFConfig(latent=0)
 
@@ -107,6 +133,15 @@ def test_checkpoint_round_trip(tmp_path):
         expected, got = model(points, queries), loaded(points, queries)
     for key in expected:
         assert torch.equal(got[key], expected[key]), key
+
+
+def test_checkpoints_from_before_the_decoder_option_load_with_the_dots_decoder(tmp_path):
+    config = dataclasses.replace(SMALL, decoder="dots")
+    model = trained_looking(NDFModel(config), 0)
+    old_config = {k: v for k, v in dataclasses.asdict(config).items() if k != "decoder"}
+    torch.save({"config": old_config, "state_dict": model.state_dict()}, tmp_path / "old.pt")
+    loaded, _ = load_model(tmp_path / "old.pt")
+    assert loaded.config.decoder == "dots"
 
 
 def test_missing_corrupt_or_foreign_checkpoints_raise_model_error(tmp_path):

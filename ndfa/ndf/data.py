@@ -523,7 +523,7 @@ def sample_batch(dataset: dict[str, np.ndarray], n_mugs: int, rng: np.random.Gen
     """A batch for the batch-hard shape loss: `n_mugs` distinct mugs, two different views of each.
 
     Returns float32 tensors in the camera frame (the trainer centres them): points [2B, N, 3],
-    queries [2B, Q, 3], occupancy [2B, Q] (0/1), center [2B, 3], and mug_index [2B] int64; rows
+    queries [2B, Q, 3], occupancy [2B, Q] (0/1), center [2B, 3], rotation [2B, 3, 3] (mug frame -> camera), and mug_index [2B] int64; rows
     b and b + B are the two views of the same mug. Only mugs with two or more views are drawn.
     """
     import torch  # here, so that generation workers do not load torch
@@ -542,5 +542,6 @@ def sample_batch(dataset: dict[str, np.ndarray], n_mugs: int, rng: np.random.Gen
         "queries": torch.from_numpy(dataset["queries"][rows].astype(np.float32)),
         "occupancy": torch.from_numpy(dataset["occupancy"][rows].astype(np.float32)),
         "center": torch.from_numpy(dataset["center"][rows].astype(np.float32)),
+        "rotation": torch.from_numpy(dataset["pose_camera_object"][rows, :3, :3].astype(np.float32)),
         "mug_index": torch.from_numpy(dataset["mug_index"][rows].astype(np.int64)),
     }

@@ -8,7 +8,8 @@ encoded; the report gives
   occupancy-weighted mean),
 - shape-code retrieval (is the most similar other view of the same mug?), the fraction of
   same-mug and different-mug pairs above delta_s, and the ROC AUC over all pairs,
-- reconstruction IoU on a regular grid over the mug's bounding box, from exact occupancy.
+- reconstruction IoU on a regular grid over the mug's bounding box, from exact occupancy;
+- the head's center error again for the views with the mug within 2 m of the camera.
 """
 
 from __future__ import annotations
@@ -22,8 +23,10 @@ import torch
 from ndfa.geometry import transform_points
 from ndfa.ndf.data import ViewConfig, generate_views
 from ndfa.ndf.encoder import CENTER_METHODS, EncoderConfig, NDFEncoder
-from ndfa.ndf.metrics import center_errors_mm, iou, pair_separation, retrieval_top1
+from ndfa.ndf.metrics import center_errors_mm, iou, pair_separation, retrieval_hits
 from ndfa.sim.splits import make_split_mug
+
+NEAR_M = 2.0  # views with the mug this close to the camera get their own center figures
 
 
 def evaluate_ndf(
@@ -55,7 +58,19 @@ def evaluate_ndf(
         errors = center_errors_mm(centers, views["center"])
         summary |= {f"{key}_{method}": value for key, value in errors.items()}
         per_view[f"center_error_mm_{method}"] = np.linalg.norm(centers - views["center"], axis=1) * 1e3
-    summary["retrieval_top1"] = retrieval_top1(shape_codes, labels)
+    # The views' cameras stand up to 5 m from the table, where a mug is ~80 points with ~4 cm of
+    # depth noise; the detector's routes pass within ~2 m. The head's center error for the near
+    # views says what the detector can expect (the headline figures above are over all views).
+    distance = np.linalg.norm(views["center"], axis=1)
+    per_view["distance_m"] = distance
+    near = distance <= NEAR_M
+    summary["views_within_2m"] = float(near.sum())
+    summary |= {f"{key}_head_within_2m": value
+                for key, value in center_errors_mm(np.stack([c.center_world for c in codes["head"]])[near],
+                                                   views["center"][near]).items()}
+    hits = retrieval_hits(shape_codes, labels)
+    per_view["retrieved_same_mug"] = hits
+    summary["retrieval_top1"] = float(hits.mean())
     summary |= pair_separation(shape_codes, labels, shape_threshold)
     ious = reconstruction_iou(encoders["head"], views, iou_grid)
     summary["iou_mean"] = float(np.nanmean(ious))

@@ -51,3 +51,14 @@ def proxy_identity_loss(codes: torch.Tensor, labels: torch.Tensor, proxies: torc
     [M] (indices into proxies), proxies [P, D]."""
     logits = scale * F.normalize(codes, dim=1) @ F.normalize(proxies, dim=1).T
     return F.cross_entropy(logits, labels)
+
+
+def frame_loss(frame_vectors: torch.Tensor, rotation_camera_object: torch.Tensor) -> torch.Tensor:
+    """Align the decoder's two frame vectors [B, 3, 2] with the mug's axis (its z, base to rim)
+    and its handle direction (its x), both taken from the true pose [B, 3, 3] of the view:
+    1 - cosine for each, averaged. Rotating a view rotates prediction and target alike, so the
+    loss is as rotation-invariant as the rest. A handle hidden from view cannot be located, and
+    a handle-less mug has none; the second term then only averages out."""
+    axis = F.cosine_similarity(frame_vectors[..., 0], rotation_camera_object[..., 2], dim=-1)
+    handle = F.cosine_similarity(frame_vectors[..., 1], rotation_camera_object[..., 0], dim=-1)
+    return (2.0 - axis - handle).mean() / 2.0

@@ -12,11 +12,16 @@ def cosine_similarity_matrix(codes: np.ndarray) -> np.ndarray:
     return unit @ unit.T
 
 
-def retrieval_top1(codes: np.ndarray, labels: np.ndarray) -> float:
-    """Fraction of observations whose most cosine-similar other observation shows the same object."""
+def retrieval_hits(codes: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """Per observation: is its most cosine-similar other observation of the same object?"""
     similarity = cosine_similarity_matrix(codes)
     np.fill_diagonal(similarity, -np.inf)
-    return float(np.mean(labels[np.argmax(similarity, axis=1)] == labels))
+    return labels[np.argmax(similarity, axis=1)] == labels
+
+
+def retrieval_top1(codes: np.ndarray, labels: np.ndarray) -> float:
+    """Fraction of observations whose most cosine-similar other observation shows the same object."""
+    return float(np.mean(retrieval_hits(codes, labels)))
 
 
 def pair_separation(codes: np.ndarray, labels: np.ndarray, threshold: float) -> dict[str, float]:

@@ -4,9 +4,10 @@ The loop, top to bottom: render (or load the cached) training and validation vie
 step draw a batch of mugs with two views each, centre every view on its points' mean, and
 minimise
 
-    L = L_occ + alpha * L_b_shape + w_center * L_center
+    L = L_occ + alpha * L_b_shape + w_center * L_center [+ w_proxy * L_proxy + w_frame * L_frame]
 
-(the paper's objective plus an equivariant center head, see `losses.py`). Every
+(the paper's objective plus an equivariant center head, and optionally an identity loss over all
+training mugs and the alignment of the decoder's object frame with the true pose; `losses.py`). Every
 `steps_per_epoch` steps: validate, append a metrics row, save a checkpoint (model, optimizer,
 step, RNG state), so that an interrupted run resumes where it stopped.
 """
@@ -27,7 +28,7 @@ import torch
 
 from ndfa.errors import ModelError
 from ndfa.ndf.data import ViewConfig, generate_views, load_dataset, sample_batch, write_dataset
-from ndfa.ndf.losses import batch_hard_shape_loss, center_loss, occupancy_loss, proxy_identity_loss
+from ndfa.ndf.losses import batch_hard_shape_loss, center_loss, frame_loss, occupancy_loss, proxy_identity_loss
 from ndfa.ndf.metrics import center_errors_mm, pair_separation, retrieval_top1
 from ndfa.ndf.model import NDFConfig, NDFModel, load_model, save_checkpoint
 
@@ -49,6 +50,7 @@ class TrainConfig:
     alpha: float = 0.01              # the paper's shape-loss weight
     shape_margin: float | None = None  # None: the paper's loss; a number: hinge with this margin
     center_weight: float = 1.0
+    frame_weight: float = 1.0        # weight of the frame loss (the "frame" decoder's axis and handle); 0: off
     proxy_weight: float = 0.0        # weight of the proxy (cosine-softmax) identity loss on the codes; 0: off
     proxy_scale: float = 16.0        # its logit scale: cosine similarities are multiplied by this
     shape_threshold: float = 0.9     # delta_s, for the validation figures
@@ -112,6 +114,8 @@ def train(
         loss = terms["occ"] + config.alpha * terms["shape"] + config.center_weight * terms["center"]
         if proxies is not None:
             loss = loss + config.proxy_weight * terms["proxy"]
+        if "frame" in terms:
+            loss = loss + config.frame_weight * terms["frame"]
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
@@ -173,14 +177,15 @@ def _loss_terms(model: NDFModel, batch: dict[str, torch.Tensor], config: TrainCo
         "shape": batch_hard_shape_loss(out["shape_code"], batch["mug_index"], config.shape_margin),
         "center": center_loss(out["center_offset"], batch["center"] - centroid[:, 0], config.model.input_scale),
     } | ({"proxy": proxy_identity_loss(out["shape_code"], batch["mug_index"], proxies, config.proxy_scale)}
-         if proxies is not None else {})
+         if proxies is not None else {}) | ({"frame": frame_loss(out["frame_vectors"], batch["rotation"])}
+                                            if "frame_vectors" in out and config.frame_weight > 0 else {})
 
 
 @torch.inference_mode()
 def validate(model: NDFModel, dataset: dict[str, np.ndarray], shape_threshold: float, batch_size: int = 64) -> dict[str, float]:
     """Occupancy accuracy on the views' query points, center error and shape-code retrieval."""
     model.eval()
-    codes, centers, correct = [], [], []
+    codes, centers, correct, axis_cosines = [], [], [], []
     for start in range(0, len(dataset["points"]), batch_size):
         points = torch.from_numpy(dataset["points"][start:start + batch_size])
         queries = torch.from_numpy(dataset["queries"][start:start + batch_size])
@@ -190,7 +195,12 @@ def validate(model: NDFModel, dataset: dict[str, np.ndarray], shape_threshold: f
         centers.append((centroid[:, 0] + out["center_offset"]).numpy())
         labels = dataset["occupancy"][start:start + batch_size]
         correct.append(((out["occupancy_logits"] > 0).numpy() == labels).mean(axis=1))
+        if "frame_vectors" in out:
+            true_axis = torch.from_numpy(dataset["pose_camera_object"][start:start + batch_size, :3, 2])
+            axis_cosines.append(torch.cosine_similarity(out["frame_vectors"][..., 0], true_axis, dim=-1).numpy())
     codes = np.concatenate(codes)
+    # How far the decoder's frame axis is from the mug's true axis, median degrees.
+    axis = {"axis_error_deg": float(np.degrees(np.median(np.arccos(np.clip(np.concatenate(axis_cosines), -1, 1)))))} if axis_cosines else {}
     labels = dataset["mug_index"]
     separation = pair_separation(codes, labels, shape_threshold)
     return {
@@ -200,7 +210,7 @@ def validate(model: NDFModel, dataset: dict[str, np.ndarray], shape_threshold: f
         "auc": separation["auc"],
         "same_above": separation["same_above"],
         "different_above": separation["different_above"],
-    }
+    } | axis
 
 
 def _datasets(config: TrainConfig, data_dir: Path) -> tuple[dict, dict]:

@@ -1,0 +1,3 @@
+from ndfa.cli.app import main
+
+main()

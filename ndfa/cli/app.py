@@ -1,0 +1,42 @@
+"""The Typer app every `ndfa` subcommand registers on, the consoles they print to, and `main`."""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+from ndfa.errors import NdfaError
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                  help="Robust object-level change detection in RGB-D data with Neural Descriptor Fields.")
+console = Console()
+err_console = Console(stderr=True)  # progress and messages, so that stdout holds only results
+
+
+def progress_bar(transient: bool = True) -> Progress:
+    """The progress bar of long commands: description, bar, done/total, time left (on stderr)."""
+    return Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                    TimeRemainingColumn(), console=err_console, transient=transient)
+
+
+def main() -> None:
+    """Entry point: run the app, turning ndfa's own errors into one line on stderr."""
+    try:
+        app(standalone_mode=False)
+    except NdfaError as error:
+        err_console.print(f"[red]error:[/red] {error}", highlight=False, soft_wrap=True)
+        sys.exit(2)
+    except typer.Abort:
+        err_console.print("aborted")
+        sys.exit(130)
+    except Exception as error:  # usage errors arrive here in non-standalone mode
+        # typer >= 0.29 vendors its own click (typer.BadParameter is not a click.ClickException):
+        # recognise both by what they can do.
+        if callable(getattr(error, "show", None)) and isinstance(getattr(error, "exit_code", None), int):
+            error.show()
+            sys.exit(error.exit_code)
+        raise
+

@@ -1,0 +1,76 @@
+"""`ndfa bench ...`: speed measurements."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.table import Table
+
+from ndfa.cli.app import app, console
+
+@app.command("bench")
+def bench_command(
+    what: str = typer.Argument("sim", help="What to time: sim (render, noise, write, read), ndf (encoding) "
+                                            "or detect (the target pass, and the detection step's growth)."),
+    frames: int = typer.Option(60, help="sim: frames to time."),
+    weights: Optional[Path] = typer.Option(None, help="ndf: checkpoint to time (default: the shipped weights)."),
+    source: Path = typer.Option(Path("recordings/sample/source.mcap"), help="detect: source recording."),
+    target: Path = typer.Option(Path("recordings/sample/target.mcap"), help="detect: target recording."),
+    recording: Path = typer.Option(Path("out/paper/target.mcap"), help="segment: recording with ground-truth masks."),
+    step: int = typer.Option(1, help="segment: use every N-th frame."),
+) -> None:
+    """Time each stage of a pipeline and print milliseconds."""
+    from ndfa.bench import bench_detect, bench_detection_scaling, bench_ndf, bench_sim
+
+    if what == "segment":
+        from ndfa.perception.segmentation import SegmentationConfig, segmentation_recall
+        from ndfa.recording import RecordingReader
+
+        reader = RecordingReader(recording)
+        r = segmentation_recall(reader.frames(step=step), SegmentationConfig())
+        console.print(f"ndfa bench segment {recording} (every {step}. frame): {r.frames} frames; "
+                      f"recovered {r.recovered}/{r.observations} = {r.recall:.1%} of the ground-truth instances with "
+                      f">= 200 pixels of depth (IoU >= 0.5); {r.segments} segments, {r.spurious} matching no instance; "
+                      f"{r.ms_per_frame:.1f} ms/frame ({r.cpu_ms_per_frame:.1f} ms CPU)")
+        return
+    if what == "detect":
+        result = bench_detect(source, target)
+        table = Table(title=f"ndfa bench detect: target pass of {target} (no sinks)",
+                      caption=f"{result['frames']} frames, {result['fps']:.1f} frames/s, {result['threads']} threads; "
+                              f"{result['machine']}")
+        table.add_column("stage")
+        table.add_column("ms / frame", justify="right")
+        for stage, ms in result["stage_ms"].items():
+            table.add_row(stage, f"{ms:.1f}")
+        table.add_row("total", f"{result['total_ms']:.1f}")
+        console.print(table)
+        scaling = Table(title="detection step (tree, association, graphs) vs map size")
+        scaling.add_column("objects", justify="right")
+        scaling.add_column("median ms / frame (4 measurements)", justify="right")
+        for row in bench_detection_scaling():
+            scaling.add_row(f"{row['objects']:,}", f"{row['ms_per_frame']:.2f}")
+        console.print(scaling)
+        return
+
+    if what == "sim":
+        result = bench_sim(frames=frames)
+        table = Table(title="ndfa bench sim (paper scene)",
+                      caption=f"{result['frames']} frames {result['width']}x{result['height']}, "
+                              f"{result['triangles']:,} triangles; {result['machine']}")
+        rows = [("build world (once)", "world_ms"), ("render / frame", "render_ms"), ("noise / frame", "noise_ms"),
+                ("write / frame", "write_ms"), ("read / frame", "read_ms"), ("render + noise + write", "total_ms_per_frame")]
+    elif what == "ndf":
+        result = bench_ndf(weights)
+        table = Table(title="ndfa bench ndf (encode + center + reconstruction grid)",
+                      caption=f"{result['points']} points per observation, grid {result['grid']}^3, "
+                              f"{result['threads']} threads; {result['machine']}")
+        rows = [("one observation", "one_ms"), ("batch of 8", "batch8_ms"), ("batch of 8, per observation", "batch8_ms_per_observation")]
+    else:
+        raise typer.BadParameter(f"unknown benchmark {what!r}; expected sim, ndf, detect or segment")
+    table.add_column("stage")
+    table.add_column("median ms", justify="right")
+    for label, key in rows:
+        table.add_row(label, f"{result[key]:.1f}")
+    console.print(table)

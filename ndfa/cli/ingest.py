@@ -1,0 +1,310 @@
+"""`ndfa ingest ...`, `ndfa export ...` and `ndfa info`: recordings in and out."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.progress import Progress, TextColumn
+from rich.table import Table
+
+from ndfa.cli.app import app, console, err_console, progress_bar
+from ndfa.errors import NdfaError
+
+ingest_app = typer.Typer(no_args_is_help=True, help="Turn a data source into ndfa recordings (MCAP).")
+app.add_typer(ingest_app, name="ingest")
+
+def _parse_range(text: str, what: str) -> tuple[int, int]:
+    try:
+        lo, _, hi = text.partition("-")
+        return int(lo), int(hi or lo)
+    except ValueError:
+        raise typer.BadParameter(f"{what} must be N or LO-HI, got {text!r}") from None
+
+
+def _pose_estimator(poses: str):
+    """The importers' `--poses`: None for "given" (the input's own), KISS-ICP odometry for "kiss-icp"."""
+    if poses == "given":
+        return None
+    if poses != "kiss-icp":
+        raise NdfaError(f"--poses must be given or kiss-icp, got {poses!r}")
+    from ndfa.trajectory.kiss import DepthOdometry
+
+    return DepthOdometry().update
+
+
+@ingest_app.command("sim")
+def ingest_sim_command(
+    out: Path = typer.Option(..., "--out", "-o", help="Output directory for source.mcap and target.mcap."),
+    preset: str = typer.Option("paper", help="paper | sample | random."),
+    seed: int = typer.Option(0, help="Seed of everything random in the scene."),
+    mesh_dir: Optional[Path] = typer.Option(None, help="Place these OBJ/PLY/STL mug meshes instead of procedural ones."),
+    mesh_up: str = typer.Option("z", help="Up axis of the --mesh-dir meshes: z or y."),
+    tables: Optional[str] = typer.Option(None, help="Table grid as ROWSxCOLS, e.g. 2x4."),
+    mugs_per_table: Optional[str] = typer.Option(None, help="Mugs per table in the source, N or LO-HI."),
+    models: Optional[int] = typer.Option(None, help="Number of distinct procedural mug models."),
+    added: Optional[int] = typer.Option(None, help="Mugs added in the target."),
+    removed: Optional[int] = typer.Option(None, help="Mugs removed in the target."),
+    moved: Optional[int] = typer.Option(None, help="Mugs moved in the target."),
+    switched: Optional[int] = typer.Option(None, help="Mugs that switch places (an even number)."),
+    source_route: Optional[str] = typer.Option(None, help="perimeter | corridor | weave | circles."),
+    target_route: Optional[str] = typer.Option(None, help="perimeter | corridor | weave | circles."),
+    step: Optional[float] = typer.Option(None, help="Camera travel between frames, metres."),
+    noise: Optional[bool] = typer.Option(None, "--noise/--no-noise", help="Depth sensor noise on or off."),
+    noise_scale: Optional[float] = typer.Option(None, help="Depth noise std as a multiple of the default sensor's."),
+    offset: Optional[float] = typer.Option(None, help="Target pose offset: max translation per axis, metres."),
+    offset_yaw: Optional[float] = typer.Option(None, help="Target pose offset: max yaw, degrees."),
+    drift: Optional[float] = typer.Option(None, help="Target drift: random-walk translation step std, metres/frame."),
+    drift_yaw: Optional[float] = typer.Option(None, help="Target drift: random-walk yaw step std, degrees/frame."),
+) -> None:
+    """Render a synthetic source/target pair of recordings with ground truth."""
+    from ndfa.ingest.synthetic import check_output_dir, ingest_sim
+    from ndfa.sim.noise import DepthNoise
+    from ndfa.sim.presets import make_config
+
+    config = make_config(preset, seed)
+    overrides: dict = {}
+    if tables is not None:
+        rows, _, cols = tables.lower().partition("x")
+        if not (rows.isdigit() and cols.isdigit()):
+            raise typer.BadParameter(f"--tables must be ROWSxCOLS, got {tables!r}")
+        overrides.update(table_rows=int(rows), table_cols=int(cols), total_mugs=None)
+    if mugs_per_table is not None:
+        overrides.update(mugs_per_table=_parse_range(mugs_per_table, "--mugs-per-table"), total_mugs=None)
+    if models is not None:
+        overrides["mug_models"] = models
+    counts = {k: v for k, v in dict(added=added, removed=removed, moved=moved, switched=switched).items() if v is not None}
+    if counts:
+        overrides["changes"] = {**config.changes, **counts}
+    if source_route is not None:
+        overrides["source_route"] = source_route
+    if target_route is not None:
+        overrides["target_route"] = target_route
+    if step is not None:
+        overrides["trajectory"] = dataclasses.replace(config.trajectory, step_m=step)
+    if noise is not None or noise_scale is not None:
+        overrides["depth_noise"] = DepthNoise().scaled(1.0 if noise_scale is None else noise_scale)
+        if noise is False:
+            overrides["depth_noise"] = DepthNoise.off()
+    error = {k: v for k, v in dict(offset_translation_m=offset, offset_yaw_deg=offset_yaw,
+                                   drift_translation_m=drift, drift_yaw_deg=drift_yaw).items() if v is not None}
+    if error:
+        overrides["target_pose_error"] = dataclasses.replace(config.target_pose_error, **error)
+    config = make_config(preset, seed, **overrides)
+
+    check_output_dir(out)
+    user_models = None
+    if mesh_dir is not None:
+        from ndfa.sim.mesh_io import load_mug_dir
+
+        user_models = load_mug_dir(mesh_dir, up=mesh_up)
+
+    with progress_bar(transient=False) as progress:
+        tasks: dict[str, int] = {}
+
+        def on_progress(session: str, done: int, total: int) -> None:
+            if session not in tasks:
+                tasks[session] = progress.add_task(f"rendering {session}", total=total)
+            progress.update(tasks[session], completed=done)
+
+        summaries = ingest_sim(config, out, models=user_models, on_progress=on_progress)
+
+    table = Table(title=f"{config.preset} scene, seed {config.seed}: {config.table_rows * config.table_cols} tables -> {out}")
+    for column in ("session", "frames", "mugs", "added", "removed", "moved", "switched", "size"):
+        table.add_column(column, justify="left" if column == "session" else "right")
+    for s in summaries:
+        table.add_row(s.path.name, str(s.frames), str(s.objects),
+                      *(str(s.changes.get(k, "")) for k in ("added", "removed", "moved", "switched")),
+                      f"{s.size_bytes / 1e6:.1f} MB")
+    console.print(table)
+
+
+def _parse_intrinsics(text: Optional[str]) -> object:
+    """None, a TUM preset name (fr1, fr2, fr3) or 'fx,fy,cx,cy' -> what ingest_tum takes."""
+    if text is None or text.lower() in ("fr1", "fr2", "fr3"):
+        return text.lower() if text else None
+    try:
+        values = tuple(float(v) for v in text.split(","))
+    except ValueError:
+        values = ()
+    if len(values) != 4:
+        raise NdfaError(f"--intrinsics must be fr1, fr2, fr3 or fx,fy,cx,cy, got {text!r}")
+    return values
+
+
+@ingest_app.command("tum")
+def ingest_tum_command(
+    folder: Path = typer.Argument(..., help="A TUM RGB-D folder (rgb.txt, depth.txt, groundtruth.txt, rgb/, depth/)."),
+    out: Path = typer.Option(..., "--out", "-o", help="The recording to write (.mcap)."),
+    intrinsics: Optional[str] = typer.Option(None, help="fr1 | fr2 | fr3 | fx,fy,cx,cy (default: the folder's "
+                                                        "calibration.txt, else TUM's ROS default 525,525,319.5,239.5)."),
+    depth_scale: float = typer.Option(5000.0, help="Depth PNG units per metre (TUM: 5000)."),
+    masks: Optional[Path] = typer.Option(None, help="Instance masks: 16-bit PNGs named as the depth PNGs, 0 = none "
+                                                    "(default: the folder's masks/ if any)."),
+    max_dt: float = typer.Option(0.02, help="Largest rgb-depth timestamp difference to pair them, seconds."),
+    poses: str = typer.Option("given", help="given (groundtruth.txt) | kiss-icp (estimated from depth; "
+                                            "groundtruth.txt, if any, is kept as the true poses)."),
+    session: Optional[str] = typer.Option(None, help="Session name (default: the folder's name)."),
+) -> None:
+    """Import a TUM RGB-D folder into one recording, and say what was dropped and why."""
+    import warnings
+
+    from ndfa.ingest.tum import TumWarning, ingest_tum
+
+    estimator = _pose_estimator(poses)
+    camera = _parse_intrinsics(intrinsics)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", TumWarning)  # listed under the table instead
+        with progress_bar() as progress:
+            task = progress.add_task(f"writing {out.name}", total=None)
+            summary = ingest_tum(folder, out, intrinsics=camera, depth_scale=depth_scale,
+                                 masks=masks, max_dt=max_dt, session=session, estimate_poses=estimator,
+                                 on_progress=lambda done, total: progress.update(task, completed=done, total=total))
+
+    table = Table(title=f"{folder} -> {out}", show_header=False)
+    table.add_column("what")
+    table.add_column("value", justify="right")
+    table.add_row("session", summary.session)
+    table.add_row("depth frames in depth.txt", str(summary.indexed))
+    table.add_row("frames written", str(summary.written))
+    for reason, count in summary.dropped.items():
+        table.add_row(f"dropped: {reason}", str(count))
+    table.add_row("depth without rgb (kept)", str(summary.depth_without_rgb))
+    table.add_row("poses", summary.poses)
+    table.add_row("intrinsics", summary.intrinsics)
+    table.add_row("timestamps", summary.timestamps)
+    table.add_row("instance masks", "yes" if summary.has_instances else "no")
+    table.add_row("ground truth", "yes" if summary.has_ground_truth else "no")
+    console.print(table)
+    for message in summary.warnings:
+        console.print(f"[yellow]warning:[/yellow] {message}", highlight=False, soft_wrap=True)
+
+
+@ingest_app.command("bag")
+def ingest_bag_command(
+    bag: Path = typer.Argument(..., help="A ROS1 .bag file or a ROS2 bag directory (sqlite3 or mcap)."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="The recording to write (.mcap)."),
+    list_only: bool = typer.Option(False, "--list", help="List the bag's topics and the role each would get; write nothing."),
+    rgb_topic: Optional[str] = typer.Option(None, help="Colour images (Image or CompressedImage)."),
+    depth_topic: Optional[str] = typer.Option(None, help="Depth images (16UC1 mm, 32FC1 m, or compressedDepth)."),
+    info_topic: Optional[str] = typer.Option(None, help="The depth camera's sensor_msgs/CameraInfo."),
+    mask_topic: Optional[str] = typer.Option(None, help="Instance masks (mono16/16UC1, 0 = none)."),
+    pose_topic: Optional[str] = typer.Option(None, help="tf, or a nav_msgs/Odometry or geometry_msgs/PoseStamped topic "
+                                                        "(default: tf when the bag has it)."),
+    world_frame: Optional[str] = typer.Option(None, help="tf frame of the world (default: map, odom or world)."),
+    camera_frame: Optional[str] = typer.Option(None, help="tf frame of the camera (default: the depth images' frame_id)."),
+    max_dt: float = typer.Option(0.02, help="Largest depth-colour (and depth-mask) stamp difference, seconds."),
+    poses: str = typer.Option("given", help="given (from the bag) | kiss-icp (estimated from depth)."),
+) -> None:
+    """Import a ROS1 or ROS2 bag into one recording, and say what was skipped and why."""
+    from ndfa.ingest.bag import ingest_bag, list_topics
+
+    if list_only:
+        topics = list_topics(bag)
+        table = Table(title=str(bag))
+        for column in ("topic", "type", "messages", "encoding", "role"):
+            table.add_column(column, justify="right" if column == "messages" else "left")
+        for topic in topics:
+            table.add_row(topic.name, topic.msgtype, str(topic.count), topic.encoding or "", topic.role or "")
+        console.print(table)
+        return
+    if out is None:
+        raise typer.BadParameter("--out is required (or --list)")
+    estimator = _pose_estimator(poses)
+
+    with progress_bar() as progress:
+        task = progress.add_task(f"writing {out.name}", total=None)
+        summary = ingest_bag(bag, out, rgb_topic=rgb_topic, depth_topic=depth_topic, info_topic=info_topic,
+                             mask_topic=mask_topic, pose_source=pose_topic, world_frame=world_frame,
+                             camera_frame=camera_frame, max_dt=max_dt, estimate_poses=estimator,
+                             on_progress=lambda done, total: progress.update(task, completed=done, total=total))
+
+    table = Table(title=f"{bag} -> {out}", show_header=False)
+    table.add_column("what")
+    table.add_column("value", justify="right")
+    for role, topic in summary.topics.items():
+        table.add_row(f"{role} topic", topic)
+    table.add_row("depth messages", str(summary.depth_messages))
+    table.add_row("frames written", str(summary.frames))
+    for reason, count in summary.skipped.items():
+        table.add_row(f"skipped: {reason}", str(count))
+    table.add_row("poses", summary.pose_source)
+    table.add_row("frames", f"{summary.camera_frame} in {summary.world_frame or '-'}")
+    table.add_row("instance masks", "yes" if summary.instances else "no")
+    table.add_row("ground truth", "yes" if summary.ground_truth else "no")
+    table.add_row("size", f"{summary.size_bytes / 1e6:.1f} MB")
+    console.print(table)
+
+
+export_app = typer.Typer(no_args_is_help=True, help="Write ndfa recordings out in other formats.")
+app.add_typer(export_app, name="export")
+
+
+@export_app.command("tum")
+def export_tum_command(
+    recording: Path = typer.Argument(..., help="An ndfa recording (.mcap)."),
+    out: Path = typer.Option(..., "--out", "-o", help="The TUM folder to create (must not exist, or be empty)."),
+    depth_scale: float = typer.Option(5000.0, help="Depth PNG units per metre (TUM: 5000)."),
+) -> None:
+    """Write a recording as a TUM RGB-D folder (plus calibration.txt, masks/ and ground truth)."""
+    from ndfa.export.tum import export_tum
+
+    with progress_bar() as progress:
+        task = progress.add_task(f"writing {out.name}", total=None)
+        summary = export_tum(recording, out, depth_scale=depth_scale,
+                             on_progress=lambda done, total: progress.update(task, completed=done, total=total))
+    console.print(f"wrote {summary.frames} frames ({summary.with_rgb} with colour"
+                  f"{', masks' if summary.with_masks else ''}{', ground truth' if summary.with_ground_truth else ''}) "
+                  f"to {summary.folder}")
+    if summary.depth_clipped:
+        console.print(f"[yellow]warning:[/yellow] {summary.depth_clipped} depth pixels beyond "
+                      f"{65535 / depth_scale:.2f} m written as 0 (invalid)")
+
+
+@export_app.command("bag")
+def export_bag_command(
+    recording: Path = typer.Argument(..., help="An ndfa recording (.mcap)."),
+    out: Path = typer.Option(..., "--out", "-o", help="The bag to create: a .bag file, or a directory with --ros2."),
+    ros2: bool = typer.Option(False, "--ros2", help="Write a ROS2 bag (directory) instead of a ROS1 .bag."),
+    storage: str = typer.Option("sqlite3", help="ROS2 storage: sqlite3 | mcap."),
+    compressed: bool = typer.Option(False, "--compressed", help="Colour as CompressedImage, depth as compressedDepth PNG."),
+    color_format: str = typer.Option("jpeg", help="With --compressed: jpeg (lossy) | png."),
+) -> None:
+    """Write a recording as a ROS bag (images, CameraInfo, /tf, /tf_static, ground truth)."""
+    from ndfa.export.bag import export_bag
+
+    with Progress(TextColumn("[bold]{task.description}"), console=err_console, transient=True) as progress:
+        progress.add_task(f"writing {out.name}", total=None)
+        summary = export_bag(recording, out, version=2 if ros2 else 1, storage=storage, compressed=compressed,
+                             color_format=color_format)
+    console.print(f"wrote {summary.frames} frames to {summary.out} ({summary.size_bytes / 1e6:.1f} MB): "
+                  + ", ".join(summary.topics))
+
+
+@app.command("info")
+def info_command(recording: Path = typer.Argument(..., help="An ndfa recording (.mcap).")) -> None:
+    """Summarise a recording: source, frames, image size, poses and ground-truth changes."""
+    from ndfa.recording import RecordingReader
+
+    reader = RecordingReader(recording)
+    meta = reader.meta
+    table = Table(title=str(recording), show_header=False)
+    table.add_column("key")
+    table.add_column("value")
+    for key in ("source", "session", "preset", "seed", "route", "poses"):
+        if key in meta:
+            table.add_row(key, str(meta[key]))
+    table.add_row("frames", str(len(reader)))
+    table.add_row("instance masks", "yes" if reader.has_instances else "no")
+    truth = reader.ground_truth
+    if truth:
+        table.add_row("tables", str(len(truth.get("tables", []))))
+        session = truth.get("session", meta.get("session"))
+        present = [o for o in truth.get("objects", []) if o.get(session)]
+        table.add_row("mugs in this session", str(len(present)))
+        changes = truth.get("changes", {})
+        table.add_row("changes", ", ".join(f"{k} {v}" for k, v in changes.items()))
+    console.print(table)

@@ -1,0 +1,121 @@
+"""`ndfa train`, `ndfa ndf-export` and `ndfa ndf-eval`: the NDF model."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.table import Table
+
+from ndfa.cli.app import app, console, err_console
+
+@app.command("train")
+def train_command(
+    out: Path = typer.Option(Path("out/ndf"), "--out", "-o", help="Run directory: checkpoint.pt, metrics.parquet, config.json."),
+    steps: int = typer.Option(8000, help="Optimizer steps."),
+    train_mugs: int = typer.Option(400, help="Train-split mugs to render views of."),
+    views_per_mug: int = typer.Option(24, help="Rendered views per training mug."),
+    batch_mugs: int = typer.Option(16, help="Mugs per batch (two views each)."),
+    alpha: float = typer.Option(0.01, help="Weight of the batch-hard shape loss (paper: 0.01)."),
+    shape_margin: Optional[float] = typer.Option(None, help="Hinge margin of the shape loss (default: the paper's form)."),
+    code_head: str = typer.Option("gram", help="Shape code: gram (invariants of z) or norms (the paper's |z_i|)."),
+    pooling: str = typer.Option("max", help="Encoder pooling over points: max (VN max-pool) or mean (NDF's)."),
+    decoder: str = typer.Option("frame", help="Occupancy decoder: frame (queries in a frame made from z) or dots (x . z_j only)."),
+    lr: float = typer.Option(6e-4, help="Adam learning rate (paper: 6e-4)."),
+    lr_final: float = typer.Option(1.0, help="Cosine-decay lr to this fraction of --lr by the last step (1: constant)."),
+    init: Optional[Path] = typer.Option(None, help="Start from these weights (e.g. the shipped ones) with a fresh optimizer."),
+    proxy_weight: float = typer.Option(0.0, help="Weight of the proxy identity loss on the shape codes (0: off)."),
+    frame_weight: float = typer.Option(1.0, help="Weight of the frame loss: the frame decoder's axes vs the true pose (0: off)."),
+    gram_eps: float = typer.Option(1e-10, help="Epsilon of the batch norm on the Gram invariants (see NDFConfig)."),
+    seed: int = typer.Option(0, help="Seed of the views, the batches and the initial weights."),
+    threads: int = typer.Option(2, help="Torch CPU threads (1 when another job shares the cores)."),
+    resume: bool = typer.Option(False, help="Continue from OUT/checkpoint.pt."),
+    data_dir: Optional[Path] = typer.Option(None, help="Cache of rendered views (default OUT/data)."),
+    log: Optional[Path] = typer.Option(None, help="Also log the metrics to this Rerun file (.rrd)."),
+) -> None:
+    """Train the NDF on rendered partial views of train-split procedural mugs (CPU)."""
+    from ndfa.ndf.model import NDFConfig
+    from ndfa.ndf.train import TrainConfig, train
+
+    config = TrainConfig(model=NDFConfig(code_head=code_head, pooling=pooling, decoder=decoder, gram_eps=gram_eps), proxy_weight=proxy_weight, frame_weight=frame_weight, train_mugs=train_mugs, views_per_mug=views_per_mug,
+                         batch_mugs=batch_mugs, steps=steps, alpha=alpha, shape_margin=shape_margin, lr=lr, seed=seed,
+                         threads=threads, lr_final_fraction=lr_final, init_weights=str(init) if init else None)
+    recorder = None
+    if log is not None:
+        import rerun as rr
+
+        recorder = rr.RecordingStream("ndfa_train")
+        recorder.save(str(log))
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TextColumn("{task.fields[info]}"), TimeRemainingColumn(), console=err_console) as progress:
+        task = progress.add_task("training", total=steps, info="rendering views")
+
+        def on_step(step: int, total: int, losses: dict) -> None:
+            progress.update(task, completed=step, info=f"loss {losses['loss']:.3f}")
+
+        def on_epoch(row: dict) -> None:
+            progress.console.print(
+                f"epoch {row['epoch']:3d} step {row['step']:6d}  occ {row['train_occ']:.3f}  shape {row['train_shape']:+.3f}"
+                f"  center {row['train_center']:.3f} | val acc {row['val_occ_accuracy']:.3f}"
+                f"  center {row['val_center_median_mm']:.1f}/{row['val_center_p90_mm']:.1f} mm"
+                f"  top1 {row['val_retrieval_top1']:.2f}  auc {row['val_auc']:.3f}  ({row['elapsed_s'] / 60:.1f} min)")
+            if recorder is not None:
+                import rerun as rr
+
+                recorder.set_time("step", sequence=row["step"])
+                for key, value in row.items():
+                    if key not in ("epoch", "step"):
+                        recorder.log(f"train/{key}", rr.Scalars(value))
+
+        train(config, out, resume=resume, data_dir=data_dir, on_step=on_step, on_epoch=on_epoch)
+    console.print(f"checkpoint and metrics in {out}")
+
+
+@app.command("ndf-export")
+def ndf_export_command(
+    checkpoint: Path = typer.Argument(..., help="A training checkpoint (RUN/checkpoint.pt)."),
+    to: Optional[Path] = typer.Option(None, help="Destination (default: the package's shipped weights)."),
+) -> None:
+    """Strip a training checkpoint to the weights the package ships and loads by default."""
+    from ndfa.ndf.encoder import DEFAULT_WEIGHTS
+    from ndfa.ndf.train import export_weights
+
+    destination = to or DEFAULT_WEIGHTS
+    export_weights(checkpoint, destination)
+    console.print(f"wrote {destination} ({destination.stat().st_size / 1e6:.2f} MB)")
+
+
+@app.command("ndf-eval")
+def ndf_eval_command(
+    weights: list[Path] = typer.Option(None, "--weights", "-w", help="Checkpoint(s) to evaluate (default: the shipped weights)."),
+    out: Path = typer.Option(Path("out/ndf-eval"), "--out", "-o", help="Directory for summary.parquet and views.parquet."),
+    mugs: int = typer.Option(20, help="Held-out test-split mugs."),
+    views_per_mug: int = typer.Option(50, help="Partial views per mug."),
+    seed: int = typer.Option(0, help="Seed of the test views."),
+) -> None:
+    """Model quality on unseen test-split mugs: center error, shape-code retrieval, IoU."""
+    from ndfa.ndf.data import ViewConfig, generate_views
+    from ndfa.ndf.evaluate import evaluate_ndf
+
+    import polars as pl
+
+    views = generate_views("test", list(range(mugs)), views_per_mug, seed, ViewConfig())
+    rows = []
+    out.mkdir(parents=True, exist_ok=True)
+    for path in weights or [None]:
+        summary, per_view = evaluate_ndf(path, views=views)
+        name = str(path) if path is not None else "shipped"
+        rows.append({"weights": name, **summary})
+        per_view.with_columns(pl.lit(name).alias("weights")).write_parquet(out / f"views-{len(rows)}.parquet")
+    table = Table(title=f"ndfa ndf-eval: {mugs} unseen test mugs x {views_per_mug} views")
+    table.add_column("figure")
+    for row in rows:
+        table.add_column(Path(row["weights"]).parent.name or row["weights"], justify="right")
+    for key in rows[0]:
+        if key != "weights":
+            table.add_row(key, *(f"{row[key]:.3f}" for row in rows))
+    console.print(table)
+    pl.DataFrame(rows).write_parquet(out / "summary.parquet")
+    console.print(f"tables in {out}")
