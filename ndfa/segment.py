@@ -14,7 +14,8 @@ from pathlib import Path
 from typing import Callable
 
 from ndfa.errors import RecordingError
-from ndfa.perception.segmentation import SegmentationConfig, relabel_to_truth, segment_frame, valid_depth
+from ndfa.perception.segmentation import SegmentationConfig, segment_frame, valid_depth
+from ndfa.perception.segmentation_scoring import relabel_to_truth
 from ndfa.recording import RecordingReader, RecordingWriter
 
 FRESH_ID = 60000  # segments matching no ground-truth instance get FRESH_ID + label (no mug has such an id)

@@ -35,7 +35,7 @@ def trained_looking(model: NDFModel, seed: int) -> NDFModel:
 
 @pytest.mark.parametrize("seed", SEEDS)
 @pytest.mark.parametrize(
-    "config", [NDFConfig(), NDFConfig(code_head="norms", pooling="mean", decoder="dots")], ids=["default", "norms-mean-dots"]
+    "config", [NDFConfig(), NDFConfig(code_head="norms", pooling="mean", decoder="dots", local_points=0)], ids=["default", "norms-mean-dots"]
 )
 def test_rotating_the_view_rotates_z_and_center_and_keeps_code_and_occupancy(seed, config):
     model = trained_looking(NDFModel(config), seed)
@@ -115,6 +115,8 @@ def test_bad_config_is_refused():
         NDFConfig(pooling="sum")
     with pytest.raises(ModelError, match="decoder"):
         NDFConfig(decoder="grid")
+    with pytest.raises(ModelError, match="local_points"):
+        NDFConfig(decoder="dots", local_points=4)
     with pytest.raises(ModelError, match="positive"):
         NDFConfig(latent=0)
 
@@ -136,9 +138,9 @@ def test_checkpoint_round_trip(tmp_path):
 
 
 def test_checkpoints_from_before_the_decoder_option_load_with_the_dots_decoder(tmp_path):
-    config = dataclasses.replace(SMALL, decoder="dots")
+    config = dataclasses.replace(SMALL, decoder="dots", local_points=0)
     model = trained_looking(NDFModel(config), 0)
-    old_config = {k: v for k, v in dataclasses.asdict(config).items() if k != "decoder"}
+    old_config = {k: v for k, v in dataclasses.asdict(config).items() if k not in ("decoder", "local_points")}
     torch.save({"config": old_config, "state_dict": model.state_dict()}, tmp_path / "old.pt")
     loaded, _ = load_model(tmp_path / "old.pt")
     assert loaded.config.decoder == "dots"

@@ -25,7 +25,8 @@ def bench_command(
     from ndfa.bench import bench_detect, bench_detection_scaling, bench_ndf, bench_sim
 
     if what == "segment":
-        from ndfa.perception.segmentation import SegmentationConfig, segmentation_recall
+        from ndfa.perception.segmentation import SegmentationConfig
+        from ndfa.perception.segmentation_scoring import segmentation_recall
         from ndfa.recording import RecordingReader
 
         reader = RecordingReader(recording)

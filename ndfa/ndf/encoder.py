@@ -90,7 +90,7 @@ class NDFEncoder:
         codes = self.model.shape_code(z).numpy()
         offsets = self.model.center_offset(z)
         queries = offsets[:, None, :] + torch.from_numpy(self._grid)[None]  # around each predicted center
-        occupancy = self._grid_occupancy(z, queries)
+        occupancy = self._grid_occupancy(z, queries, centred)
         queries = queries.numpy()
 
         results = []
@@ -107,16 +107,16 @@ class NDFEncoder:
             ))
         return results
 
-    def _grid_occupancy(self, z: torch.Tensor, queries: torch.Tensor) -> np.ndarray:
+    def _grid_occupancy(self, z: torch.Tensor, queries: torch.Tensor, points: torch.Tensor) -> np.ndarray:
         """Occupancy `[B, G^3]` of the grid queries, decoded coarse to fine (see `EncoderConfig`)."""
         if self.config.coarse_threshold <= 0:
-            return torch.sigmoid(self.model.occupancy_logits(z, queries)).numpy()
+            return torch.sigmoid(self.model.occupancy_logits(z, queries, points)).numpy()
         n = self.config.grid_resolution
         batch = len(queries)
         fine = np.arange(n ** 3).reshape(n, n, n)
         coarse = fine[::2, ::2, ::2].ravel()
         occupancy = np.zeros((batch, n ** 3), dtype=np.float32)
-        occupancy[:, coarse] = torch.sigmoid(self.model.occupancy_logits(z, queries[:, coarse])).numpy()
+        occupancy[:, coarse] = torch.sigmoid(self.model.occupancy_logits(z, queries[:, coarse], points)).numpy()
         # Fine points within one coarse step of an occupied coarse point: dilate, then upsample
         # (fine index i lies between coarse i // 2 and i // 2 + 1).
         occupied = (occupancy[:, coarse] > self.config.coarse_threshold).reshape(batch, *fine[::2, ::2, ::2].shape)
@@ -134,7 +134,7 @@ class NDFEncoder:
             chosen = np.flatnonzero(near[b])
             index[b] = np.pad(chosen, (0, counts.max() - len(chosen)), mode="edge") if len(chosen) else coarse[0]
         gathered = torch.gather(queries, 1, torch.from_numpy(index)[:, :, None].expand(-1, -1, 3))
-        values = torch.sigmoid(self.model.occupancy_logits(z, gathered)).numpy()
+        values = torch.sigmoid(self.model.occupancy_logits(z, gathered, points)).numpy()
         for b in range(batch):
             occupancy[b, index[b, :counts[b]]] = values[b, :counts[b]]
         return occupancy

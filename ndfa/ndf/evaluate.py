@@ -99,8 +99,9 @@ def reconstruction_iou(encoder: NDFEncoder, views: dict[str, np.ndarray], resolu
         cloud = encoder.resample(points)
         centroid = cloud.mean(axis=0)
         queries = transform_points(pose, grid) - centroid
-        z = encoder.model.encode(torch.from_numpy((cloud - centroid).astype(np.float32))[None])
-        logits = encoder.model.occupancy_logits(z, torch.from_numpy(queries.astype(np.float32))[None])[0]
+        centred = torch.from_numpy((cloud - centroid).astype(np.float32))[None]
+        z = encoder.model.encode(centred)
+        logits = encoder.model.occupancy_logits(z, torch.from_numpy(queries.astype(np.float32))[None], centred)[0]
         predicted = torch.sigmoid(logits).numpy() > encoder.config.v0
         result[i] = iou(predicted, truth)
     return result

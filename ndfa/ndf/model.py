@@ -32,6 +32,11 @@ from ndfa.ndf.vn import EPS, VNEdgeConv, VNLinear, VNResnetBlock, vn_invariant, 
 CODE_HEADS = ("norms", "gram")
 POOLINGS = ("mean", "max")
 DECODERS = ("dots", "frame")
+# The frame decoder reads coordinates (and their squares, and offsets to nearby points) 10x the
+# encoder's scale, i.e. in centimetres: a 3-8 mm wall then spans 0.3-0.8 input units, a step that
+# freshly initialised ReLU layers resolve. At the encoder's scale (0.03-0.08) the decoder predicted
+# no occupied query at all for the first 750+ steps; at 10x, within 100 steps.
+DECODER_GAIN = 10.0
 
 
 @dataclass(frozen=True)
@@ -57,6 +62,11 @@ class NDFConfig:
         coordinates, in which a thin wall is a simple interval of radius and height. With "dots"
         the MLP must square the projections itself; in 300-step runs "frame" learnt occupancy
         faster (see the model card).
+    local_points: with the "frame" decoder, each query also sees its offsets to this many nearest
+        input points, in the object frame, and their lengths (0: off). The visible surface then
+        places the wall it belongs to directly instead of through z; z must still complete the
+        hidden side. In 350-step runs (with the decoder's centimetre inputs, `DECODER_GAIN`) this
+        learnt occupancy several times faster (BCE 0.40 vs 0.43 after 750 steps without).
     decoder_width: width of the occupancy MLP.
     decoder_blocks: residual blocks of the occupancy MLP.
     code_head: "norms" is the paper's s_i = |z_i| (D = latent); "gram" feeds the Gram matrix of a
@@ -79,6 +89,7 @@ class NDFConfig:
     encoder_blocks: int = 3
     pooling: str = "max"
     decoder: str = "frame"
+    local_points: int = 4
     decoder_width: int = 128
     decoder_blocks: int = 3
     code_head: str = "gram"
@@ -92,10 +103,12 @@ class NDFConfig:
             raise ModelError(f"unknown code_head {self.code_head!r}; expected one of {CODE_HEADS}")
         if self.decoder not in DECODERS:
             raise ModelError(f"unknown decoder {self.decoder!r}; expected one of {DECODERS}")
+        if self.local_points and self.decoder != "frame":
+            raise ModelError("local_points needs the frame decoder (offsets are made invariant in its frame)")
         if self.pooling not in POOLINGS:
             raise ModelError(f"unknown pooling {self.pooling!r}; expected one of {POOLINGS}")
         sizes = (self.hidden, self.latent, self.knn, self.decoder_width, self.code_dim, self.gram_channels)
-        if min(sizes) < 1 or self.encoder_blocks < 0 or self.decoder_blocks < 0 or self.input_scale <= 0:
+        if min(sizes) < 1 or self.local_points < 0 or self.encoder_blocks < 0 or self.decoder_blocks < 0 or self.input_scale <= 0:
             raise ModelError(f"model sizes and input_scale must be positive: {self}")
 
 
@@ -204,15 +217,19 @@ class OccupancyDecoder(nn.Module):
         super().__init__()
         k, width = config.latent, config.decoder_width
         self.use_frame = config.decoder == "frame"
+        self.local_points = config.local_points
         self.frame = VNLinear(k, 2 if self.use_frame else 3)
         self.query_in = nn.Linear(1 + k + (6 if self.use_frame else 0), width)
+        self.local_in = nn.Linear(4 * self.local_points, width, bias=False) if self.local_points else None
         self.shape_in = nn.Linear(3 * k, width, bias=False)
         self.blocks = nn.Sequential(*(ResnetBlockFC(width) for _ in range(config.decoder_blocks)))
         self.out = nn.Linear(width, 1)
 
-    def forward(self, z: torch.Tensor, queries: torch.Tensor, center: torch.Tensor | None = None) -> torch.Tensor:
-        """z: `[B, 3, k]`, queries: `[B, Q, 3]`, both scaled, and for the "frame" decoder the
-        predicted center `[B, 3]` (scaled), which becomes the frame's origin. Returns logits `[B, Q]`."""
+    def forward(self, z: torch.Tensor, queries: torch.Tensor, center: torch.Tensor | None = None,
+                points: torch.Tensor | None = None) -> torch.Tensor:
+        """z: `[B, 3, k]`, queries: `[B, Q, 3]`, both scaled; for the "frame" decoder the predicted
+        center `[B, 3]` (scaled), which becomes the frame's origin, and with `local_points` the
+        input points `[B, N, 3]` (scaled). Returns logits `[B, Q]`."""
         if self.use_frame:
             # Relative to the object's center rather than the visible points' centroid: then the
             # radius of a query from the mug's axis is a sum of squared frame coordinates, which
@@ -223,10 +240,29 @@ class OccupancyDecoder(nn.Module):
         if self.use_frame:
             frame = object_frame(frame)  # [B, 3, 3]
             local = queries @ frame  # [B, Q, 3]: the queries in the object's own frame
-            query_features += [local, local * local]
+            query_features += [DECODER_GAIN * local, DECODER_GAIN * local * local]
         shape_features = vn_invariant(z, frame).flatten(1)  # [B, 3k]
         h = self.query_in(torch.cat(query_features, dim=-1)) + self.shape_in(shape_features).unsqueeze(1)
+        if self.local_in is not None:
+            if points is None:
+                raise ModelError("this model's decoder needs the input points (local_points > 0)")
+            h = h + self.local_in(self._nearest_offsets(queries, points - center.unsqueeze(1), frame))
         return self.out(torch.relu(self.blocks(h))).squeeze(-1)
+
+    def _nearest_offsets(self, queries: torch.Tensor, points: torch.Tensor, frame: torch.Tensor) -> torch.Tensor:
+        """Per query, the offsets to its `local_points` nearest points in the object frame and their
+        lengths, nearest first, scaled by DECODER_GAIN: `[B, Q, 4 * local_points]`, invariant."""
+        k = min(self.local_points, points.shape[1])
+        with torch.no_grad():  # which points are nearest needs no gradient
+            norm_sq = (points * points).sum(-1).unsqueeze(-2)  # [B, 1, N]; |q|^2 does not change the ranking
+            ranking = torch.baddbmm(norm_sq, queries, points.transpose(-1, -2), alpha=-2.0)  # [B, Q, N]
+            nearest = ranking.topk(k, largest=False).indices  # [B, Q, k]
+        batch_index = torch.arange(points.shape[0], device=points.device)[:, None, None]
+        offsets = (points[batch_index, nearest] - queries.unsqueeze(2)) @ frame.unsqueeze(1)  # [B, Q, k, 3]
+        features = torch.cat([offsets, offsets.norm(dim=-1, keepdim=True)], dim=-1)
+        if k < self.local_points:  # fewer input points than neighbours asked for: repeat the last
+            features = torch.cat([features, features[:, :, -1:].expand(-1, -1, self.local_points - k, -1)], dim=2)
+        return DECODER_GAIN * features.flatten(2)
 
 
 class GramCode(nn.Module):
@@ -294,10 +330,12 @@ class NDFModel(nn.Module):
         """
         return self.center_head(z.transpose(-1, -2)).squeeze(-1) / self.config.input_scale
 
-    def occupancy_logits(self, z: torch.Tensor, queries: torch.Tensor) -> torch.Tensor:
-        """z `[B, k, 3]`, zero-centred queries `[B, Q, 3]` (metres) -> occupancy logits `[B, Q]`."""
-        center = self.center_offset(z) * self.config.input_scale if self.decoder.use_frame else None
-        return self.decoder(z.transpose(-1, -2), queries * self.config.input_scale, center)
+    def occupancy_logits(self, z: torch.Tensor, queries: torch.Tensor, points: torch.Tensor | None = None) -> torch.Tensor:
+        """z `[B, k, 3]`, zero-centred queries `[B, Q, 3]` (metres) -> occupancy logits `[B, Q]`.
+        `points`: the zero-centred input `[B, N, 3]` z was encoded from; needed with `local_points`."""
+        scale = self.config.input_scale
+        center = self.center_offset(z) * scale if self.decoder.use_frame else None
+        return self.decoder(z.transpose(-1, -2), queries * scale, center, None if points is None else points * scale)
 
     def frame_vectors(self, z: torch.Tensor) -> torch.Tensor | None:
         """z `[B, k, 3]` -> the two vectors `[B, 3, 2]` the "frame" decoder builds its frame from
@@ -310,7 +348,7 @@ class NDFModel(nn.Module):
             "z": z,
             "shape_code": self.shape_code(z),
             "center_offset": self.center_offset(z),
-            "occupancy_logits": self.occupancy_logits(z, queries),
+            "occupancy_logits": self.occupancy_logits(z, queries, points),
         }
         frame_vectors = self.frame_vectors(z)
         return out if frame_vectors is None else out | {"frame_vectors": frame_vectors}
@@ -352,8 +390,8 @@ def load_model(path: str | Path) -> tuple[NDFModel, dict]:
     if not isinstance(content, dict) or not {"config", "state_dict"} <= content.keys():
         raise ModelError(f"{path}: not an ndfa checkpoint (no 'config' and 'state_dict' entries)")
     try:
-        # Checkpoints from before the "decoder" option had the "dots" decoder.
-        model = NDFModel(NDFConfig(**({"decoder": "dots"} | content["config"])))
+        # Checkpoints from before the "decoder" option had the "dots" decoder, without local points.
+        model = NDFModel(NDFConfig(**({"decoder": "dots", "local_points": 0} | content["config"])))
         model.load_state_dict(content["state_dict"])
     except (TypeError, RuntimeError, ModelError) as exc:  # unknown config keys, mismatched weights
         raise ModelError(f"{path}: checkpoint does not match this model ({exc})") from exc
