@@ -10,6 +10,7 @@ from rich.table import Table
 
 from ndfa.cli.app import app, console
 
+
 @app.command("bench")
 def bench_command(
     what: str = typer.Argument("sim", help="What to time: sim (render, noise, write, read), ndf (encoding) "

@@ -12,6 +12,7 @@ from rich.table import Table
 from ndfa.cli.app import app, console, err_console, progress_bar
 from ndfa.errors import NdfaError
 
+
 @app.command("detect")
 def detect_command(
     source: Path = typer.Argument(..., help="Source session recording (.mcap)."),

@@ -11,6 +11,7 @@ from rich.table import Table
 
 from ndfa.cli.app import app, console, err_console
 
+
 @app.command("train")
 def train_command(
     out: Path = typer.Option(Path("out/ndf"), "--out", "-o", help="Run directory: checkpoint.pt, metrics.parquet, config.json."),
@@ -39,9 +40,11 @@ def train_command(
     from ndfa.ndf.model import NDFConfig
     from ndfa.ndf.train import TrainConfig, train
 
-    config = TrainConfig(model=NDFConfig(code_head=code_head, pooling=pooling, decoder=decoder, gram_eps=gram_eps), proxy_weight=proxy_weight, frame_weight=frame_weight, train_mugs=train_mugs, views_per_mug=views_per_mug,
-                         batch_mugs=batch_mugs, steps=steps, alpha=alpha, shape_margin=shape_margin, lr=lr, seed=seed,
-                         threads=threads, lr_final_fraction=lr_final, init_weights=str(init) if init else None)
+    config = TrainConfig(
+        model=NDFConfig(code_head=code_head, pooling=pooling, decoder=decoder, gram_eps=gram_eps),
+        train_mugs=train_mugs, views_per_mug=views_per_mug, batch_mugs=batch_mugs, steps=steps, lr=lr,
+        lr_final_fraction=lr_final, alpha=alpha, shape_margin=shape_margin, proxy_weight=proxy_weight,
+        frame_weight=frame_weight, seed=seed, threads=threads, init_weights=str(init) if init else None)
     recorder = None
     if log is not None:
         import rerun as rr
@@ -60,7 +63,9 @@ def train_command(
                 f"epoch {row['epoch']:3d} step {row['step']:6d}  occ {row['train_occ']:.3f}  shape {row['train_shape']:+.3f}"
                 f"  center {row['train_center']:.3f} | val acc {row['val_occ_accuracy']:.3f}"
                 f"  center {row['val_center_median_mm']:.1f}/{row['val_center_p90_mm']:.1f} mm"
-                f"  top1 {row['val_retrieval_top1']:.2f}  auc {row['val_auc']:.3f}  ({row['elapsed_s'] / 60:.1f} min)")
+                f"  top1 {row['val_retrieval_top1']:.2f}  auc {row['val_auc']:.3f}"
+                + (f"  axis {row['val_axis_error_deg']:.0f} deg" if "val_axis_error_deg" in row else "")
+                + f"  ({row['elapsed_s'] / 60:.1f} min)")
             if recorder is not None:
                 import rerun as rr
 
