@@ -34,8 +34,8 @@ POOLINGS = ("mean", "max")
 DECODERS = ("dots", "frame")
 # The frame decoder reads coordinates (and their squares, and offsets to nearby points) 10x the
 # encoder's scale, i.e. in centimetres: a 3-8 mm wall then spans 0.3-0.8 input units, a step that
-# freshly initialised ReLU layers resolve. At the encoder's scale (0.03-0.08) the decoder predicted
-# no occupied query at all for the first 750+ steps; at 10x, within 100 steps.
+# freshly initialised ReLU layers resolve. Without this (and without local points) a 750-step run
+# still predicted every validation query empty; with both, it predicted occupied ones by step 250.
 DECODER_GAIN = 10.0
 
 
@@ -53,20 +53,20 @@ class NDFConfig:
         search for a 1000-point view compared with 16.
     encoder_blocks: residual VN blocks, each seeing its input and the pooled (global) context.
     pooling: "mean" (as NDF) or "max" (VN max-pool: per channel the point furthest along a
-        learned direction). Max learned a toy occupancy task faster, and on mug views the axis and
-        center (200 steps: axis 53 vs 67 degrees, center 17 vs 20 mm); mean is less sensitive to
-        single outlying points. With a zero-centred input the mean of anything linear in the
-        points is zero, so mean pooling only passes on what the nonlinearities make.
+        learned direction). With a zero-centred input the mean of anything linear in the points
+        is zero, so mean pooling passes on only what the nonlinearities make; max learnt the mug's
+        axis and center faster (`scripts/ndf_axis_study.py`, 200 steps: axis 53 vs 67 degrees,
+        center 17 vs 20 mm). Mean is less sensitive to single outlying points.
     decoder: "dots" feeds the occupancy MLP |x|^2 and the dot products x . z_j; "frame" also
         gives it x in an orthonormal frame built from z (see `object_frame`): the object's own
-        coordinates, in which a thin wall is a simple interval of radius and height. With "dots"
-        the MLP must square the projections itself; in 300-step runs "frame" learnt occupancy
-        faster (see the model card).
+        coordinates, in which a thin wall is a simple interval of radius and height; with "dots"
+        the MLP must square the projections itself. Alone it made no difference in 500-step runs
+        (both decoders still called every query empty); with `DECODER_GAIN` and `local_points` it
+        learns occupancy (model card).
     local_points: with the "frame" decoder, each query also sees its offsets to this many nearest
         input points, in the object frame, and their lengths (0: off). The visible surface then
         places the wall it belongs to directly instead of through z; z must still complete the
-        hidden side. In 350-step runs (with the decoder's centimetre inputs, `DECODER_GAIN`) this
-        learnt occupancy several times faster (BCE 0.40 vs 0.43 after 750 steps without).
+        hidden side.
     decoder_width: width of the occupancy MLP.
     decoder_blocks: residual blocks of the occupancy MLP.
     code_head: "norms" is the paper's s_i = |z_i| (D = latent); "gram" feeds the Gram matrix of a
