@@ -1,11 +1,12 @@
 """How fast an NDF encoder learns a mug's axis and center: train only the frame and center losses
 for a few hundred steps and print the validation errors every 50 steps.
 
-    python scripts/ndf_axis_study.py STEPS [NDFConfig field=JSON value ...] [lr=...]
+    python scripts/ndf_axis_study.py STEPS [NDFConfig field=JSON value ...] [lr=...]   (decoder "frame" always)
     python scripts/ndf_axis_study.py 200 pooling='"mean"'   # 2026-11-23: axis 67 deg, center 20 mm
     python scripts/ndf_axis_study.py 200 pooling='"max"'    #             axis 53 deg, center 17 mm
 
-Uses the cached views of `ndfa train --data-dir out/ndf-data` (run that first); one thread.
+Uses the views `ndfa train --data-dir out/ndf-data` caches (run that first; the figures above are
+from the default 400-mug cache, pass train='"out/ndf-data/train-....npz"' to choose); one thread.
 """
 
 import json
@@ -26,11 +27,11 @@ def main() -> None:
     torch.manual_seed(0)
     steps = int(sys.argv[1])
     options = {key: json.loads(value) for key, value in (arg.split("=", 1) for arg in sys.argv[2:])}
-    lr = options.pop("lr", 6e-4)
+    lr = options.pop("lr", 6e-4)  # also train="PATH" and val="PATH": dataset files (default: the first cached)
     data = Path("out/ndf-data")
-    train = load_dataset(sorted(data.glob("train-*.npz"))[0])
-    val = load_dataset(sorted(data.glob("val-*.npz"))[0])
-    model = NDFModel(NDFConfig(**options))
+    train = load_dataset(options.pop("train", None) or sorted(data.glob("train-*.npz"))[0])
+    val = load_dataset(options.pop("val", None) or sorted(data.glob("val-*.npz"))[0])
+    model = NDFModel(NDFConfig(**(options | {"decoder": "frame"})))  # the frame loss needs its frame vectors
     optimizer = torch.optim.Adam(model.parameters(), lr=lr)
     rng = np.random.default_rng(0)
     started = time.time()

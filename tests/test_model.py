@@ -35,7 +35,9 @@ def trained_looking(model: NDFModel, seed: int) -> NDFModel:
 
 @pytest.mark.parametrize("seed", SEEDS)
 @pytest.mark.parametrize(
-    "config", [NDFConfig(), NDFConfig(code_head="norms", pooling="mean", decoder="dots", local_points=0)], ids=["default", "norms-mean-dots"]
+    "config",
+    [NDFConfig(), NDFConfig(pooling="max", decoder="frame", local_points=4), NDFConfig(code_head="norms", pooling="max")],
+    ids=["default", "frame-local-max", "norms-max"],
 )
 def test_rotating_the_view_rotates_z_and_center_and_keeps_code_and_occupancy(seed, config):
     model = trained_looking(NDFModel(config), seed)

@@ -12,7 +12,9 @@ from ndfa.ndf.metrics import pair_separation, retrieval_top1, roc_auc
 from ndfa.ndf.model import NDFConfig, NDFModel, save_checkpoint
 from ndfa.ndf.train import TrainConfig, train
 
-TINY = NDFConfig(hidden=8, latent=16, knn=8, encoder_blocks=1, decoder_width=32, decoder_blocks=1, code_dim=16, gram_channels=4)
+# The frame decoder with local points and max pooling: the training path with every loss term.
+TINY = NDFConfig(hidden=8, latent=16, knn=8, encoder_blocks=1, decoder_width=32, decoder_blocks=1, code_dim=16, gram_channels=4,
+                 pooling="max", decoder="frame", local_points=4)
 FEW_VIEWS = ViewConfig(n_points=128, n_queries=128)
 
 

@@ -87,9 +87,9 @@ class NDFConfig:
     latent: int = 64
     knn: int = 12
     encoder_blocks: int = 3
-    pooling: str = "max"
-    decoder: str = "frame"
-    local_points: int = 4
+    pooling: str = "mean"
+    decoder: str = "dots"
+    local_points: int = 0
     decoder_width: int = 128
     decoder_blocks: int = 3
     code_head: str = "gram"

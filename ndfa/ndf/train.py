@@ -37,21 +37,21 @@ from ndfa.ndf.model import NDFConfig, NDFModel, load_model, save_checkpoint
 class TrainConfig:
     model: NDFConfig = field(default_factory=NDFConfig)
     view: ViewConfig = field(default_factory=ViewConfig)
-    train_mugs: int = 1000           # train-split mug indices [0, train_mugs): many mugs, so that codes generalise
-    views_per_mug: int = 16
+    train_mugs: int = 400            # train-split mug indices [0, train_mugs)
+    views_per_mug: int = 24
     val_mugs: int = 24               # held-out train-split mugs, right after the training ones
     val_views_per_mug: int = 8
     batch_mugs: int = 16             # mugs per batch, two views each
-    steps: int = 12000
+    steps: int = 8000
     steps_per_epoch: int = 250       # validation, metrics row and checkpoint every epoch
-    lr: float = 1e-3                 # the shipped run's (the paper's Adam: 6e-4, constant)
-    lr_final_fraction: float = 0.05  # cosine decay of lr to this fraction at the last step (1: constant, the paper's)
+    lr: float = 6e-4                 # the paper's Adam learning rate
+    lr_final_fraction: float = 1.0   # cosine decay of lr to this fraction at the last step (1: constant, the paper's)
     init_weights: str | None = None  # start from this checkpoint's weights (a fresh optimizer), e.g. to continue a shipped model
     alpha: float = 0.01              # the paper's shape-loss weight
     shape_margin: float | None = None  # None: the paper's loss; a number: hinge with this margin
     center_weight: float = 1.0
     frame_weight: float = 1.0        # weight of the frame loss (the "frame" decoder's axis and handle); 0: off
-    proxy_weight: float = 0.1        # weight of the proxy (cosine-softmax) identity loss on the codes; 0: off
+    proxy_weight: float = 0.0        # weight of the proxy (cosine-softmax) identity loss on the codes; 0: off
     proxy_scale: float = 16.0        # its logit scale: cosine similarities are multiplied by this
     shape_threshold: float = 0.9     # delta_s, for the validation figures
     seed: int = 0
