@@ -73,28 +73,44 @@ def _cpu_count() -> int:
 
 
 def bench_ndf(weights: Path | None = None, repeats: int = 30, points: int = 1000, threads: int = 2) -> dict[str, float]:
-    """Median milliseconds to encode one observation of `points` points, and a batch of 8, with
-    center recovery and the reconstruction grid (the full `NDFEncoder.encode_batch`)."""
+    """Median milliseconds to encode one observation of `points` points, and a batch of 8:
+    shape code and center from the head alone (`head_*`), then the full `NDFEncoder.encode_batch`
+    with the reconstruction grid at the encoder's default resolution and at the detector's 12^3."""
     import torch
 
-    from ndfa.ndf.encoder import NDFEncoder
+    from ndfa.ndf.encoder import EncoderConfig, NDFEncoder
 
     torch.set_num_threads(threads)
-    encoder = NDFEncoder(weights)
+    encoders = {"": NDFEncoder(weights), "grid12_": NDFEncoder(weights, EncoderConfig(grid_resolution=12))}
+    model = encoders[""].model
     rng = np.random.default_rng(0)
     clouds = [rng.normal(scale=0.03, size=(points, 3)) + [0.0, 0.0, 1.0] for _ in range(8)]
     poses = [np.eye(4)] * 8
-    result = {}
-    for name, count in (("one", 1), ("batch8", 8)):
-        encoder.encode_batch(clouds[:count], poses[:count])  # warm-up
+
+    @torch.inference_mode()
+    def head_only(count: int) -> None:  # what the center and code need: resample, centre, encode, heads
+        cloud = np.stack([encoders[""].resample(c) for c in clouds[:count]])
+        centred = torch.from_numpy((cloud - cloud.mean(axis=1, keepdims=True)).astype(np.float32))
+        z = model.encode(centred)
+        model.shape_code(z), model.center_offset(z)
+
+    def median_ms(run) -> float:
+        run()  # warm-up
         times = []
         for _ in range(repeats):
             start = time.perf_counter()
-            encoder.encode_batch(clouds[:count], poses[:count])
+            run()
             times.append(time.perf_counter() - start)
-        result[f"{name}_ms"] = float(np.median(times) * 1e3)
-    result["batch8_ms_per_observation"] = result["batch8_ms"] / 8
-    result.update(points=points, threads=threads, grid=encoder.config.grid_resolution,
+        return float(np.median(times) * 1e3)
+
+    result = {}
+    for name, count in (("one", 1), ("batch8", 8)):
+        result[f"head_{name}_ms"] = median_ms(lambda: head_only(count))
+        for prefix, encoder in encoders.items():
+            result[f"{prefix}{name}_ms"] = median_ms(lambda: encoder.encode_batch(clouds[:count], poses[:count]))
+    for prefix in ("head_", "", "grid12_"):
+        result[f"{prefix}batch8_ms_per_observation"] = result[f"{prefix}batch8_ms"] / 8
+    result.update(points=points, threads=threads, grid=encoders[""].config.grid_resolution,
                   machine=f"{platform.processor() or platform.machine()}, {_cpu_count()} cores")
     return result
 

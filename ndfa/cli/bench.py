@@ -65,10 +65,13 @@ def bench_command(
                 ("write / frame", "write_ms"), ("read / frame", "read_ms"), ("render + noise + write", "total_ms_per_frame")]
     elif what == "ndf":
         result = bench_ndf(weights)
-        table = Table(title="ndfa bench ndf (encode + center + reconstruction grid)",
-                      caption=f"{result['points']} points per observation, grid {result['grid']}^3, "
-                              f"{result['threads']} threads; {result['machine']}")
-        rows = [("one observation", "one_ms"), ("batch of 8", "batch8_ms"), ("batch of 8, per observation", "batch8_ms_per_observation")]
+        table = Table(title="ndfa bench ndf (encode: shape code and center, then with the reconstruction grid)",
+                      caption=f"{result['points']} points per observation, {result['threads']} threads; {result['machine']}")
+        grid = result["grid"]
+        rows = [(f"{what}: {label}", f"{prefix}{key}")
+                for what, prefix in (("code + center (head)", "head_"), (f"+ grid {grid}^3", ""), ("+ grid 12^3 (detector)", "grid12_"))
+                for label, key in (("one observation", "one_ms"), ("batch of 8", "batch8_ms"),
+                                   ("per observation in a batch of 8", "batch8_ms_per_observation"))]
     else:
         raise typer.BadParameter(f"unknown benchmark {what!r}; expected sim, ndf, detect or segment")
     table.add_column("stage")
