@@ -6,7 +6,7 @@ import torch
 
 from ndfa.errors import ModelError
 from ndfa.ndf.data import ViewConfig, generate_views
-from ndfa.ndf.encoder import EncoderConfig, NDFEncoder
+from ndfa.ndf.encoder import DEFAULT_WEIGHTS, EncoderConfig, NDFEncoder
 from ndfa.ndf.losses import batch_hard_shape_loss
 from ndfa.ndf.metrics import pair_separation, retrieval_top1, roc_auc
 from ndfa.ndf.model import NDFConfig, NDFModel, save_checkpoint
@@ -42,7 +42,7 @@ def test_metrics_on_known_codes():
 def tiny_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("train")
     config = TrainConfig(model=TINY, view=FEW_VIEWS, train_mugs=6, views_per_mug=3, val_mugs=3, val_views_per_mug=2,
-                         batch_mugs=4, steps=40, steps_per_epoch=20, lr=3e-3)
+                         batch_mugs=4, steps=40, steps_per_epoch=20, lr=3e-3, proxy_weight=0.1, param_weight=1.0)
     metrics = train(config, out)
     return config, out, metrics
 
@@ -51,6 +51,7 @@ def test_training_lowers_the_loss_and_writes_metrics(tiny_run):
     config, out, metrics = tiny_run
     assert metrics["step"].to_list() == [20, 40]
     assert metrics["train_occ"][1] < metrics["train_occ"][0]
+    assert metrics["train_param"][1] < metrics["train_param"][0]  # the shape parameters are read out of the codes
     assert (out / "checkpoint.pt").exists() and (out / "metrics.parquet").exists()
     for column in ("val_center_median_mm", "val_retrieval_top1", "val_auc", "val_occ_accuracy"):
         assert column in metrics.columns
@@ -126,3 +127,18 @@ def test_shipped_weights_load_and_encode():
     assert np.all(np.isfinite(code.shape_code)) and np.all(np.isfinite(code.center_world))
     # The shipped model's center is within a few centimetres of the true one on an unseen mug.
     assert np.linalg.norm(code.center_world - views["center"][0]) < 0.05
+
+
+def test_proxies_of_a_trained_model_start_at_its_mean_codes():
+    from ndfa.ndf.model import load_model
+    from ndfa.ndf.train import TrainingHeads
+
+    model, _ = load_model(DEFAULT_WEIGHTS)
+    views = generate_views("train", [0, 1, 2, 3], 3, 0, ViewConfig(), workers=1)
+    heads = TrainingHeads(TrainConfig(train_mugs=4, proxy_weight=0.1), model, views)
+    with torch.no_grad():
+        points = torch.from_numpy(views["points"])
+        codes = model.shape_code(model.encode(points - points.mean(dim=1, keepdim=True)))
+    similarity = torch.nn.functional.normalize(codes, dim=1) @ torch.nn.functional.normalize(heads.proxies, dim=1).T
+    own = torch.from_numpy(views["mug_index"].astype(np.int64))
+    assert (similarity.argmax(dim=1) == own).float().mean() >= 0.75  # each view sits near its own mug's proxy

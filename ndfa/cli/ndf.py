@@ -28,6 +28,7 @@ def train_command(
     lr_final: float = typer.Option(1.0, help="Cosine-decay lr to this fraction of --lr by the last step (1: constant)."),
     init: Optional[Path] = typer.Option(None, help="Start from these weights (e.g. the shipped ones) with a fresh optimizer."),
     proxy_weight: float = typer.Option(0.0, help="Weight of the proxy identity loss on the shape codes (0: off)."),
+    param_weight: float = typer.Option(0.0, help="Weight of the mugs' shape-parameter regression from the codes (0: off)."),
     local_points: int = typer.Option(0, help="Nearest input points each query of the frame decoder sees (0: none)."),
     frame_weight: float = typer.Option(1.0, help="Weight of the frame loss: the frame decoder's axes vs the true pose (0: off)."),
     gram_eps: float = typer.Option(1e-10, help="Epsilon of the batch norm on the Gram invariants (see NDFConfig)."),
@@ -46,6 +47,7 @@ def train_command(
                         gram_eps=gram_eps),
         train_mugs=train_mugs, views_per_mug=views_per_mug, batch_mugs=batch_mugs, steps=steps, lr=lr,
         lr_final_fraction=lr_final, alpha=alpha, shape_margin=shape_margin, proxy_weight=proxy_weight,
+        param_weight=param_weight,
         frame_weight=frame_weight, seed=seed, threads=threads, init_weights=str(init) if init else None)
     recorder = None
     if log is not None:

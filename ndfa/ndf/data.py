@@ -46,11 +46,12 @@ from ndfa.errors import DataError
 from ndfa.geometry import invert_pose, look_at, make_pose, rotation_z, transform_points
 from ndfa.sim.camera import PinholeCamera
 from ndfa.sim.mesh import Mesh, box_mesh
-from ndfa.sim.mug import Mug, revolve_profile
+from ndfa.sim.mug import BASE_STYLES, HANDLE_SHAPES, PROFILES, Mug, MugParams, revolve_profile
 from ndfa.sim.noise import DepthNoise
 from ndfa.sim.render import RenderObject, SceneRenderer
 from ndfa.sim.scene import Table
-from ndfa.sim.splits import make_split_mug
+from ndfa.sim.mug import sample_mug_params
+from ndfa.sim.splits import make_split_mug, mug_seed
 
 if TYPE_CHECKING:
     import torch
@@ -545,3 +546,27 @@ def sample_batch(dataset: dict[str, np.ndarray], n_mugs: int, rng: np.random.Gen
         "rotation": torch.from_numpy(dataset["pose_camera_object"][rows, :3, :3].astype(np.float32)),
         "mug_index": torch.from_numpy(dataset["mug_index"][rows].astype(np.int64)),
     }
+
+
+# ----------------------------------------------------------------------------------------------
+# Shape parameters, for the optional parameter loss
+
+
+def shape_parameters(split: str, mug_indices: list[int]) -> np.ndarray:
+    """What makes each mug its shape, as numbers `[len(mug_indices), P]`: every numeric field of
+    its `MugParams` (metres or fractions) and one-hot profile, base style and handle shape.
+
+    Regressing these from the shape code (`ndfa train --param-weight`) tells the encoder which
+    differences between mugs matter, in units that carry over to mugs it never saw; the identity
+    losses only say "this mug, not those". Handle fields of a handle-less mug are zero."""
+    rows = []
+    for index in mug_indices:
+        params = sample_mug_params(np.random.default_rng(mug_seed(split, index)))
+        has_handle = params.handle_shape != "none"
+        numbers = [getattr(params, name) * (has_handle or not name.startswith("handle_")) for name in _NUMERIC_PARAMS]
+        tags = [params.profile == p for p in PROFILES] + [params.base_style == b for b in BASE_STYLES]
+        rows.append(numbers + tags + [params.handle_shape == h for h in HANDLE_SHAPES])
+    return np.asarray(rows, dtype=np.float32)
+
+
+_NUMERIC_PARAMS = [name for name, kind in MugParams.__annotations__.items() if kind == "float"]

@@ -53,6 +53,12 @@ def proxy_identity_loss(codes: torch.Tensor, labels: torch.Tensor, proxies: torc
     return F.cross_entropy(logits, labels)
 
 
+def parameter_loss(predicted: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Mean squared error of the shape parameters [B, P] read out of the codes, against the
+    mugs' standardised parameters [B, P]."""
+    return F.mse_loss(predicted, target)
+
+
 def frame_loss(frame_vectors: torch.Tensor, rotation_camera_object: torch.Tensor) -> torch.Tensor:
     """Align the decoder's two frame vectors [B, 3, 2] with the mug's axis (its z, base to rim)
     and its handle direction (its x), both taken from the true pose [B, 3, 3] of the view:

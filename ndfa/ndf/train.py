@@ -4,10 +4,12 @@ The loop, top to bottom: render (or load the cached) training and validation vie
 step draw a batch of mugs with two views each, centre every view on its points' mean, and
 minimise
 
-    L = L_occ + alpha * L_b_shape + w_center * L_center [+ w_proxy * L_proxy + w_frame * L_frame]
+    L = L_occ + alpha * L_b_shape + w_center * L_center [+ w_proxy * L_proxy + w_frame * L_frame
+                                                          + w_param * L_param]
 
 (the paper's objective plus an equivariant center head, and optionally an identity loss over all
-training mugs and the alignment of the decoder's object frame with the true pose; `losses.py`). Every
+training mugs, the alignment of the decoder's object frame with the true pose, and a regression
+of each mug's shape parameters from its code; `losses.py`). Every
 `steps_per_epoch` steps: validate, append a metrics row, save a checkpoint (model, optimizer,
 step, RNG state), so that an interrupted run resumes where it stopped.
 """
@@ -27,8 +29,9 @@ import polars as pl
 import torch
 
 from ndfa.errors import ModelError
-from ndfa.ndf.data import ViewConfig, generate_views, load_dataset, sample_batch, write_dataset
-from ndfa.ndf.losses import batch_hard_shape_loss, center_loss, frame_loss, occupancy_loss, proxy_identity_loss
+from ndfa.ndf.data import ViewConfig, generate_views, load_dataset, sample_batch, shape_parameters, write_dataset
+from ndfa.ndf.losses import (batch_hard_shape_loss, center_loss, frame_loss, occupancy_loss, parameter_loss,
+                             proxy_identity_loss)
 from ndfa.ndf.metrics import center_errors_mm, pair_separation, retrieval_top1
 from ndfa.ndf.model import NDFConfig, NDFModel, load_model, save_checkpoint
 
@@ -53,6 +56,7 @@ class TrainConfig:
     frame_weight: float = 1.0        # weight of the frame loss (the "frame" decoder's axis and handle); 0: off
     proxy_weight: float = 0.0        # weight of the proxy (cosine-softmax) identity loss on the codes; 0: off
     proxy_scale: float = 16.0        # its logit scale: cosine similarities are multiplied by this
+    param_weight: float = 0.0        # weight of the shape-parameter regression from the code (`data.shape_parameters`); 0: off
     shape_threshold: float = 0.9     # delta_s, for the validation figures
     seed: int = 0
     threads: int = 2
@@ -84,8 +88,8 @@ def train(
             model.load_state_dict(initial.state_dict())
         except RuntimeError as exc:
             raise ModelError(f"{config.init_weights}: its weights do not fit this run's model ({exc})") from exc
-    proxies = _proxies(config, model)
-    optimizer = torch.optim.Adam(_parameters(model, proxies), lr=config.lr)
+    heads = TrainingHeads(config, model, train_set if config.init_weights is not None else None)
+    optimizer = torch.optim.Adam(list(model.parameters()) + list(heads.parameters()), lr=config.lr)
     rng = np.random.default_rng([config.seed, 100])
     step, rows, elapsed = 0, [], 0.0
     checkpoint_path = out_dir / "checkpoint.pt"
@@ -94,9 +98,8 @@ def train(
         # A run may be resumed longer or with other threads; anything else must match.
         if _without(extra.get("train_config", {}), RESUMABLE) != _without(_jsonable(config), RESUMABLE):
             raise ModelError(f"{checkpoint_path}: was trained with other settings; use another --out or no --resume")
-        if proxies is not None:
-            proxies = torch.nn.Parameter(extra["proxies"])
-        optimizer = torch.optim.Adam(_parameters(model, proxies), lr=config.lr)
+        heads.load_state_dict(extra["training_heads"])
+        optimizer = torch.optim.Adam(list(model.parameters()) + list(heads.parameters()), lr=config.lr)
         optimizer.load_state_dict(extra["optimizer"])
         rng.bit_generator.state = json.loads(extra["rng_state"])
         torch.set_rng_state(extra["torch_rng_state"])
@@ -110,12 +113,10 @@ def train(
         for group in optimizer.param_groups:
             group["lr"] = learning_rate(config, step)
         batch = sample_batch(train_set, config.batch_mugs, rng)
-        terms = _loss_terms(model, batch, config, proxies)
-        loss = terms["occ"] + config.alpha * terms["shape"] + config.center_weight * terms["center"]
-        if proxies is not None:
-            loss = loss + config.proxy_weight * terms["proxy"]
-        if "frame" in terms:
-            loss = loss + config.frame_weight * terms["frame"]
+        terms = _loss_terms(model, batch, config, heads)
+        weights = {"occ": 1.0, "shape": config.alpha, "center": config.center_weight, "proxy": config.proxy_weight,
+                   "frame": config.frame_weight, "param": config.param_weight}
+        loss = sum(weights[name] * term for name, term in terms.items())
         optimizer.zero_grad(set_to_none=True)
         loss.backward()
         optimizer.step()
@@ -138,7 +139,8 @@ def train(
                 "step": step,
                 "metrics": json.dumps(rows),
                 "elapsed_s": row["elapsed_s"],
-            } | ({"proxies": proxies.detach()} if proxies is not None else {}))
+                "training_heads": heads.state_dict(),
+            })
             metrics = pl.DataFrame(rows)
             _write_parquet(metrics, out_dir / "metrics.parquet")
             if on_epoch is not None:
@@ -154,20 +156,53 @@ def learning_rate(config: TrainConfig, step: int) -> float:
     return float(config.lr * fraction)
 
 
-def _proxies(config: TrainConfig, model: NDFModel) -> torch.nn.Parameter | None:
-    """One learned proxy code per training mug, for the proxy loss (training only, not shipped)."""
-    if config.proxy_weight <= 0:
-        return None
-    code_dim = model.config.code_dim if model.config.code_head == "gram" else model.config.latent
-    return torch.nn.Parameter(torch.randn(config.train_mugs, code_dim))
+class TrainingHeads(torch.nn.Module):
+    """Parameters that only training uses and the shipped model leaves out: one learned proxy code
+    per training mug (the proxy loss) and a linear read-out of the mugs' shape parameters from the
+    code (the parameter loss), each present only when its loss weight is above 0."""
+
+    def __init__(self, config: TrainConfig, model: NDFModel, train_set: dict[str, np.ndarray] | None = None) -> None:
+        super().__init__()
+        code_dim = model.config.code_dim if model.config.code_head == "gram" else model.config.latent
+        self.proxies = None
+        if config.proxy_weight > 0:
+            # A trained model's proxies start at its mean code per mug: random ones would pull
+            # every code toward noise until they were learnt (measured: the loss stayed near
+            # chance, log(400), for 1,000 steps of fine-tuning at lr 2e-4).
+            initial = torch.randn(config.train_mugs, code_dim) if train_set is None else mean_codes(model, train_set, config.train_mugs)
+            self.proxies = torch.nn.Parameter(initial.clone())
+        self.param_readout = None
+        if config.param_weight > 0:
+            table = torch.from_numpy(shape_parameters("train", list(range(config.train_mugs))))
+            # Standardised over the training mugs, so that centimetres and fractions weigh alike.
+            self.register_buffer("param_targets", (table - table.mean(0)) / table.std(0).clamp_min(1e-6))
+            self.param_readout = torch.nn.Linear(code_dim, table.shape[1])
+
+    def losses(self, codes: torch.Tensor, mug_index: torch.Tensor, config: TrainConfig) -> dict[str, torch.Tensor]:
+        terms = {}
+        if self.proxies is not None:
+            terms["proxy"] = proxy_identity_loss(codes, mug_index, self.proxies, config.proxy_scale)
+        if self.param_readout is not None:
+            terms["param"] = parameter_loss(self.param_readout(codes), self.param_targets[mug_index])
+        return terms
 
 
-def _parameters(model: NDFModel, proxies: torch.nn.Parameter | None) -> list[torch.nn.Parameter]:
-    return list(model.parameters()) + ([proxies] if proxies is not None else [])
+@torch.inference_mode()
+def mean_codes(model: NDFModel, dataset: dict[str, np.ndarray], n_mugs: int, views: int = 4, batch_size: int = 256) -> torch.Tensor:
+    """The mean unit shape code of each mug `[n_mugs, D]` over its first `views` views."""
+    model.eval()
+    rows = np.flatnonzero(dataset["view_id"] < views)
+    codes = []
+    for start in range(0, len(rows), batch_size):
+        points = torch.from_numpy(dataset["points"][rows[start:start + batch_size]])
+        z = model.encode(points - points.mean(dim=1, keepdim=True))
+        codes.append(torch.nn.functional.normalize(model.shape_code(z), dim=1))
+    labels = torch.from_numpy(dataset["mug_index"][rows].astype(np.int64))
+    return torch.zeros(n_mugs, codes[0].shape[1]).index_add_(0, labels, torch.cat(codes)) / torch.bincount(labels, minlength=n_mugs).clamp_min(1)[:, None]
 
 
 def _loss_terms(model: NDFModel, batch: dict[str, torch.Tensor], config: TrainConfig,
-                proxies: torch.nn.Parameter | None = None) -> dict[str, torch.Tensor]:
+                heads: TrainingHeads) -> dict[str, torch.Tensor]:
     # The model sees each view centred on its points' mean (the translation part of SE(3)
     # equivariance); queries and the true center are expressed relative to the same mean.
     centroid = batch["points"].mean(dim=1, keepdim=True)
@@ -176,9 +211,9 @@ def _loss_terms(model: NDFModel, batch: dict[str, torch.Tensor], config: TrainCo
         "occ": occupancy_loss(out["occupancy_logits"], batch["occupancy"]),
         "shape": batch_hard_shape_loss(out["shape_code"], batch["mug_index"], config.shape_margin),
         "center": center_loss(out["center_offset"], batch["center"] - centroid[:, 0], config.model.input_scale),
-    } | ({"proxy": proxy_identity_loss(out["shape_code"], batch["mug_index"], proxies, config.proxy_scale)}
-         if proxies is not None else {}) | ({"frame": frame_loss(out["frame_vectors"], batch["rotation"])}
-                                            if "frame_vectors" in out and config.frame_weight > 0 else {})
+    } | heads.losses(out["shape_code"], batch["mug_index"], config) | (
+        {"frame": frame_loss(out["frame_vectors"], batch["rotation"])}
+        if "frame_vectors" in out and config.frame_weight > 0 else {})
 
 
 @torch.inference_mode()
