@@ -42,6 +42,7 @@ from rosbags.typesys.store import Typestore
 from ndfa.errors import ExportError
 from ndfa.geometry import invert_pose, make_pose, quaternion_xyzw_from_matrix
 from ndfa.ingest import ros_images
+from ndfa.ingest.bag_topics import GROUND_TRUTH_POSE_TOPIC, GROUND_TRUTH_TOPIC  # what `ndfa ingest bag` reads back
 from ndfa.recording import Frame, RecordingReader
 from ndfa.recording.writer import depth_to_millimetres
 
@@ -55,8 +56,6 @@ COLOR_TOPIC = "/camera/color/image_raw"
 DEPTH_TOPIC = "/camera/depth/image_raw"
 INFO_TOPIC = "/camera/depth/camera_info"
 INSTANCES_TOPIC = "/camera/instances"
-GROUND_TRUTH_TOPIC = "/ndfa/ground_truth"
-GROUND_TRUTH_POSE_TOPIC = "/ndfa/ground_truth/pose"
 
 # The ROS1 Noetic store lacks tf2_msgs (it lives outside ros_comm); its definition is one line.
 _TF_MESSAGE_MSG = "geometry_msgs/TransformStamped[] transforms"

@@ -44,42 +44,17 @@ import ndfa
 from ndfa.errors import IngestError, RecordingError
 from ndfa.geometry import make_pose, matrix_from_quaternion_xyzw, quaternion_xyzw_from_matrix
 from ndfa.ingest import PoseEstimator, ros_images
+from ndfa.ingest.bag_topics import (
+    COMPRESSED_IMAGE, GROUND_TRUTH_POSE_TOPIC, GROUND_TRUTH_TOPIC, IMAGE, ODOMETRY, TF_MESSAGE, BagTopic,
+    choose_pose_source, choose_topics, describe_topics)
 from ndfa.ingest.ros_images import ImageDecodeError, UnknownEncodingError
 from ndfa.ingest.tf_buffer import TfLookupError, TransformBuffer, frame_name, stamp_ns
 from ndfa.recording import Frame, RecordingWriter
 
-IMAGE = "sensor_msgs/msg/Image"
-COMPRESSED_IMAGE = "sensor_msgs/msg/CompressedImage"
-CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
-TF_MESSAGE = "tf2_msgs/msg/TFMessage"
-ODOMETRY = "nav_msgs/msg/Odometry"
-POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
-STRING = "std_msgs/msg/String"
-POSE_TYPES = (ODOMETRY, POSE_STAMPED)
-
-# ndfa's extension topics (see the module docstring).
-GROUND_TRUTH_TOPIC = "/ndfa/ground_truth"
-GROUND_TRUTH_POSE_TOPIC = "/ndfa/ground_truth/pose"
-
-# Preferred world frames of a tf tree, in order (REP 105); otherwise the root of the camera's tree.
-WORLD_FRAMES = ("map", "odom", "world")
-# Topic names that mark an instance/label image rather than depth (mono16 looks alike).
-_MASK_WORDS = ("instance", "mask", "label", "segment")
-
 # Bag errors rosbags raises for missing, truncated or malformed bags.
 _BAG_ERRORS = (AnyReaderError, Rosbag1Error, Rosbag2Error)
-
-
-
-@dataclass(frozen=True)
-class BagTopic:
-    """One topic of a bag, and the role the importer would give it (depth, color, mask, info, tf, pose)."""
-
-    name: str
-    msgtype: str
-    count: int
-    role: str | None = None
-    encoding: str | None = None  # of the first message, for image topics
+# Preferred world frames of a tf tree, in order (REP 105); otherwise the root of the camera's tree.
+WORLD_FRAMES = ("map", "odom", "world")
 
 
 @dataclass
@@ -104,7 +79,7 @@ def list_topics(path: str | Path) -> list[BagTopic]:
     """Every topic of the bag with its type, message count and guessed role (for `--list`)."""
     path = Path(path)
     with open_bag(path) as reader:
-        return _describe_topics(reader, path)
+        return describe_topics(reader, path)
 
 
 @contextmanager
@@ -159,9 +134,9 @@ def ingest_bag(
     """
     path, out = Path(path), Path(out)
     with open_bag(path) as reader:
-        topics = {topic.name: topic for topic in _describe_topics(reader, path)}
-        chosen = _choose_topics(path, topics, rgb_topic, depth_topic, info_topic, mask_topic)
-        pose_topic = _choose_pose_source(path, topics, pose_source, need=estimate_poses is None)
+        topics = {topic.name: topic for topic in describe_topics(reader, path)}
+        chosen = choose_topics(path, topics, rgb_topic, depth_topic, info_topic, mask_topic)
+        pose_topic = choose_pose_source(path, topics, pose_source, need=estimate_poses is None)
         scan = _scan(reader, path, chosen, pose_topic)
         camera = frame_name(camera_frame or scan.camera_frame)
         poses, world = _pose_lookup(path, scan, pose_topic, world_frame, camera, required=estimate_poses is None)
@@ -184,130 +159,6 @@ def ingest_bag(
         pose_source=meta["pose_source"], world_frame=world, camera_frame=camera, skipped=dict(skipped),
         instances="mask" in chosen, ground_truth=scan.ground_truth is not None, size_bytes=out.stat().st_size,
     )
-
-
-# --- topics ---------------------------------------------------------------------------------------
-
-def _describe_topics(reader: AnyReader, path: Path) -> list[BagTopic]:
-    described = []
-    for name, info in sorted(reader.topics.items()):
-        msgtype = info.msgtype or "?"
-        encoding = None
-        if msgtype in (IMAGE, COMPRESSED_IMAGE) and info.msgcount:
-            first = _first_message(reader, info.connections)
-            if first is not None:
-                encoding = first.encoding if msgtype == IMAGE else first.format
-        described.append(BagTopic(name, msgtype, info.msgcount, _guess_role(name, msgtype, encoding), encoding))
-    return described
-
-
-def _first_message(reader: AnyReader, connections: list) -> object | None:
-    for connection, _, data in reader.messages(connections=connections):
-        try:
-            return reader.deserialize(data, connection.msgtype)
-        except AnyReaderError:
-            return None
-    return None
-
-
-def _guess_role(name: str, msgtype: str, encoding: str | None) -> str | None:
-    lowered = name.lower()
-    if msgtype == CAMERA_INFO:
-        return "info"
-    if msgtype == TF_MESSAGE:
-        return "tf"
-    if msgtype in POSE_TYPES:
-        return "ground truth pose" if name == GROUND_TRUTH_POSE_TOPIC else "pose"
-    if msgtype not in (IMAGE, COMPRESSED_IMAGE) or encoding is None:
-        return None
-    if any(word in lowered for word in _MASK_WORDS):
-        return "mask"
-    if msgtype == COMPRESSED_IMAGE:
-        return "depth" if "compresseddepth" in encoding.lower() or "depth" in lowered else "color"
-    if encoding in ("16UC1", "mono16", "32FC1") or "depth" in lowered:
-        return "depth"
-    return "color" if encoding in ros_images.COLOR_ENCODINGS else None
-
-
-def _choose_topics(path: Path, topics: dict[str, BagTopic], rgb: str | None, depth: str | None,
-                   info: str | None, mask: str | None) -> dict[str, str]:
-    """role -> topic for depth, info, and color and mask when the bag has them."""
-    images = [t for t in topics.values() if t.msgtype in (IMAGE, COMPRESSED_IMAGE)]
-    if not images:
-        raise IngestError(f"{path}: the bag has no image topics (sensor_msgs/Image or CompressedImage); "
-                          f"its topics: {_topic_list(topics.values())}")
-    chosen = {}
-    for role, asked, types, flag in (("depth", depth, (IMAGE, COMPRESSED_IMAGE), "--depth-topic"),
-                                     ("color", rgb, (IMAGE, COMPRESSED_IMAGE), "--rgb-topic"),
-                                     ("mask", mask, (IMAGE, COMPRESSED_IMAGE), "--mask-topic"),
-                                     ("info", info, (CAMERA_INFO,), "--info-topic")):
-        if asked is not None:
-            if asked not in topics:
-                raise IngestError(f"{path}: no topic {asked!r} ({flag}); its topics: {_topic_list(topics.values())}")
-            if topics[asked].msgtype not in types:
-                raise IngestError(f"{path}: {flag} {asked} is a {topics[asked].msgtype}, expected {' or '.join(types)}")
-            chosen[role] = asked
-            continue
-        candidates = _prefer_uncompressed([t.name for t in topics.values() if t.role == role and t.count])
-        if role == "info" and len(candidates) > 1:
-            candidates = _nearest_namespace(candidates, chosen["depth"])
-        if len(candidates) > 1:
-            raise IngestError(f"{path}: several {role} topics: {', '.join(candidates)}; choose one with {flag}")
-        if candidates:
-            chosen[role] = candidates[0]
-        elif role == "depth":
-            raise IngestError(f"{path}: no depth image topic found (16UC1/32FC1 Image, compressedDepth, or a name "
-                              f"with 'depth'); choose one with --depth-topic from: {_topic_list(images)}")
-        elif role == "info":
-            raise IngestError(f"{path}: no sensor_msgs/CameraInfo topic: ndfa needs the depth camera's intrinsics")
-    if chosen.get("color") == chosen["depth"]:
-        del chosen["color"]
-    return chosen
-
-
-def _nearest_namespace(candidates: list[str], topic: str) -> list[str]:
-    """The candidate whose namespace is the longest prefix of `topic` (/camera/depth/camera_info for
-    /camera/depth/image_raw/compressedDepth), if exactly one is; else all of them."""
-    depth_of = {c: c.rsplit("/", 1)[0].count("/") for c in candidates if topic.startswith(c.rsplit("/", 1)[0] + "/")}
-    deepest = [c for c, depth in depth_of.items() if depth == max(depth_of.values(), default=-1)]
-    return deepest if len(deepest) == 1 else candidates
-
-
-def _prefer_uncompressed(names: list[str]) -> list[str]:
-    """image_transport publishes X and X/compressed (X/compressedDepth): the same stream; keep X."""
-    return [n for n in names if n.rsplit("/", 1)[0] not in names or n.rsplit("/", 1)[1] not in
-            ("compressed", "compressedDepth", "theora")]
-
-
-def _choose_pose_source(path: Path, topics: dict[str, BagTopic], asked: str | None, need: bool) -> str | None:
-    has_tf = any(t.role == "tf" and t.count for t in topics.values())
-    if asked == "tf":
-        if not has_tf:
-            raise IngestError(f"{path}: --pose-topic tf, but the bag has no /tf or /tf_static messages")
-        return "tf"
-    if asked is not None:
-        if asked not in topics or topics[asked].msgtype not in POSE_TYPES:
-            found = [t.name for t in topics.values() if t.role == "pose"]
-            raise IngestError(f"{path}: {asked!r} is not a nav_msgs/Odometry or geometry_msgs/PoseStamped topic "
-                              f"of the bag (pose topics: {', '.join(found) or 'none'}; or 'tf')")
-        return asked
-    pose_topics = [t.name for t in topics.values() if t.role == "pose" and t.count]
-    if any(t.role == "tf" and t.count and "static" not in t.name for t in topics.values()):
-        return "tf"
-    if len(pose_topics) == 1:
-        return pose_topics[0]
-    if len(pose_topics) > 1 and need:
-        raise IngestError(f"{path}: no /tf, and several pose topics: {', '.join(pose_topics)}; choose one with --pose-topic")
-    if has_tf:
-        return "tf"  # only /tf_static: a fixed camera, or a world frame published as static
-    if need:
-        raise IngestError(f"{path}: the bag has no camera poses (no /tf, Odometry or PoseStamped topic); "
-                          "pass --poses kiss-icp to estimate them from depth")
-    return None
-
-
-def _topic_list(topics: object) -> str:
-    return ", ".join(f"{t.name} ({t.msgtype})" for t in topics) or "none"
 
 
 # --- the scan -------------------------------------------------------------------------------------
