@@ -142,3 +142,29 @@ def test_proxies_of_a_trained_model_start_at_its_mean_codes():
     similarity = torch.nn.functional.normalize(codes, dim=1) @ torch.nn.functional.normalize(heads.proxies, dim=1).T
     own = torch.from_numpy(views["mug_index"].astype(np.int64))
     assert (similarity.argmax(dim=1) == own).float().mean() >= 0.75  # each view sits near its own mug's proxy
+
+
+@pytest.mark.parametrize("part", ["code_head", "decoder"])
+def test_refitting_one_part_keeps_the_rest(tiny_run, tmp_path, part):
+    import dataclasses
+
+    from ndfa.ndf.model import load_model
+
+    config, out, _ = tiny_run
+    # The decoder refit may change the decoder's kind: the frame decoder's weights are not loaded.
+    model_config = dataclasses.replace(TINY, decoder="dots", local_points=0) if part == "decoder" else TINY
+    refit = dataclasses.replace(config, model=model_config, init_weights=str(out / "checkpoint.pt"), train_only=part,
+                                steps=20, batch_mugs=3 if part == "decoder" else 6)
+    metrics = train(refit, tmp_path / part)
+    before = load_model(out / "checkpoint.pt")[0].state_dict()
+    after = load_model(tmp_path / part / "checkpoint.pt")[0].state_dict()
+    prefix = {"code_head": "gram_code.", "decoder": "decoder."}[part]
+    assert all(torch.equal(after[name], value) for name, value in before.items() if not name.startswith(prefix))
+    if part == "code_head":
+        assert not torch.equal(after["gram_code.mlp.0.weight"], before["gram_code.mlp.0.weight"])
+        assert "train_shape" in metrics.columns and "train_occ" not in metrics.columns
+    else:  # a fresh decoder of the other kind: the dots decoder's frame layer makes 3 vectors, the frame one 2
+        assert after["decoder.frame.linear.weight"].shape[0] == 3 and before["decoder.frame.linear.weight"].shape[0] == 2
+        assert "train_occ" in metrics.columns and "train_shape" not in metrics.columns
+    with pytest.raises(ModelError, match="needs --init"):
+        train(dataclasses.replace(refit, init_weights=None), tmp_path / "no-init")

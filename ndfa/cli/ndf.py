@@ -27,6 +27,7 @@ def train_command(
     lr: float = typer.Option(6e-4, help="Adam learning rate (paper: 6e-4)."),
     lr_final: float = typer.Option(1.0, help="Cosine-decay lr to this fraction of --lr by the last step (1: constant)."),
     init: Optional[Path] = typer.Option(None, help="Start from these weights (e.g. the shipped ones) with a fresh optimizer."),
+    train_only: str = typer.Option("all", help="all, or refit only a fresh code_head or decoder on the --init model's frozen encoder."),
     proxy_weight: float = typer.Option(0.0, help="Weight of the proxy identity loss on the shape codes (0: off)."),
     param_weight: float = typer.Option(0.0, help="Weight of the mugs' shape-parameter regression from the codes (0: off)."),
     local_points: int = typer.Option(0, help="Nearest input points each query of the frame decoder sees (0: none)."),
@@ -48,7 +49,8 @@ def train_command(
         train_mugs=train_mugs, views_per_mug=views_per_mug, batch_mugs=batch_mugs, steps=steps, lr=lr,
         lr_final_fraction=lr_final, alpha=alpha, shape_margin=shape_margin, proxy_weight=proxy_weight,
         param_weight=param_weight,
-        frame_weight=frame_weight, seed=seed, threads=threads, init_weights=str(init) if init else None)
+        frame_weight=frame_weight, seed=seed, threads=threads, init_weights=str(init) if init else None,
+        train_only=train_only)
     recorder = None
     if log is not None:
         import rerun as rr
@@ -64,8 +66,10 @@ def train_command(
 
         def on_epoch(row: dict) -> None:
             progress.console.print(
-                f"epoch {row['epoch']:3d} step {row['step']:6d}  occ {row['train_occ']:.3f}  shape {row['train_shape']:+.3f}"
-                f"  center {row['train_center']:.3f} | val acc {row['val_occ_accuracy']:.3f}"
+                f"epoch {row['epoch']:3d} step {row['step']:6d} "
+                + "".join(f" {name} {row['train_' + name]:.3f}" for name in ("occ", "shape", "center", "proxy", "param")
+                          if "train_" + name in row)
+                + f" | val acc {row['val_occ_accuracy']:.3f}"
                 f"  center {row['val_center_median_mm']:.1f}/{row['val_center_p90_mm']:.1f} mm"
                 f"  top1 {row['val_retrieval_top1']:.2f}  auc {row['val_auc']:.3f}"
                 + (f"  axis {row['val_axis_error_deg']:.0f} deg" if "val_axis_error_deg" in row else "")

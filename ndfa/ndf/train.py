@@ -29,7 +29,8 @@ import polars as pl
 import torch
 
 from ndfa.errors import ModelError
-from ndfa.ndf.data import ViewConfig, generate_views, load_dataset, sample_batch, shape_parameters, write_dataset
+from ndfa.ndf.data import (ViewConfig, batch_rows, generate_views, load_dataset, sample_batch, sample_rows,
+                           shape_parameters, write_dataset)
 from ndfa.ndf.losses import (batch_hard_shape_loss, center_loss, frame_loss, occupancy_loss, parameter_loss,
                              proxy_identity_loss)
 from ndfa.ndf.metrics import center_errors_mm, pair_separation, retrieval_top1
@@ -50,6 +51,7 @@ class TrainConfig:
     lr: float = 6e-4                 # the paper's Adam learning rate
     lr_final_fraction: float = 1.0   # cosine decay of lr to this fraction at the last step (1: constant, the paper's)
     init_weights: str | None = None  # start from this checkpoint's weights (a fresh optimizer), e.g. to continue a shipped model
+    train_only: str = "all"          # "all", or refit only a fresh "code_head" or "decoder" on init_weights' frozen encoder
     alpha: float = 0.01              # the paper's shape-loss weight
     shape_margin: float | None = None  # None: the paper's loss; a number: hinge with this margin
     center_weight: float = 1.0
@@ -74,6 +76,12 @@ def train(
 
     `data_dir` caches rendered views (default `out_dir/data`); a cache is reused only when it
     was made with the same view settings, mugs and seed.
+
+    With `train_only` "code_head" or "decoder", the model of `init_weights` keeps everything else
+    and only a fresh part is fitted, to the frozen encoder's z of every training view, computed
+    once. The code head then costs about a millisecond a step, so it can see many mugs per batch
+    (`batch_mugs`) and many steps in minutes; only the shape losses apply. The decoder (of this
+    run's model config, e.g. another decoder kind) learns with the occupancy and frame losses.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -81,15 +89,10 @@ def train(
     torch.manual_seed(config.seed)
     train_set, val_set = _datasets(config, Path(data_dir or out_dir / "data"))
 
-    model = NDFModel(config.model)
-    if config.init_weights is not None:
-        initial, _ = load_model(config.init_weights)
-        try:
-            model.load_state_dict(initial.state_dict())
-        except RuntimeError as exc:
-            raise ModelError(f"{config.init_weights}: its weights do not fit this run's model ({exc})") from exc
-    heads = TrainingHeads(config, model, train_set if config.init_weights is not None else None)
-    optimizer = torch.optim.Adam(list(model.parameters()) + list(heads.parameters()), lr=config.lr)
+    model = _initial_model(config)
+    # A trained model's codes seed the proxies; a fresh head's would be noise.
+    heads = TrainingHeads(config, model, train_set if config.init_weights and config.train_only != "code_head" else None)
+    optimizer = torch.optim.Adam(_trainable(model, heads, config), lr=config.lr)
     rng = np.random.default_rng([config.seed, 100])
     step, rows, elapsed = 0, [], 0.0
     checkpoint_path = out_dir / "checkpoint.pt"
@@ -99,21 +102,29 @@ def train(
         if _without(extra.get("train_config", {}), RESUMABLE) != _without(_jsonable(config), RESUMABLE):
             raise ModelError(f"{checkpoint_path}: was trained with other settings; use another --out or no --resume")
         heads.load_state_dict(extra["training_heads"])
-        optimizer = torch.optim.Adam(list(model.parameters()) + list(heads.parameters()), lr=config.lr)
+        optimizer = torch.optim.Adam(_trainable(model, heads, config), lr=config.lr)
         optimizer.load_state_dict(extra["optimizer"])
         rng.bit_generator.state = json.loads(extra["rng_state"])
         torch.set_rng_state(extra["torch_rng_state"])
         step, rows, elapsed = extra["step"], json.loads(extra["metrics"]), extra["elapsed_s"]
     (out_dir / "config.json").write_text(json.dumps(_jsonable(config), indent=2))
 
+    frozen_z = encode_views(model, train_set) if config.train_only != "all" else None
     losses: list[dict] = []
     started = time.perf_counter() - elapsed
     while step < config.steps:
         model.train()
         for group in optimizer.param_groups:
             group["lr"] = learning_rate(config, step)
-        batch = sample_batch(train_set, config.batch_mugs, rng)
-        terms = _loss_terms(model, batch, config, heads)
+        if frozen_z is None:
+            terms = _loss_terms(model, sample_batch(train_set, config.batch_mugs, rng), config, heads)
+        elif config.train_only == "code_head":
+            picked = torch.from_numpy(batch_rows(train_set, config.batch_mugs, rng))
+            labels = torch.from_numpy(train_set["mug_index"].astype(np.int64))[picked]
+            terms = _shape_terms(model.shape_code(frozen_z[picked]), labels, config, heads)
+        else:
+            picked = batch_rows(train_set, config.batch_mugs, rng)
+            terms = _decoder_terms(model, frozen_z[torch.from_numpy(picked)], sample_rows(train_set, picked), config)
         weights = {"occ": 1.0, "shape": config.alpha, "center": config.center_weight, "proxy": config.proxy_weight,
                    "frame": config.frame_weight, "param": config.param_weight}
         loss = sum(weights[name] * term for name, term in terms.items())
@@ -188,17 +199,16 @@ class TrainingHeads(torch.nn.Module):
 
 
 @torch.inference_mode()
-def mean_codes(model: NDFModel, dataset: dict[str, np.ndarray], n_mugs: int, views: int = 4, batch_size: int = 256) -> torch.Tensor:
+def mean_codes(model: NDFModel, dataset: dict[str, np.ndarray], n_mugs: int, views: int = 4) -> torch.Tensor:
     """The mean unit shape code of each mug `[n_mugs, D]` over its first `views` views."""
-    model.eval()
     rows = np.flatnonzero(dataset["view_id"] < views)
-    codes = []
-    for start in range(0, len(rows), batch_size):
-        points = torch.from_numpy(dataset["points"][rows[start:start + batch_size]])
-        z = model.encode(points - points.mean(dim=1, keepdim=True))
-        codes.append(torch.nn.functional.normalize(model.shape_code(z), dim=1))
+    codes = torch.nn.functional.normalize(model.shape_code(encode_views(model, _subset(dataset, rows))), dim=1)
     labels = torch.from_numpy(dataset["mug_index"][rows].astype(np.int64))
-    return torch.zeros(n_mugs, codes[0].shape[1]).index_add_(0, labels, torch.cat(codes)) / torch.bincount(labels, minlength=n_mugs).clamp_min(1)[:, None]
+    return torch.zeros(n_mugs, codes.shape[1]).index_add_(0, labels, codes) / torch.bincount(labels, minlength=n_mugs).clamp_min(1)[:, None]
+
+
+def _subset(dataset: dict[str, np.ndarray], rows: np.ndarray) -> dict[str, np.ndarray]:
+    return {name: values[rows] if values.ndim else values for name, values in dataset.items()}
 
 
 def _loss_terms(model: NDFModel, batch: dict[str, torch.Tensor], config: TrainConfig,
@@ -209,11 +219,63 @@ def _loss_terms(model: NDFModel, batch: dict[str, torch.Tensor], config: TrainCo
     out = model(batch["points"] - centroid, batch["queries"] - centroid)
     return {
         "occ": occupancy_loss(out["occupancy_logits"], batch["occupancy"]),
-        "shape": batch_hard_shape_loss(out["shape_code"], batch["mug_index"], config.shape_margin),
         "center": center_loss(out["center_offset"], batch["center"] - centroid[:, 0], config.model.input_scale),
-    } | heads.losses(out["shape_code"], batch["mug_index"], config) | (
+    } | _shape_terms(out["shape_code"], batch["mug_index"], config, heads) | (
         {"frame": frame_loss(out["frame_vectors"], batch["rotation"])}
         if "frame_vectors" in out and config.frame_weight > 0 else {})
+
+
+def _decoder_terms(model: NDFModel, z: torch.Tensor, batch: dict[str, torch.Tensor], config: TrainConfig) -> dict[str, torch.Tensor]:
+    centroid = batch["points"].mean(dim=1, keepdim=True)
+    logits = model.occupancy_logits(z, batch["queries"] - centroid, batch["points"] - centroid)
+    frame_vectors = model.frame_vectors(z)
+    return {"occ": occupancy_loss(logits, batch["occupancy"])} | (
+        {"frame": frame_loss(frame_vectors, batch["rotation"])} if frame_vectors is not None and config.frame_weight > 0 else {})
+
+
+def _shape_terms(codes: torch.Tensor, mug_index: torch.Tensor, config: TrainConfig, heads: TrainingHeads) -> dict[str, torch.Tensor]:
+    return {"shape": batch_hard_shape_loss(codes, mug_index, config.shape_margin)} | heads.losses(codes, mug_index, config)
+
+
+def _trainable(model: NDFModel, heads: TrainingHeads, config: TrainConfig) -> list[torch.nn.Parameter]:
+    parts = {"all": model, "code_head": model.gram_code, "decoder": model.decoder}
+    return list(parts[config.train_only].parameters()) + list(heads.parameters())
+
+
+def _initial_model(config: TrainConfig) -> NDFModel:
+    """A fresh model, or `init_weights`' weights in this run's model; with `train_only`, the part
+    to refit starts fresh (the others must fit)."""
+    model = NDFModel(config.model)
+    if config.train_only not in ("all", "code_head", "decoder"):
+        raise ModelError(f"train_only must be all, code_head or decoder, not {config.train_only!r}")
+    if config.init_weights is None:
+        if config.train_only != "all":
+            raise ModelError(f"refitting the {config.train_only} needs --init weights")
+        return model
+    if config.train_only == "code_head" and config.model.code_head != "gram":
+        raise ModelError("refitting the code head needs the gram code head")
+    fresh = {"all": "", "code_head": "gram_code.", "decoder": "decoder."}[config.train_only]
+    initial = load_model(config.init_weights)[0].state_dict()
+    kept = {name: value for name, value in initial.items() if not (fresh and name.startswith(fresh))}
+    try:
+        missing, unexpected = model.load_state_dict(kept, strict=False)
+    except RuntimeError as exc:
+        raise ModelError(f"{config.init_weights}: its weights do not fit this run's model ({exc})") from exc
+    if unexpected or any(not (fresh and name.startswith(fresh)) for name in missing):
+        raise ModelError(f"{config.init_weights}: its weights do not fit this run's model "
+                         f"(missing {missing[:5]}, unexpected {unexpected[:5]})")
+    return model
+
+
+@torch.inference_mode()
+def encode_views(model: NDFModel, dataset: dict[str, np.ndarray], batch_size: int = 256) -> torch.Tensor:
+    """z `[V, k, 3]` of every view of `dataset`, each centred on its points' mean."""
+    model.eval()
+    out = []
+    for start in range(0, len(dataset["points"]), batch_size):
+        points = torch.from_numpy(dataset["points"][start:start + batch_size])
+        out.append(model.encode(points - points.mean(dim=1, keepdim=True)))
+    return torch.cat(out).clone()  # a normal tensor: inference tensors cannot enter autograd
 
 
 @torch.inference_mode()
