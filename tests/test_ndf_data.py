@@ -209,13 +209,13 @@ def test_bad_config_and_arguments_raise_data_error():
 
 def test_shape_parameters_describe_each_mug():
     table = data.shape_parameters("train", list(range(60)))
-    numeric = len(data._NUMERIC_PARAMS)
+    numeric = len(data.NUMERIC_PARAMS)
     assert table.shape == (60, numeric + 4 + 3 + 5) and np.isfinite(table).all()
     tags = table[:, numeric:]
     for start, stop in ((0, 4), (4, 7), (7, 12)):  # profile, base style, handle shape: one of each
         assert (tags[:, start:stop].sum(axis=1) == 1).all()
-    height = data._NUMERIC_PARAMS.index("height")
+    height = data.NUMERIC_PARAMS.index("height")
     assert np.allclose(table[:, height], [make_split_mug("train", i).params.height for i in range(60)])
-    handle_fields = [i for i, name in enumerate(data._NUMERIC_PARAMS) if name.startswith("handle_")]
+    handle_fields = [i for i, name in enumerate(data.NUMERIC_PARAMS) if name.startswith("handle_")]
     without_handle = tags[:, 11] == 1
     assert (table[without_handle][:, handle_fields] == 0).all() and (table[~without_handle][:, handle_fields] > 0).any(axis=1).all()

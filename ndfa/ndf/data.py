@@ -561,6 +561,10 @@ def batch_rows(dataset: dict[str, np.ndarray], n_mugs: int, rng: np.random.Gener
 # Shape parameters, for the optional parameter loss
 
 
+# The MugParams fields that are numbers (metres or fractions), in their order: shape_parameters' first columns.
+NUMERIC_PARAMS = [name for name, kind in MugParams.__annotations__.items() if kind == "float"]
+
+
 def shape_parameters(split: str, mug_indices: list[int]) -> np.ndarray:
     """What makes each mug its shape, as numbers `[len(mug_indices), P]`: every numeric field of
     its `MugParams` (metres or fractions) and one-hot profile, base style and handle shape.
@@ -572,10 +576,8 @@ def shape_parameters(split: str, mug_indices: list[int]) -> np.ndarray:
     for index in mug_indices:
         params = sample_mug_params(np.random.default_rng(mug_seed(split, index)))
         has_handle = params.handle_shape != "none"
-        numbers = [getattr(params, name) * (has_handle or not name.startswith("handle_")) for name in _NUMERIC_PARAMS]
+        numbers = [getattr(params, name) * (has_handle or not name.startswith("handle_")) for name in NUMERIC_PARAMS]
         tags = [params.profile == p for p in PROFILES] + [params.base_style == b for b in BASE_STYLES]
         rows.append(numbers + tags + [params.handle_shape == h for h in HANDLE_SHAPES])
     return np.asarray(rows, dtype=np.float32)
 
-
-_NUMERIC_PARAMS = [name for name, kind in MugParams.__annotations__.items() if kind == "float"]
