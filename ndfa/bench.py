@@ -90,8 +90,7 @@ def bench_ndf(weights: Path | None = None, repeats: int = 30, points: int = 1000
     @torch.inference_mode()
     def head_only(count: int) -> None:  # what the center and code need: resample, centre, encode, heads
         cloud = np.stack([encoders[""].resample(c) for c in clouds[:count]])
-        centred = torch.from_numpy((cloud - cloud.mean(axis=1, keepdims=True)).astype(np.float32))
-        z = model.encode(centred)
+        z = encoders[""].latent(cloud, poses[:count])[0]
         model.shape_code(z), model.center_offset(z)
 
     def median_ms(run) -> float:

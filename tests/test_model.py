@@ -36,19 +36,22 @@ def trained_looking(model: NDFModel, seed: int) -> NDFModel:
 @pytest.mark.parametrize("seed", SEEDS)
 @pytest.mark.parametrize(
     "config",
-    [NDFConfig(), NDFConfig(pooling="max", decoder="frame", local_points=4), NDFConfig(code_head="norms", pooling="max")],
-    ids=["default", "frame-local-max", "norms-max"],
+    [NDFConfig(), NDFConfig(pooling="max", decoder="frame", local_points=4), NDFConfig(code_head="norms", pooling="max"),
+     NDFConfig(up_cue=True, view_cue=True, center_head="gated", decoder="frame", local_points=4)],
+    ids=["default", "frame-local-max", "norms-max", "cues-gated-frame"],
 )
 def test_rotating_the_view_rotates_z_and_center_and_keeps_code_and_occupancy(seed, config):
     model = trained_looking(NDFModel(config), seed)
     points = view(seed)
     queries = 0.08 * torch.randn(2, 64, 3, generator=torch.Generator().manual_seed(seed + 100))
+    # The direction cues rotate with the view (models without cues ignore them).
+    up, view_ray = torch.randn(2, 2, 3, generator=torch.Generator().manual_seed(seed + 200))
     rotation = random_rotation(seed)
     with torch.no_grad():
-        out = model(points, queries)
-        rotated = model(points @ rotation.T, queries @ rotation.T)
+        out = model(points, queries, up, view_ray)
+        rotated = model(points @ rotation.T, queries @ rotation.T, up @ rotation.T, view_ray @ rotation.T)
     assert out["z"].shape == (2, config.latent, 3)
-    code_dim = config.latent if config.code_head == "norms" else config.code_dim
+    code_dim = config.code_dim_out
     assert out["shape_code"].shape == (2, code_dim)
     assert out["center_offset"].shape == (2, 3)
     assert out["occupancy_logits"].shape == (2, 64)
@@ -72,6 +75,19 @@ def test_the_callers_centring_removes_a_translation():
             outputs.append(model((p - centroid).float(), (q - centroid).float()))
     for key in outputs[0]:
         assert relative_error(outputs[1][key], outputs[0][key]) <= 1e-4, key
+
+
+def test_a_model_with_cues_needs_them_and_uses_them():
+    model = trained_looking(NDFModel(dataclasses.replace(SMALL, up_cue=True, view_cue=True)), 0)
+    points, up, view_ray = view(0), torch.tensor([[0.0, 0.0, 1.0]] * 2), torch.tensor([[0.0, 1.0, 0.0]] * 2)
+    with pytest.raises(ModelError, match="up, view_ray"):
+        model.encode(points)
+    with pytest.raises(ModelError, match="view_ray"):
+        model.encode(points, up=up)
+    with torch.no_grad():
+        z = model.encode(points, up, view_ray)
+        assert relative_error(model.encode(points, 5 * up, 0.1 * view_ray), z) <= 1e-5  # directions only
+        assert relative_error(model.encode(points, view_ray, up), z) > 1e-2
 
 
 def test_object_frame_is_orthonormal_right_handed_and_rotates_with_its_input():
@@ -121,6 +137,10 @@ def test_bad_config_is_refused():
         NDFConfig(decoder="dots", local_points=4)
     with pytest.raises(ModelError, match="positive"):
         NDFConfig(latent=0)
+    with pytest.raises(ModelError, match="center_head"):
+        NDFConfig(center_head="mlp")
+    with pytest.raises(ModelError, match="direction cue"):
+        NDFConfig(latent=2, up_cue=True, view_cue=True)
 
 
 def test_checkpoint_round_trip(tmp_path):

@@ -12,9 +12,10 @@ from ndfa.ndf.metrics import pair_separation, retrieval_top1, roc_auc
 from ndfa.ndf.model import NDFConfig, NDFModel, save_checkpoint
 from ndfa.ndf.train import TrainConfig, train
 
-# The frame decoder with local points and max pooling: the training path with every loss term.
+# The frame decoder with local points, max pooling, both direction cues and the gated center head:
+# the training path with every loss term and every input.
 TINY = NDFConfig(hidden=8, latent=16, knn=8, encoder_blocks=1, decoder_width=32, decoder_blocks=1, code_dim=16, gram_channels=4,
-                 pooling="max", decoder="frame", local_points=4)
+                 pooling="max", decoder="frame", local_points=4, up_cue=True, view_cue=True, center_head="gated")
 FEW_VIEWS = ViewConfig(n_points=128, n_queries=128)
 
 
@@ -87,6 +88,27 @@ def test_encoder_gives_world_frame_codes(tiny_run):
     assert np.allclose(again.shape_code, code.shape_code, atol=1e-6)  # batched vs single: float rounding only
 
 
+def test_encoder_takes_up_from_the_camera_pose(tiny_run):
+    """Turning the world under the same camera turns world up as the camera sees it: a model with
+    the up cue then encodes the same cloud differently, and the same cloud under a camera turned
+    about world up (up unchanged in the camera frame) alike, center turned with the pose."""
+    from scipy.spatial.transform import Rotation
+
+    _, out, _ = tiny_run
+    encoder = NDFEncoder(out / "checkpoint.pt")
+    cloud = generate_views("test", [0], 1, 0, FEW_VIEWS, workers=1)["points"][0]
+    level = np.eye(4)
+    level[:3, :3] = Rotation.from_euler("x", -90, degrees=True).as_matrix()  # camera z forward = world y
+    yawed, tilted = level.copy(), level.copy()
+    yawed[:3, :3] = Rotation.from_euler("z", 70, degrees=True).as_matrix() @ level[:3, :3]
+    tilted[:3, :3] = Rotation.from_euler("y", 60, degrees=True).as_matrix() @ level[:3, :3]
+    base, turned, other = encoder.encode_batch([cloud] * 3, [level, yawed, tilted])
+    assert np.allclose(turned.shape_code, base.shape_code, atol=1e-4)
+    turn = yawed[:3, :3] @ level[:3, :3].T
+    assert np.allclose(turned.center_world, turn @ base.center_world, atol=1e-5)
+    assert not np.allclose(other.shape_code, base.shape_code, atol=1e-3)
+
+
 def test_encoder_refuses_bad_input(tiny_run, tmp_path):
     _, out, _ = tiny_run
     encoder = NDFEncoder(out / "checkpoint.pt")
@@ -121,12 +143,17 @@ def test_evaluation_reports_every_figure(tiny_run):
 
 
 def test_shipped_weights_load_and_encode():
+    from ndfa.geometry import invert_pose
+
     encoder = NDFEncoder()  # the package's default weights
     views = generate_views("test", [0], 1, 0, ViewConfig(), workers=1)
-    code = encoder.encode(views["points"][0], np.eye(4))
+    # World = the mug's frame (z up, as the model's up cue expects), camera where the view put it.
+    pose_world_camera = invert_pose(views["pose_camera_object"][0].astype(np.float64))
+    code = encoder.encode(views["points"][0], pose_world_camera)
     assert np.all(np.isfinite(code.shape_code)) and np.all(np.isfinite(code.center_world))
     # The shipped model's center is within a few centimetres of the true one on an unseen mug.
-    assert np.linalg.norm(code.center_world - views["center"][0]) < 0.05
+    true_center = pose_world_camera[:3, :3] @ views["center"][0] + pose_world_camera[:3, 3]
+    assert np.linalg.norm(code.center_world - true_center) < 0.05
 
 
 def test_proxies_of_a_trained_model_start_at_its_mean_codes():

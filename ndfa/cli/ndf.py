@@ -32,6 +32,10 @@ def train_command(
     param_weight: float = typer.Option(0.0, help="Weight of the mugs' shape-parameter regression from the codes (0: off)."),
     local_points: int = typer.Option(0, help="Nearest input points each query of the frame decoder sees (0: none)."),
     frame_weight: float = typer.Option(1.0, help="Weight of the frame loss: the frame decoder's axes vs the true pose (0: off)."),
+    up_cue: bool = typer.Option(False, help="The encoder also gets world up in the camera frame (from the pose)."),
+    view_cue: bool = typer.Option(False, help="The encoder also gets the direction from the camera to the view."),
+    center_head: str = typer.Option("linear", help="Center head: linear (one VN-linear channel) or gated (z weighted by its invariants)."),
+    up_tilt: float = typer.Option(3.0, help="With --up-cue: random tilt of the true up per training view, degrees."),
     gram_eps: float = typer.Option(1e-10, help="Epsilon of the batch norm on the Gram invariants (see NDFConfig)."),
     seed: int = typer.Option(0, help="Seed of the views, the batches and the initial weights."),
     threads: int = typer.Option(2, help="Torch CPU threads (1 when another job shares the cores)."),
@@ -45,10 +49,10 @@ def train_command(
 
     config = TrainConfig(
         model=NDFConfig(code_head=code_head, pooling=pooling, decoder=decoder, local_points=local_points,
-                        gram_eps=gram_eps),
+                        gram_eps=gram_eps, up_cue=up_cue, view_cue=view_cue, center_head=center_head),
         train_mugs=train_mugs, views_per_mug=views_per_mug, batch_mugs=batch_mugs, steps=steps, lr=lr,
         lr_final_fraction=lr_final, alpha=alpha, shape_margin=shape_margin, proxy_weight=proxy_weight,
-        param_weight=param_weight,
+        param_weight=param_weight, up_tilt_deg=up_tilt,
         frame_weight=frame_weight, seed=seed, threads=threads, init_weights=str(init) if init else None,
         train_only=train_only)
     recorder = None

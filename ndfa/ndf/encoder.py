@@ -54,6 +54,7 @@ class EncoderConfig:
     grid_resolution: int = 20        # reconstruction grid cells per axis
     grid_half_extent_m: float = 0.11  # the grid spans +-this around the predicted center
     coarse_threshold: float = 0.05
+    up_world: tuple[float, float, float] = (0.0, 0.0, 1.0)  # gravity opposed, for models with the up cue
     seed: int = 0                    # of the point resampling, so encoding is deterministic
 
 
@@ -82,11 +83,8 @@ class NDFEncoder:
             raise ModelError(f"{len(clouds)} point clouds but {len(poses_world_camera)} camera poses")
         if not clouds:
             return []
-        # Centre in float64: float32 points a few metres from the camera lose digits otherwise.
         points = np.stack([self.resample(_checked_cloud(c, i)) for i, c in enumerate(clouds)])
-        centroids = points.mean(axis=1, keepdims=True)
-        centred = torch.from_numpy((points - centroids).astype(np.float32))
-        z = self.model.encode(centred)
+        z, centred, centroids = self.latent(points, poses_world_camera)
         codes = self.model.shape_code(z).numpy()
         offsets = self.model.center_offset(z)
         queries = offsets[:, None, :] + torch.from_numpy(self._grid)[None]  # around each predicted center
@@ -106,6 +104,19 @@ class NDFEncoder:
                 reconstruction=transform_points(pose, queries[i][inside] + centroids[i, 0]),
             ))
         return results
+
+    @torch.inference_mode()
+    def latent(self, points: np.ndarray, poses_world_camera: list[np.ndarray]) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
+        """z `[B, k, 3]` of resampled clouds `[B, n, 3]` (camera frame), the centred clouds the
+        model saw and their centroids `[B, 1, 3]` (float64)."""
+        # Centre in float64: float32 points a few metres from the camera lose digits otherwise.
+        centroids = points.mean(axis=1, keepdims=True)
+        centred = torch.from_numpy((points - centroids).astype(np.float32))
+        # The cues: world up seen from each camera, and each view's direction from its camera.
+        up = np.stack([np.asarray(pose)[:3, :3].T @ np.asarray(self.config.up_world) for pose in poses_world_camera])
+        z = self.model.encode(centred, torch.from_numpy(up.astype(np.float32)),
+                              torch.from_numpy(centroids[:, 0].astype(np.float32)))
+        return z, centred, centroids
 
     def _grid_occupancy(self, z: torch.Tensor, queries: torch.Tensor, points: torch.Tensor) -> np.ndarray:
         """Occupancy `[B, G^3]` of the grid queries, decoded coarse to fine (see `EncoderConfig`)."""

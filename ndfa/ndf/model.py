@@ -30,6 +30,7 @@ from ndfa.errors import ModelError
 from ndfa.ndf.vn import EPS, VNEdgeConv, VNLinear, VNResnetBlock, vn_invariant, vn_max_pool, vn_mean_pool
 
 CODE_HEADS = ("norms", "gram")
+CENTER_HEADS = ("linear", "gated")
 POOLINGS = ("mean", "max")
 DECODERS = ("dots", "frame")
 # The frame decoder reads coordinates (and their squares, and offsets to nearby points) 10x the
@@ -75,6 +76,18 @@ class NDFConfig:
         it sat above 0.9 for every pair; the gram code can point anywhere.
     code_dim: D of the "gram" shape code.
     gram_channels: m, the channels z is projected to before taking the m x m Gram matrix.
+    up_cue: the encoder also gets the direction of gravity (up) in the input's frame, one vector
+        that rotates with the points, so the model stays SO(3)-equivariant in (points, up) while
+        knowing which way the mug stands: a mug's height and radius are then extents along and
+        across a given axis instead of ones the network must first find from the points (the
+        frame decoder's axis was still 15-17 degrees off after 11,000 steps without it). The
+        detector knows up from the camera pose (world z); training tilts it by a few degrees.
+    view_cue: the encoder also gets the unit vector from the camera to the view's centroid (the
+        camera sits at the origin of the points' frame before centring): which side of the mug is
+        visible, and so where the hidden half and the center lie.
+    center_head: "linear" maps z linearly to the center offset (one VN-linear channel); "gated"
+        adds a combination of z's vectors weighted by an MLP of z's rotation invariants, so the
+        offset can grow with the mug's size (equivariant: invariant weights times vectors).
     input_scale: fixed factor on the zero-centred metric input (and queries): 10 turns a
         6-13 cm mug into about unit size, the scale the layers are initialised for.
     gram_eps: the epsilon of the batch norm that standardises the Gram invariants. z is small
@@ -97,6 +110,20 @@ class NDFConfig:
     gram_channels: int = 16
     input_scale: float = 10.0
     gram_eps: float = 1e-5
+    up_cue: bool = False
+    view_cue: bool = False
+    center_head: str = "linear"
+
+    @property
+    def cues(self) -> int:
+        """How many direction cues (up, view ray) the encoder takes besides the points."""
+        return int(self.up_cue) + int(self.view_cue)
+
+    @property
+    def code_dim_out(self) -> int:
+        """D, the length of the shape code: code_dim, or with the "norms" head one per shape
+        vector of z (all but the view ray)."""
+        return self.code_dim if self.code_head == "gram" else self.latent - int(self.view_cue)
 
     def __post_init__(self) -> None:
         if self.code_head not in CODE_HEADS:
@@ -105,11 +132,15 @@ class NDFConfig:
             raise ModelError(f"unknown decoder {self.decoder!r}; expected one of {DECODERS}")
         if self.local_points and self.decoder != "frame":
             raise ModelError("local_points needs the frame decoder (offsets are made invariant in its frame)")
+        if self.center_head not in CENTER_HEADS:
+            raise ModelError(f"unknown center_head {self.center_head!r}; expected one of {CENTER_HEADS}")
         if self.pooling not in POOLINGS:
             raise ModelError(f"unknown pooling {self.pooling!r}; expected one of {POOLINGS}")
         sizes = (self.hidden, self.latent, self.knn, self.decoder_width, self.code_dim, self.gram_channels)
         if min(sizes) < 1 or self.local_points < 0 or self.encoder_blocks < 0 or self.decoder_blocks < 0 or self.input_scale <= 0:
             raise ModelError(f"model sizes and input_scale must be positive: {self}")
+        if self.latent <= self.cues + 1:
+            raise ModelError(f"latent must exceed the {self.cues} direction cue(s) it holds by 2 or more")
 
 
 def knn_edge_features(points: torch.Tensor, k: int) -> torch.Tensor:
@@ -155,6 +186,11 @@ class Encoder(nn.Module):
        pooled features instead; adding a linear map of them is what the block's first linear
        layer would make of the concatenation anyway, at half the width.)
     3. Pool over points and map linearly to the `latent` vectors of z.
+
+    With the up cue, world up `[B, 3, 1]` enters every point's features after the local layer
+    through a VN-linear map (it rotates with the points). The view ray does not enter here: it is
+    the same for all mugs seen from one side, and in a 600-step run where it did, the shape codes
+    learnt the viewpoint (validation AUC 0.50, chance); `NDFModel.encode` appends it to z instead.
     """
 
     def __init__(self, config: NDFConfig) -> None:
@@ -166,15 +202,18 @@ class Encoder(nn.Module):
         self.context_linears = nn.ModuleList(VNLinear(h, h) for _ in range(blocks))
         self.blocks = nn.ModuleList(VNResnetBlock(h, h) for _ in range(blocks))
         self.final_pool = VNPool(h, config.pooling)
-        self.to_latent = VNLinear(h, config.latent)
+        self.to_latent = VNLinear(h, config.latent - config.cues)  # the cues complete z (NDFModel.encode)
+        self.up_in = VNLinear(1, h) if config.up_cue else None
 
-    def forward(self, points: torch.Tensor) -> torch.Tensor:
+    def forward(self, points: torch.Tensor, up: torch.Tensor | None = None) -> torch.Tensor:
         x = self.local(knn_edge_features(points, self.knn))  # [B, N, 3, h]
+        if self.up_in is not None:
+            x = x + self.up_in(up).unsqueeze(1)
         for pool, context_linear, block in zip(self.context_pools, self.context_linears, self.blocks):
             context = context_linear(pool(x))  # [B, 3, h], the same for every point
             x = block(x + context.unsqueeze(1))
         # No norm before the last linear: the un-normalised residual stream carries the object's size.
-        return self.to_latent(self.final_pool(x))  # [B, 3, latent]
+        return self.to_latent(self.final_pool(x))  # [B, 3, latent - cues]
 
 
 class ResnetBlockFC(nn.Module):
@@ -275,7 +314,7 @@ class GramCode(nn.Module):
     def __init__(self, config: NDFConfig) -> None:
         super().__init__()
         m = config.gram_channels
-        self.project = VNLinear(config.latent, m)
+        self.project = VNLinear(config.latent - int(config.view_cue), m)  # z without the view ray
         self.register_buffer("upper", torch.triu_indices(m, m), persistent=False)
         # Standardising the invariants with dataset statistics (running mean and variance) keeps
         # the codes apart from the first step: at initialisation z is tiny, the raw Gram entries
@@ -297,6 +336,26 @@ class GramCode(nn.Module):
         return self.whiten(self.mlp(self.standardise(gram[:, self.upper[0], self.upper[1]])))
 
 
+class GatedCenterHead(nn.Module):
+    """Center offset from z, `[B, 3, k] -> [B, 3]`: a VN-linear channel plus sum_j w_j(z) z_j, the
+    weights w an MLP of z's invariants (its dot products with a learned 3-vector frame). The
+    weights start at zero, so a fresh head is the linear one."""
+
+    def __init__(self, config: NDFConfig, frame: int = 4, width: int = 128) -> None:
+        super().__init__()
+        k = config.latent
+        self.linear = VNLinear(k, 1)
+        self.frame = VNLinear(k, frame)
+        self.weights = nn.Sequential(nn.Linear(k * frame, width), nn.ReLU(), nn.Linear(width, k))
+        nn.init.zeros_(self.weights[-1].weight)
+        nn.init.zeros_(self.weights[-1].bias)
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        invariants = vn_invariant(z, self.frame(z)).flatten(1)  # [B, k * frame]
+        gated = (z @ self.weights(invariants).unsqueeze(-1)).squeeze(-1)  # [B, 3]
+        return self.linear(z).squeeze(-1) + gated
+
+
 class NDFModel(nn.Module):
     """Encoder, occupancy decoder, shape-code head and center head. Pure torch, no I/O.
 
@@ -310,14 +369,43 @@ class NDFModel(nn.Module):
         self.encoder = Encoder(config)
         self.decoder = OccupancyDecoder(config)
         self.gram_code = GramCode(config) if config.code_head == "gram" else None
-        self.center_head = VNLinear(config.latent, 1)
+        self.center_head = VNLinear(config.latent, 1) if config.center_head == "linear" else GatedCenterHead(config)
 
-    def encode(self, points: torch.Tensor) -> torch.Tensor:
-        """Zero-centred points `[B, N, 3]` (metres) -> z `[B, k, 3]`, rotating with the points."""
-        return self.encoder(points * self.config.input_scale).transpose(-1, -2)
+    def encode(self, points: torch.Tensor, up: torch.Tensor | None = None,
+               view_ray: torch.Tensor | None = None) -> torch.Tensor:
+        """Zero-centred points `[B, N, 3]` (metres) -> z `[B, k, 3]`, rotating with the points.
+
+        up: `[B, 3]` the direction of gravity opposed (world up) in the points' frame; view_ray:
+        `[B, 3]` the vector from the camera to the points' centroid (the centroid itself, before
+        centring, for points in the camera frame). Each is needed when the model was built with
+        its cue (`NDFConfig.up_cue`, `view_cue`) and ignored otherwise; both are normalised here.
+        """
+        cues = self.cue_vectors(up, view_ray)  # [B, 3, cues]
+        z = self.encoder(points * self.config.input_scale, cues[..., :1] if self.config.up_cue else None)
+        if cues is not None:
+            # z ends with the cues as given (up, then the view ray): the decoder and the center
+            # head read them there; the shape code leaves the view ray out (`shape_code`).
+            z = torch.cat([z, cues], dim=-1)
+        return z.transpose(-1, -2)
+
+    def cue_vectors(self, up: torch.Tensor | None, view_ray: torch.Tensor | None) -> torch.Tensor | None:
+        """The unit direction cues this model takes, `[B, 3, cues]` (up first), or None."""
+        wanted = [(name, value) for name, value, used in
+                  (("up", up, self.config.up_cue), ("view_ray", view_ray, self.config.view_cue)) if used]
+        missing = [name for name, value in wanted if value is None]
+        if missing:
+            raise ModelError(f"this model's encoder needs the direction cue(s) {', '.join(missing)}")
+        if not wanted:
+            return None
+        return torch.stack([nn.functional.normalize(value, dim=-1) for _, value in wanted], dim=-1)
 
     def shape_code(self, z: torch.Tensor) -> torch.Tensor:
-        """z `[B, k, 3]` -> rotation-invariant shape code `[B, D]` (D = latent or code_dim)."""
+        """z `[B, k, 3]` -> rotation-invariant shape code `[B, D]` (D = latent or code_dim).
+
+        Without the view ray, z's last vector with the view cue: how the camera looked is no part
+        of the shape."""
+        if self.config.view_cue:
+            z = z[:, :-1]
         if self.gram_code is None:
             return z.norm(dim=-1)  # the paper's s_i = |z_i|
         return self.gram_code(z.transpose(-1, -2))
@@ -328,7 +416,8 @@ class NDFModel(nn.Module):
         A partial view's centroid sits on the visible side; this equivariant estimate moves it to
         the center of the whole object (the paper takes the mean of the reconstructed occupancy).
         """
-        return self.center_head(z.transpose(-1, -2)).squeeze(-1) / self.config.input_scale
+        offset = self.center_head(z.transpose(-1, -2))
+        return (offset.squeeze(-1) if offset.ndim == 3 else offset) / self.config.input_scale
 
     def occupancy_logits(self, z: torch.Tensor, queries: torch.Tensor, points: torch.Tensor | None = None) -> torch.Tensor:
         """z `[B, k, 3]`, zero-centred queries `[B, Q, 3]` (metres) -> occupancy logits `[B, Q]`.
@@ -342,8 +431,9 @@ class NDFModel(nn.Module):
         (training aligns them with the mug's axis and handle), or None for the "dots" decoder."""
         return self.decoder.frame(z.transpose(-1, -2)) if self.decoder.use_frame else None
 
-    def forward(self, points: torch.Tensor, queries: torch.Tensor) -> dict[str, torch.Tensor]:
-        z = self.encode(points)
+    def forward(self, points: torch.Tensor, queries: torch.Tensor, up: torch.Tensor | None = None,
+                view_ray: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        z = self.encode(points, up, view_ray)
         out = {
             "z": z,
             "shape_code": self.shape_code(z),

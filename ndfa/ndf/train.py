@@ -59,6 +59,7 @@ class TrainConfig:
     proxy_weight: float = 0.0        # weight of the proxy (cosine-softmax) identity loss on the codes; 0: off
     proxy_scale: float = 16.0        # its logit scale: cosine similarities are multiplied by this
     param_weight: float = 0.0        # weight of the shape-parameter regression from the code (`data.shape_parameters`); 0: off
+    up_tilt_deg: float = 3.0         # with the model's up cue: std. dev. of the random tilt of the true up per view (pose and table errors)
     shape_threshold: float = 0.9     # delta_s, for the validation figures
     seed: int = 0
     threads: int = 2
@@ -174,7 +175,7 @@ class TrainingHeads(torch.nn.Module):
 
     def __init__(self, config: TrainConfig, model: NDFModel, train_set: dict[str, np.ndarray] | None = None) -> None:
         super().__init__()
-        code_dim = model.config.code_dim if model.config.code_head == "gram" else model.config.latent
+        code_dim = model.config.code_dim_out
         self.proxies = None
         if config.proxy_weight > 0:
             # A trained model's proxies start at its mean code per mug: random ones would pull
@@ -216,13 +217,27 @@ def _loss_terms(model: NDFModel, batch: dict[str, torch.Tensor], config: TrainCo
     # The model sees each view centred on its points' mean (the translation part of SE(3)
     # equivariance); queries and the true center are expressed relative to the same mean.
     centroid = batch["points"].mean(dim=1, keepdim=True)
-    out = model(batch["points"] - centroid, batch["queries"] - centroid)
+    up = tilted(batch["rotation"][..., 2], config.up_tilt_deg)
+    out = model(batch["points"] - centroid, batch["queries"] - centroid, up, centroid[:, 0])
     return {
         "occ": occupancy_loss(out["occupancy_logits"], batch["occupancy"]),
         "center": center_loss(out["center_offset"], batch["center"] - centroid[:, 0], config.model.input_scale),
     } | _shape_terms(out["shape_code"], batch["mug_index"], config, heads) | (
         {"frame": frame_loss(out["frame_vectors"], batch["rotation"])}
         if "frame_vectors" in out and config.frame_weight > 0 else {})
+
+
+def tilted(up: torch.Tensor, std_deg: float) -> torch.Tensor:
+    """Unit vectors `[B, 3]` tilted from `up` by random small angles (about `std_deg` per axis):
+    the up the detector derives from a camera pose is off by the pose's error and the table's slope."""
+    noisy = up + torch.randn_like(up) * np.radians(std_deg)
+    return torch.nn.functional.normalize(noisy, dim=-1)
+
+
+def view_cues(dataset: dict[str, np.ndarray], rows: slice | np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+    """The true up (the mug's axis: it stands on a level table) and the view ray `[V, 3]` of views `rows`."""
+    up = torch.from_numpy(dataset["pose_camera_object"][rows, :3, 2].astype(np.float32))
+    return up, torch.from_numpy(dataset["points"][rows].mean(axis=1).astype(np.float32))
 
 
 def _decoder_terms(model: NDFModel, z: torch.Tensor, batch: dict[str, torch.Tensor], config: TrainConfig) -> dict[str, torch.Tensor]:
@@ -274,7 +289,8 @@ def encode_views(model: NDFModel, dataset: dict[str, np.ndarray], batch_size: in
     out = []
     for start in range(0, len(dataset["points"]), batch_size):
         points = torch.from_numpy(dataset["points"][start:start + batch_size])
-        out.append(model.encode(points - points.mean(dim=1, keepdim=True)))
+        up, view_ray = view_cues(dataset, slice(start, start + batch_size))
+        out.append(model.encode(points - points.mean(dim=1, keepdim=True), up, view_ray))
     return torch.cat(out).clone()  # a normal tensor: inference tensors cannot enter autograd
 
 
@@ -287,7 +303,7 @@ def validate(model: NDFModel, dataset: dict[str, np.ndarray], shape_threshold: f
         points = torch.from_numpy(dataset["points"][start:start + batch_size])
         queries = torch.from_numpy(dataset["queries"][start:start + batch_size])
         centroid = points.mean(dim=1, keepdim=True)
-        out = model(points - centroid, queries - centroid)
+        out = model(points - centroid, queries - centroid, *view_cues(dataset, slice(start, start + batch_size)))
         codes.append(out["shape_code"].numpy())
         centers.append((centroid[:, 0] + out["center_offset"]).numpy())
         labels = dataset["occupancy"][start:start + batch_size]
