@@ -158,14 +158,12 @@ def test_shipped_weights_load_and_encode():
 
 def test_proxies_of_a_trained_model_start_at_its_mean_codes():
     from ndfa.ndf.model import load_model
-    from ndfa.ndf.train import TrainingHeads
+    from ndfa.ndf.train import TrainingHeads, encode_views
 
     model, _ = load_model(DEFAULT_WEIGHTS)
     views = generate_views("train", [0, 1, 2, 3], 3, 0, ViewConfig(), workers=1)
     heads = TrainingHeads(TrainConfig(train_mugs=4, proxy_weight=0.1), model, views)
-    with torch.no_grad():
-        points = torch.from_numpy(views["points"])
-        codes = model.shape_code(model.encode(points - points.mean(dim=1, keepdim=True)))
+    codes = model.shape_code(encode_views(model, views))  # with the views' up and view ray
     similarity = torch.nn.functional.normalize(codes, dim=1) @ torch.nn.functional.normalize(heads.proxies, dim=1).T
     own = torch.from_numpy(views["mug_index"].astype(np.int64))
     assert (similarity.argmax(dim=1) == own).float().mean() >= 0.75  # each view sits near its own mug's proxy

@@ -12,6 +12,10 @@ Everything is built from vector-neuron layers (`ndfa.ndf.vn`), so rotating the i
 z and the center offset by R and leaves the shape code and the occupancy of jointly rotated
 queries unchanged; the tests check this to 1e-4.
 
+Optional direction cues (`NDFConfig.up_cue`, `view_cue`; the shipped weights use both): world up
+and the view ray, given in the points' frame, enter the encoder or end z; they rotate with the
+points, so the equivariance above holds for (points, up, view ray) rotated together.
+
 Internally vector features are channels-last (`[B, N, 3, C]`, see `vn.py`); the public z is
 `[B, k, 3]` (k vectors), as in the paper.
 """
@@ -337,7 +341,7 @@ class GramCode(nn.Module):
 
 
 class GatedCenterHead(nn.Module):
-    """Center offset from z, `[B, 3, k] -> [B, 3]`: a VN-linear channel plus sum_j w_j(z) z_j, the
+    """Center offset from z, `[B, 3, k] -> [B, 3, 1]`: a VN-linear channel plus sum_j w_j(z) z_j, the
     weights w an MLP of z's invariants (its dot products with a learned 3-vector frame). The
     weights start at zero, so a fresh head is the linear one."""
 
@@ -352,8 +356,7 @@ class GatedCenterHead(nn.Module):
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         invariants = vn_invariant(z, self.frame(z)).flatten(1)  # [B, k * frame]
-        gated = (z @ self.weights(invariants).unsqueeze(-1)).squeeze(-1)  # [B, 3]
-        return self.linear(z).squeeze(-1) + gated
+        return self.linear(z) + z @ self.weights(invariants).unsqueeze(-1)  # [B, 3, 1], as VNLinear(k, 1)
 
 
 class NDFModel(nn.Module):
@@ -416,8 +419,7 @@ class NDFModel(nn.Module):
         A partial view's centroid sits on the visible side; this equivariant estimate moves it to
         the center of the whole object (the paper takes the mean of the reconstructed occupancy).
         """
-        offset = self.center_head(z.transpose(-1, -2))
-        return (offset.squeeze(-1) if offset.ndim == 3 else offset) / self.config.input_scale
+        return self.center_head(z.transpose(-1, -2)).squeeze(-1) / self.config.input_scale
 
     def occupancy_logits(self, z: torch.Tensor, queries: torch.Tensor, points: torch.Tensor | None = None) -> torch.Tensor:
         """z `[B, k, 3]`, zero-centred queries `[B, Q, 3]` (metres) -> occupancy logits `[B, Q]`.
