@@ -86,9 +86,10 @@ class NDFConfig:
         across a given axis instead of ones the network must first find from the points (the
         frame decoder's axis was still 15-17 degrees off after 11,000 steps without it). The
         detector knows up from the camera pose (world z); training tilts it by a few degrees.
-    view_cue: the encoder also gets the unit vector from the camera to the view's centroid (the
+    view_cue: z also ends with the unit vector from the camera to the view's centroid (the
         camera sits at the origin of the points' frame before centring): which side of the mug is
-        visible, and so where the hidden half and the center lie.
+        visible, and so where the hidden half and the center lie. The decoder and the center head
+        see it; the encoder and the shape code do not (see `Encoder`).
     center_head: "linear" maps z linearly to the center offset (one VN-linear channel); "gated"
         adds a combination of z's vectors weighted by an MLP of z's rotation invariants, so the
         offset can grow with the mug's size (equivariant: invariant weights times vectors).
