@@ -217,7 +217,9 @@ def _loss_terms(model: NDFModel, batch: dict[str, torch.Tensor], config: TrainCo
     # The model sees each view centred on its points' mean (the translation part of SE(3)
     # equivariance); queries and the true center are expressed relative to the same mean.
     centroid = batch["points"].mean(dim=1, keepdim=True)
-    up = tilted(batch["rotation"][..., 2], config.up_tilt_deg)
+    # Tilted only for a model that reads up: drawing noise otherwise would shift the torch RNG
+    # stream of runs without the cue.
+    up = tilted(batch["rotation"][..., 2], config.up_tilt_deg) if config.model.up_cue else None
     out = model(batch["points"] - centroid, batch["queries"] - centroid, up, centroid[:, 0])
     return {
         "occ": occupancy_loss(out["occupancy_logits"], batch["occupancy"]),
