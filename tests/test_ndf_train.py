@@ -140,6 +140,21 @@ def test_evaluation_reports_every_figure(tiny_run):
                 "retrieval_top1", "auc", "same_above", "different_above", "iou_mean"):
         assert np.isfinite(summary[key]), key
     assert len(per_view) == 4 and 0.0 <= summary["iou_mean"] <= 1.0
+    # The sweep's row at the encoder's v0 is the headline IoU.
+    assert summary["iou_mean_v0_0.5"] == pytest.approx(summary["iou_mean"])
+    assert 0.0 <= summary["iou_mean_true_shape_displaced"] <= 1.0
+
+
+def test_displaced_true_shape_iou_falls_with_the_center_error(tiny_run):
+    from ndfa.ndf.evaluate import reconstruction_iou
+
+    _, out, _ = tiny_run
+    views = generate_views("test", [0], 3, 0, FEW_VIEWS, workers=1)
+    errors = np.array([[0.0, 0.0, 0.0], [0.002, 0.0, 0.0], [0.0, 0.006, 0.0]])
+    _, _, displaced = reconstruction_iou(NDFEncoder(out / "checkpoint.pt"), views, 24, errors)
+    # No error: the true shape on itself; a mug's thin walls lose overlap fast as it moves.
+    assert displaced[0] == pytest.approx(1.0)
+    assert 0.2 < displaced[2] < displaced[1] < 0.95
 
 
 def test_shipped_weights_load_and_encode():

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
+from ndfa.atomic import atomic_path, write_parquet
 from ndfa.baselines.common import BaselineError, run_baseline
 from ndfa.baselines.nn import NNBaseline, NNConfig
 from ndfa.baselines.tsdf import TSDFBaseline, TSDFConfig
@@ -143,12 +144,9 @@ def write_table(result: EvalResult, out: Path) -> tuple[Path, Path]:
     """DIR/table.parquet and DIR/table.md, each written to a temporary file and renamed."""
     out.mkdir(parents=True, exist_ok=True)
     parquet, markdown = out / "table.parquet", out / "table.md"
-    temporary = out / ".table.parquet.tmp"
-    result.frame().write_parquet(temporary)
-    temporary.replace(parquet)
-    temporary = out / ".table.md.tmp"
-    temporary.write_text(result.markdown())
-    temporary.replace(markdown)
+    write_parquet(result.frame(), parquet)
+    with atomic_path(markdown) as temporary:
+        temporary.write_text(result.markdown())
     return parquet, markdown
 
 

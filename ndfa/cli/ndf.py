@@ -111,8 +111,10 @@ def ndf_eval_command(
     mugs: int = typer.Option(20, help="Held-out test-split mugs."),
     views_per_mug: int = typer.Option(50, help="Partial views per mug."),
     seed: int = typer.Option(0, help="Seed of the test views."),
+    v0: float = typer.Option(0.5, help="Occupancy threshold of the reconstruction (the IoU is also swept over a few)."),
 ) -> None:
     """Model quality on unseen test-split mugs: center error, shape-code retrieval, IoU."""
+    from ndfa.atomic import write_parquet
     from ndfa.ndf.data import ViewConfig, generate_views
     from ndfa.ndf.evaluate import evaluate_ndf
 
@@ -122,10 +124,10 @@ def ndf_eval_command(
     rows = []
     out.mkdir(parents=True, exist_ok=True)
     for path in weights or [None]:
-        summary, per_view = evaluate_ndf(path, views=views)
+        summary, per_view = evaluate_ndf(path, views=views, v0=v0)
         name = str(path) if path is not None else "shipped"
         rows.append({"weights": name, **summary})
-        per_view.with_columns(pl.lit(name).alias("weights")).write_parquet(out / f"views-{len(rows)}.parquet")
+        write_parquet(per_view.with_columns(pl.lit(name).alias("weights")), out / f"views-{len(rows)}.parquet")
     table = Table(title=f"ndfa ndf-eval: {mugs} unseen test mugs x {views_per_mug} views")
     table.add_column("figure")
     for row in rows:
@@ -134,5 +136,5 @@ def ndf_eval_command(
         if key != "weights":
             table.add_row(key, *(f"{row[key]:.3f}" for row in rows))
     console.print(table)
-    pl.DataFrame(rows).write_parquet(out / "summary.parquet")
+    write_parquet(pl.DataFrame(rows), out / "summary.parquet")
     console.print(f"tables in {out}")

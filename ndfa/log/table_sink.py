@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
+from ndfa.atomic import write_parquet
 from ndfa.events import (AssociationEvent, DecisionEvent, FrameEvent, GraphEvent, ObservationEvent,
                          RegistrationEvent, TimingEvent, TreeEvent)
 
@@ -109,9 +110,7 @@ class TableSink:
 
     def flush(self) -> None:
         for name, table in self.tables().items():
-            temporary = self.directory / f".{name}.parquet.tmp"
-            table.write_parquet(temporary)
-            temporary.replace(self.directory / f"{name}.parquet")
+            write_parquet(table, self.directory / f"{name}.parquet")
 
     def close(self) -> None:
         self.flush()

@@ -42,6 +42,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ndfa.atomic import atomic_path
 from ndfa.errors import DataError
 from ndfa.geometry import invert_pose, look_at, make_pose, rotation_z, transform_points
 from ndfa.sim.camera import PinholeCamera
@@ -476,11 +477,8 @@ def _split_mug(split: str, index: int) -> Mug:
 def write_dataset(path: str | Path, dataset: dict[str, np.ndarray]) -> Path:
     """Write `dataset` to `path` as one compressed .npz; a reader never sees a half-written file."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temp = path.with_name(f".{path.name}.tmp")
-    with open(temp, "wb") as file:  # a file object: np.savez would append ".npz" to a name
+    with atomic_path(path) as temporary, open(temporary, "wb") as file:  # a file object: np.savez would append ".npz" to a name
         np.savez_compressed(file, **dataset)
-    temp.replace(path)
     return path
 
 

@@ -23,13 +23,13 @@ Internally vector features are channels-last (`[B, N, 3, C]`, see `vn.py`); the 
 from __future__ import annotations
 
 import dataclasses
-import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 from torch import nn
 
+from ndfa.atomic import atomic_path
 from ndfa.errors import ModelError
 from ndfa.ndf.vn import EPS, VNEdgeConv, VNLinear, VNResnetBlock, vn_invariant, vn_max_pool, vn_mean_pool
 
@@ -458,14 +458,8 @@ def save_checkpoint(path: str | Path, model: NDFModel, config: NDFConfig, extra:
     clash = {"config", "state_dict"} & extra.keys()
     if clash:
         raise ValueError(f"extra may not use the reserved keys {sorted(clash)}")
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
+    with atomic_path(path) as temporary:
         torch.save({"config": dataclasses.asdict(config), "state_dict": model.state_dict(), **extra}, temporary)
-        os.replace(temporary, path)
-    finally:
-        temporary.unlink(missing_ok=True)
 
 
 def load_model(path: str | Path) -> tuple[NDFModel, dict]:

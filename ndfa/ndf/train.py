@@ -28,6 +28,7 @@ import numpy as np
 import polars as pl
 import torch
 
+from ndfa.atomic import write_parquet
 from ndfa.errors import ModelError
 from ndfa.ndf.data import (ViewConfig, batch_rows, generate_views, load_dataset, sample_batch, sample_rows,
                            shape_parameters, write_dataset)
@@ -154,7 +155,7 @@ def train(
                 "training_heads": heads.state_dict(),
             })
             metrics = pl.DataFrame(rows)
-            _write_parquet(metrics, out_dir / "metrics.parquet")
+            write_parquet(metrics, out_dir / "metrics.parquet")
             if on_epoch is not None:
                 on_epoch(row)
     return pl.DataFrame(rows)
@@ -357,12 +358,6 @@ def _without(config: dict, keys: tuple[str, ...]) -> dict:
 def _jsonable(value):
     """Dataclasses (nested) as JSON-compatible data, for configs stored beside results."""
     return json.loads(json.dumps(dataclasses.asdict(value), default=str))
-
-
-def _write_parquet(frame: pl.DataFrame, path: Path) -> None:
-    temp = path.with_name(f".{path.name}.tmp")
-    frame.write_parquet(temp)
-    temp.replace(path)
 
 
 def export_weights(checkpoint: Path, destination: Path) -> None:

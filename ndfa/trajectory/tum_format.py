@@ -7,12 +7,12 @@ Poses are camera-to-world, as everywhere in ndfa.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
+from ndfa.atomic import atomic_path
 from ndfa.errors import TrajectoryError
 from ndfa.geometry import make_pose, matrix_from_quaternion_xyzw, quaternion_xyzw_from_matrix
 
@@ -30,12 +30,10 @@ def write_tum(path: str | Path, timestamps: Sequence[float] | np.ndarray,
         values = [*pose[:3, 3], *quaternion_xyzw_from_matrix(pose[:3, :3])]
         # 6 decimals of seconds (microseconds) and 9 of metres and quaternions: below any sensor's precision.
         lines.append(f"{stamp:.6f} " + " ".join(f"{value:.9f}" for value in values))
-    temporary = path.with_name(f".{path.name}.tmp")
     try:
-        temporary.write_text("\n".join(lines) + "\n")
-        os.replace(temporary, path)
+        with atomic_path(path) as temporary:
+            temporary.write_text("\n".join(lines) + "\n")
     except OSError as error:
-        temporary.unlink(missing_ok=True)
         raise TrajectoryError(f"cannot write trajectory {path}: {error.strerror or error}") from error
 
 
