@@ -26,7 +26,7 @@ import torch
 from ndfa.geometry import invert_pose, transform_points
 from ndfa.ndf.data import ViewConfig, generate_views
 from ndfa.ndf.encoder import CENTER_METHODS, EncoderConfig, NDFEncoder
-from ndfa.ndf.metrics import center_errors_mm, iou, pair_separation, retrieval_hits
+from ndfa.ndf.metrics import center_errors_mm, iou, nearest_other, pair_separation
 from ndfa.sim.mug import Mug
 from ndfa.sim.splits import make_split_mug
 
@@ -78,9 +78,10 @@ def evaluate_ndf(
     summary["views_within_2m"] = float(near.sum())
     summary |= {f"{key}_head_within_2m": value
                 for key, value in center_errors_mm(centers["head"][near], true_centers[near]).items()}
-    hits = retrieval_hits(shape_codes, labels)
-    per_view["retrieved_same_mug"] = hits
-    summary["retrieval_top1"] = float(hits.mean())
+    retrieved = labels[nearest_other(shape_codes)]
+    per_view["retrieved_mug_index"] = retrieved  # which mug the nearest other view shows
+    per_view["retrieved_same_mug"] = retrieved == labels
+    summary["retrieval_top1"] = float(np.mean(retrieved == labels))
     summary |= pair_separation(shape_codes, labels, shape_threshold)
     # World is each view's mug frame, so the center error is a displacement in the mug frame.
     ious, swept, shifted = reconstruction_iou(encoders["head"], views, iou_grid, centers["head"] - true_centers)

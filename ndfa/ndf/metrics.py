@@ -12,11 +12,16 @@ def cosine_similarity_matrix(codes: np.ndarray) -> np.ndarray:
     return unit @ unit.T
 
 
-def retrieval_hits(codes: np.ndarray, labels: np.ndarray) -> np.ndarray:
-    """Per observation: is its most cosine-similar other observation of the same object?"""
+def nearest_other(codes: np.ndarray) -> np.ndarray:
+    """Per observation: the index of its most cosine-similar other observation."""
     similarity = cosine_similarity_matrix(codes)
     np.fill_diagonal(similarity, -np.inf)
-    return labels[np.argmax(similarity, axis=1)] == labels
+    return np.argmax(similarity, axis=1)
+
+
+def retrieval_hits(codes: np.ndarray, labels: np.ndarray) -> np.ndarray:
+    """Per observation: is its most cosine-similar other observation of the same object?"""
+    return labels[nearest_other(codes)] == labels
 
 
 def retrieval_top1(codes: np.ndarray, labels: np.ndarray) -> float:
