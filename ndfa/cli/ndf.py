@@ -112,6 +112,8 @@ def ndf_eval_command(
     views_per_mug: int = typer.Option(50, help="Partial views per mug."),
     seed: int = typer.Option(0, help="Seed of the test views."),
     v0: float = typer.Option(0.5, help="Occupancy threshold of the reconstruction (the IoU is also swept over a few)."),
+    split: str = typer.Option("test", help="Mug split: test (held out), or train to tune on validation mugs the run did not fit."),
+    first_mug: int = typer.Option(0, help="Index of the first mug in the split (e.g. 1000: the validation mugs after 1,000 training ones)."),
 ) -> None:
     """Model quality on unseen test-split mugs: center error, shape-code retrieval, IoU."""
     from ndfa.atomic import write_parquet
@@ -120,7 +122,9 @@ def ndf_eval_command(
 
     import polars as pl
 
-    views = generate_views("test", list(range(mugs)), views_per_mug, seed, ViewConfig())
+    if split not in ("test", "train"):
+        raise typer.BadParameter(f"--split must be test or train, got {split!r}")
+    views = generate_views(split, list(range(first_mug, first_mug + mugs)), views_per_mug, seed, ViewConfig())
     rows = []
     out.mkdir(parents=True, exist_ok=True)
     for path in weights or [None]:
@@ -128,7 +132,7 @@ def ndf_eval_command(
         name = str(path) if path is not None else "shipped"
         rows.append({"weights": name, **summary})
         write_parquet(per_view.with_columns(pl.lit(name).alias("weights")), out / f"views-{len(rows)}.parquet")
-    table = Table(title=f"ndfa ndf-eval: {mugs} unseen test mugs x {views_per_mug} views")
+    table = Table(title=f"ndfa ndf-eval: {split}-split mugs {first_mug}-{first_mug + mugs - 1} x {views_per_mug} views")
     table.add_column("figure")
     for row in rows:
         table.add_column(Path(row["weights"]).parent.name or row["weights"], justify="right")
