@@ -41,7 +41,7 @@ def test_summary_scores_the_sample_against_its_ground_truth(run):
     assert set(summary["stage_ms"]) == {"perception", "encoding", "detection"}
     # the added mug (instance 14) stands where the source had nothing: it must be found
     assert any(14 in change["instance_ids"] for change in summary["changes"])
-    # measured with the shipped weights: TP 5, FP 2, FN 0 (README); a worse model or detector fails here
+    # measured with the shipped weights: TP 5, FP 1, FN 0 (README); a worse model or detector fails here
     assert summary["recall"] == 1.0 and summary["fp"] <= 2
     assert "TP" in output and "changes" in output
 
