@@ -80,8 +80,8 @@ def evaluate_ndf(
                 for key, value in center_errors_mm(centers["head"][near], true_centers[near]).items()}
     retrieved = labels[nearest_other(shape_codes)]
     per_view["retrieved_mug_index"] = retrieved  # which mug the nearest other view shows
-    per_view["retrieved_same_mug"] = retrieved == labels
-    summary["retrieval_top1"] = float(np.mean(retrieved == labels))
+    per_view["retrieved_same_mug"] = hits = retrieved == labels
+    summary["retrieval_top1"] = float(hits.mean())
     summary |= pair_separation(shape_codes, labels, shape_threshold)
     # World is each view's mug frame, so the center error is a displacement in the mug frame.
     ious, swept, shifted = reconstruction_iou(encoders["head"], views, iou_grid, centers["head"] - true_centers)
