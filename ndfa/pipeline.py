@@ -5,7 +5,7 @@
     for frame in target frames:  events = pipeline.process("target", frame)
     events = pipeline.finish()
 
-Reading recordings and logging events happen outside (`ndfa.detect`, `ndfa.log`).
+Reading recordings and logging events happen outside (`ndfa.run.detect`, `ndfa.log`).
 """
 
 from __future__ import annotations
@@ -16,12 +16,12 @@ from pathlib import Path
 
 from ndfa.change.associate import Measurement
 from ndfa.change.detector import ChangeDetector, DetectorConfig
-from ndfa.events import FrameEvent, ObservationEvent, TimingEvent
-from ndfa.geometry import transform_points
+from ndfa.core.events import FrameEvent, ObservationEvent, TimingEvent
+from ndfa.core.geometry import transform_points
 from ndfa.ndf.encoder import EncoderConfig, NDFEncoder
 from ndfa.perception.observations import ObservationConfig, extract_observations
 from ndfa.perception.segmentation import SegmentationConfig, segment_frame
-from ndfa.recording import Frame
+from ndfa.core.frame import Frame
 
 SESSIONS = ("source", "target")
 

@@ -17,8 +17,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ndfa.ndf.data import load_dataset, sample_batch
-from ndfa.ndf.losses import center_loss, frame_loss
+from ndfa.training.data import load_dataset, sample_batch
+from ndfa.training.losses import center_loss, frame_loss
 from ndfa.ndf.model import NDFConfig, NDFModel
 
 

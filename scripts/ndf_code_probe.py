@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ndfa.ndf.data import NUMERIC_PARAMS, load_dataset, shape_parameters
+from ndfa.training.data import NUMERIC_PARAMS, load_dataset, shape_parameters
 from ndfa.ndf.encoder import DEFAULT_WEIGHTS
 from ndfa.ndf.model import load_model
-from ndfa.ndf.train import encode_views
+from ndfa.training.train import encode_views
 
 
 def main() -> None:

@@ -19,7 +19,7 @@ import sys
 import numpy as np
 import polars as pl
 
-from ndfa.ndf.metrics import iou
+from ndfa.training.metrics import iou
 from ndfa.sim.splits import make_split_mug
 
 MUGS, GRID = 20, 32

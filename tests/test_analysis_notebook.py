@@ -10,7 +10,7 @@ NOTEBOOK = Path(__file__).parents[1] / "notebooks" / "analysis.ipynb"
 
 
 def _sweep(path: Path) -> Path:
-    """A small table in `ndfa/sweep.py`'s schema: two axes, two values, two seeds, three methods."""
+    """A small table in `ndfa/eval/sweep.py`'s schema: two axes, two values, two seeds, three methods."""
     rows = [{"axis": axis, "value": value, "seed": seed, "method": method, "tp": 5, "fp": seed, "fn": 0,
              "precision": 5 / (5 + seed), "recall": 1.0, "f1": 10 / (10 + seed), "seconds": 1.0}
             for axis, values in (("drift", (0.0, 0.002)), ("pose_offset", (0.0, 0.05)))

@@ -8,12 +8,12 @@ import pytest
 from typer.testing import CliRunner
 
 from ndfa.cli import app
-from ndfa.errors import ExportError, IngestError
-from ndfa.export.bag import LINK_FROM_OPTICAL, _BagWriter, export_bag
-from ndfa.geometry import invert_pose, look_at
-from ndfa.ingest import ros_images
-from ndfa.ingest.bag import ingest_bag, list_topics
-from ndfa.recording import RecordingReader, RecordingWriter
+from ndfa.core.errors import ExportError, IngestError
+from ndfa.io.export.bag import LINK_FROM_OPTICAL, _BagWriter, export_bag
+from ndfa.core.geometry import invert_pose, look_at
+from ndfa.io.ingest import ros_images
+from ndfa.io.ingest.bag import ingest_bag, list_topics
+from ndfa.io.recording import RecordingReader, RecordingWriter
 
 SAMPLE = Path(__file__).resolve().parents[1] / "recordings" / "sample"
 FRAMES = 10
@@ -221,7 +221,7 @@ def test_no_poses_needs_kiss_icp(tmp_path):
 
 
 def test_detection_survives_a_ros1_round_trip(tmp_path):
-    from ndfa.detect import run_detection
+    from ndfa.run.detect import run_detection
 
     paths = {}
     for session in ("source", "target"):

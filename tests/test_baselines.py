@@ -8,13 +8,13 @@ import polars as pl
 import pytest
 from typer.testing import CliRunner
 
-from ndfa.baselines import BaselineError, run_baseline
-from ndfa.baselines.nn import NNBaseline, NNConfig, voxel_downsample
-from ndfa.baselines.table import open_for_baselines
-from ndfa.baselines.tsdf import Submap, TSDFBaseline, TSDFConfig
+from ndfa.eval.baselines import BaselineError, run_baseline
+from ndfa.eval.baselines.nn import NNBaseline, NNConfig, voxel_downsample
+from ndfa.eval.table import open_for_baselines
+from ndfa.eval.baselines.tsdf import Submap, TSDFBaseline, TSDFConfig
 from ndfa.cli import app
-from ndfa.geometry import look_at, make_pose
-from ndfa.recording import Frame, RecordingWriter
+from ndfa.core.geometry import look_at, make_pose
+from ndfa.io.recording import Frame, RecordingWriter
 from ndfa.sim.camera import PinholeCamera
 from ndfa.sim.mesh import box_mesh
 from ndfa.sim.mug import make_mug
@@ -80,7 +80,7 @@ def test_submap_lookup_reads_the_signed_distance_to_a_wall():
     config = TSDFConfig(voxel_m=0.02, submap_length_m=0.32)
     submap = Submap(1, np.array([0.0, 0.0, 1.0]), config)
     frame = Frame(0, 0.0, None, np.full((240, 320), 1.0, np.float32), CAMERA.K, np.eye(4))
-    from ndfa.baselines.tsdf import DepthView
+    from ndfa.eval.baselines.tsdf import DepthView
 
     view = DepthView.of(frame)
     submap.integrate(view, view.rgbd())

@@ -11,7 +11,7 @@ from ndfa.change.detector import ChangeDetector, DetectorConfig
 from ndfa.change.graph import compare_graphs, local_graph
 from ndfa.change.register import apply, ransac_registration, rigid_transform
 from ndfa.change.tree import IntervalTree, ObjectTree
-from ndfa.geometry import axis_angle_to_matrix, make_pose, rotation_z
+from ndfa.core.geometry import axis_angle_to_matrix, make_pose, rotation_z
 
 
 # -- tree ---------------------------------------------------------------------------------------

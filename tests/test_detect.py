@@ -10,11 +10,11 @@ import pytest
 from typer.testing import CliRunner
 
 from ndfa.cli import app
-from ndfa.detect import run_detection
-from ndfa.errors import RecordingError
+from ndfa.run.detect import run_detection
+from ndfa.core.errors import RecordingError
 from ndfa.log.table_sink import TABLES, TableSink
 from ndfa.pipeline import PipelineConfig
-from ndfa.recording import Frame, RecordingWriter
+from ndfa.io.recording import Frame, RecordingWriter
 
 SAMPLE = Path(__file__).parents[1] / "recordings" / "sample"
 SUMMARY_KEYS = {"tp", "fp", "fn", "precision", "recall", "frames", "objects_source", "objects_target", "fps",
@@ -48,7 +48,7 @@ def test_summary_scores_the_sample_against_its_ground_truth(run):
 
 def test_replaying_the_observations_table_reproduces_the_run(run):
     from ndfa.change.detector import DetectorConfig
-    from ndfa.replay import replay
+    from ndfa.run.replay import replay
 
     out, _ = run
     summary = json.loads((out / "summary.json").read_text())

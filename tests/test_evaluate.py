@@ -1,6 +1,6 @@
 """Object-level scoring (paper Sec. V-B), with mugs that a session never saw left unscored."""
 
-from ndfa.evaluate import score
+from ndfa.eval.scoring import score
 
 TRUTH = {"objects": [
     {"instance_id": 1, "change": "unchanged"},

@@ -8,10 +8,10 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from ndfa.errors import IngestError
-from ndfa.geometry import transform_points
-from ndfa.ingest.synthetic import ingest_sim, render_objects
-from ndfa.recording import RecordingReader
+from ndfa.core.errors import IngestError
+from ndfa.core.geometry import transform_points
+from ndfa.io.ingest.synthetic import ingest_sim, render_objects
+from ndfa.io.recording import RecordingReader
 from ndfa.sim.camera import PinholeCamera
 from ndfa.sim.noise import DepthNoise
 from ndfa.sim.presets import make_config
@@ -181,7 +181,7 @@ def test_user_meshes_are_placed_and_open_ones_only_warn(tmp_path):
 
 
 def test_bench_reports_every_stage():
-    from ndfa.bench import bench_sim
+    from ndfa.eval.bench import bench_sim
 
     result = bench_sim(frames=3)
     assert result["frames"] == 3 and result["triangles"] > 100_000

@@ -8,8 +8,8 @@ import pytest
 import torch
 from conftest import random_rotation, relative_error
 
-from ndfa.errors import ModelError
-from ndfa.ndf.losses import frame_loss
+from ndfa.core.errors import ModelError
+from ndfa.training.losses import frame_loss
 from ndfa.ndf.model import NDFConfig, NDFModel, load_model, object_frame, save_checkpoint
 
 SEEDS = [0, 1, 2]

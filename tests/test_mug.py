@@ -8,8 +8,8 @@ from functools import cache
 import numpy as np
 import pytest
 
-from ndfa.errors import SimError
-from ndfa.geometry import rotation_z
+from ndfa.core.errors import SimError
+from ndfa.core.geometry import rotation_z
 from ndfa.sim.mesh import Mesh
 from ndfa.sim.mesh_io import load_mug_dir, load_mug_mesh
 from ndfa.sim.mug import (

@@ -1,4 +1,4 @@
-"""NDF training data (ndfa.ndf.data): partial views of procedural mugs with occupancy labels."""
+"""NDF training data (ndfa.training.data): partial views of procedural mugs with occupancy labels."""
 
 import dataclasses
 
@@ -6,10 +6,10 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from ndfa.errors import DataError
-from ndfa.geometry import invert_pose, transform_points
-from ndfa.ndf import data
-from ndfa.ndf.data import (
+from ndfa.core.errors import DataError
+from ndfa.core.geometry import invert_pose, transform_points
+from ndfa.training import data
+from ndfa.training.data import (
     View, ViewConfig, generate_views, load_dataset, mug_center, render_view, sample_batch, write_dataset,
 )
 from ndfa.sim.mug import MugParams, build_mug

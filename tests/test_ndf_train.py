@@ -4,13 +4,13 @@ import numpy as np
 import pytest
 import torch
 
-from ndfa.errors import ModelError
-from ndfa.ndf.data import ViewConfig, generate_views
+from ndfa.core.errors import ModelError
+from ndfa.training.data import ViewConfig, generate_views
 from ndfa.ndf.encoder import DEFAULT_WEIGHTS, EncoderConfig, NDFEncoder
-from ndfa.ndf.losses import batch_hard_shape_loss
-from ndfa.ndf.metrics import pair_separation, retrieval_top1, roc_auc
+from ndfa.training.losses import batch_hard_shape_loss
+from ndfa.training.metrics import pair_separation, retrieval_top1, roc_auc
 from ndfa.ndf.model import NDFConfig, NDFModel, save_checkpoint
-from ndfa.ndf.train import TrainConfig, train
+from ndfa.training.train import TrainConfig, train
 
 # The frame decoder with local points, max pooling, both direction cues and the gated center head:
 # the training path with every loss term and every input.
@@ -131,7 +131,7 @@ def test_encoder_refuses_bad_input(tiny_run, tmp_path):
 
 
 def test_evaluation_reports_every_figure(tiny_run):
-    from ndfa.ndf.evaluate import evaluate_ndf
+    from ndfa.training.ndf_eval import evaluate_ndf
 
     _, out, _ = tiny_run
     views = generate_views("test", [0, 1], 2, 0, FEW_VIEWS, workers=1)
@@ -146,7 +146,7 @@ def test_evaluation_reports_every_figure(tiny_run):
 
 
 def test_displaced_true_shape_iou_falls_with_the_center_error(tiny_run):
-    from ndfa.ndf.evaluate import reconstruction_iou
+    from ndfa.training.ndf_eval import reconstruction_iou
 
     _, out, _ = tiny_run
     views = generate_views("test", [0], 3, 0, FEW_VIEWS, workers=1)
@@ -158,7 +158,7 @@ def test_displaced_true_shape_iou_falls_with_the_center_error(tiny_run):
 
 
 def test_shipped_weights_load_and_encode():
-    from ndfa.geometry import invert_pose
+    from ndfa.core.geometry import invert_pose
 
     encoder = NDFEncoder()  # the package's default weights
     views = generate_views("test", [0], 1, 0, ViewConfig(), workers=1)
@@ -173,7 +173,7 @@ def test_shipped_weights_load_and_encode():
 
 def test_proxies_of_a_trained_model_start_at_its_mean_codes():
     from ndfa.ndf.model import load_model
-    from ndfa.ndf.train import TrainingHeads, encode_views
+    from ndfa.training.train import TrainingHeads, encode_views
 
     model, _ = load_model(DEFAULT_WEIGHTS)
     views = generate_views("train", [0, 1, 2, 3], 3, 0, ViewConfig(), workers=1)

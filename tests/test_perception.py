@@ -3,7 +3,7 @@
 import numpy as np
 
 from ndfa.perception.observations import ObservationConfig, extract_observations, largest_cluster
-from ndfa.recording import Frame
+from ndfa.io.recording import Frame
 from ndfa.sim.camera import PinholeCamera
 
 

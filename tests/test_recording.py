@@ -18,9 +18,9 @@ from foxglove_schemas_protobuf.RawImage_pb2 import RawImage
 from mcap.writer import Writer as McapWriter
 from mcap_protobuf.schema import build_file_descriptor_set
 
-from ndfa.errors import RecordingError
-from ndfa.geometry import axis_angle_to_matrix, make_pose
-from ndfa.recording import (
+from ndfa.core.errors import RecordingError
+from ndfa.core.geometry import axis_angle_to_matrix, make_pose
+from ndfa.io.recording import (
     CALIBRATION,
     DEPTH,
     META,
@@ -29,7 +29,7 @@ from ndfa.recording import (
     RecordingReader,
     RecordingWriter,
 )
-from ndfa.recording.writer import depth_to_millimetres
+from ndfa.io.recording.writer import depth_to_millimetres
 
 HEIGHT, WIDTH = 48, 64
 META_IN = {"source": "test", "session": "unit", "provenance": {"seed": 7, "tool": "pytest"}}

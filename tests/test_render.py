@@ -6,8 +6,8 @@ import numpy as np
 import open3d as o3d
 import pytest
 
-from ndfa.errors import SimError
-from ndfa.geometry import invert_pose, look_at, transform_points
+from ndfa.core.errors import SimError
+from ndfa.core.geometry import invert_pose, look_at, transform_points
 from ndfa.sim.camera import PinholeCamera
 from ndfa.sim.mesh import Mesh, box_mesh
 from ndfa.sim.noise import DepthNoise

@@ -5,8 +5,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from ndfa.ingest.synthetic import world_ground_truth
-from ndfa.recording import RecordingReader
+from ndfa.io.ingest.synthetic import world_ground_truth
+from ndfa.io.recording import RecordingReader
 from ndfa.sim.presets import make_config
 from ndfa.sim.world import build_world, procedural_models
 

@@ -7,9 +7,9 @@ import pytest
 from PIL import Image
 from typer.testing import CliRunner
 
-import ndfa.sweep as sweep
+import ndfa.eval.sweep as sweep
 from ndfa.cli import app
-from ndfa.sweep import SweepError, SweepSpec, cell_config, load_results, parse_seeds, run_sweep
+from ndfa.eval.sweep import SweepError, SweepSpec, cell_config, load_results, parse_seeds, run_sweep
 
 TINY = dict(preset="sample", step_m=0.6)  # the sample scene with half its frames
 

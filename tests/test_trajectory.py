@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from ndfa.errors import SimError
+from ndfa.core.errors import SimError
 from ndfa.sim.pose_error import PoseError
 from ndfa.sim.scene import table_grid
 from ndfa.sim.trajectory import ROUTES, TrajectoryConfig, camera_poses

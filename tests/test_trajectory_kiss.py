@@ -5,10 +5,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from ndfa.errors import TrajectoryError
-from ndfa.geometry import axis_angle_to_matrix, look_at, make_pose
-from ndfa.ingest.synthetic import render_objects
-from ndfa.recording import Frame, RecordingReader, RecordingWriter
+from ndfa.core.errors import TrajectoryError
+from ndfa.core.geometry import axis_angle_to_matrix, look_at, make_pose
+from ndfa.io.ingest.synthetic import render_objects
+from ndfa.io.recording import Frame, RecordingReader, RecordingWriter
 from ndfa.sim.presets import make_config
 from ndfa.sim.render import SceneRenderer
 from ndfa.sim.trajectory import camera_poses

@@ -8,12 +8,12 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from ndfa.cli import app
-from ndfa.errors import ExportError, IngestError
-from ndfa.export.tum import export_tum
-from ndfa.geometry import make_pose, quaternion_xyzw_from_matrix, rotation_z
-from ndfa.ingest.tum import TumWarning, ingest_tum
-from ndfa.ingest.tum_folder import DEFAULT_INTRINSICS, INTRINSICS_PRESETS, read_tum_folder
-from ndfa.recording import RecordingReader
+from ndfa.core.errors import ExportError, IngestError
+from ndfa.io.export.tum import export_tum
+from ndfa.core.geometry import make_pose, quaternion_xyzw_from_matrix, rotation_z
+from ndfa.io.ingest.tum import TumWarning, ingest_tum
+from ndfa.io.ingest.tum_folder import DEFAULT_INTRINSICS, INTRINSICS_PRESETS, read_tum_folder
+from ndfa.io.recording import RecordingReader
 
 SAMPLE = Path(__file__).resolve().parent.parent / "recordings" / "sample"
 
@@ -52,7 +52,7 @@ def test_export_then_import_gives_the_recording_back(round_trip, session):
 
 
 def test_detection_on_the_round_trip_finds_the_same_changes(round_trip):
-    from ndfa.detect import run_detection
+    from ndfa.run.detect import run_detection
 
     def changes(source: Path, target: Path) -> list[tuple]:
         return [(c.session, c.object_id, c.kind) for c in run_detection(source, target).changes]

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from ndfa.errors import SimError
+from ndfa.core.errors import SimError
 from ndfa.sim.presets import make_config
 from ndfa.sim.world import CHANGE_KINDS, build_world, footprint_radius, procedural_models
 

@@ -13,7 +13,7 @@ Read it top to bottom as the paper's loop:
                                  a changed target object that matches a removed one by shape
                                  is reported as moved instead
 
-Pure numpy; every step returns events (`ndfa.events`) for the sinks.
+Pure numpy; every step returns events (`ndfa.core.events`) for the sinks.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import numpy as np
 from ndfa.change.associate import Measurement, SessionMap, cosine_similarity
 from ndfa.change.graph import compare_graphs, local_graph
 from ndfa.change.register import Registration, apply, ransac_registration
-from ndfa.events import AssociationEvent, DecisionEvent, GraphEvent, RegistrationEvent, TreeEvent
+from ndfa.core.events import AssociationEvent, DecisionEvent, GraphEvent, RegistrationEvent, TreeEvent
 
 
 @dataclass(frozen=True)

@@ -23,12 +23,12 @@ def bench_command(
     step: int = typer.Option(1, help="segment: use every N-th frame."),
 ) -> None:
     """Time each stage of a pipeline and print milliseconds."""
-    from ndfa.bench import bench_detect, bench_detection_scaling, bench_ndf, bench_sim
+    from ndfa.eval.bench import bench_detect, bench_detection_scaling, bench_ndf, bench_sim
 
     if what == "segment":
         from ndfa.perception.segmentation import SegmentationConfig
-        from ndfa.perception.segmentation_scoring import segmentation_recall
-        from ndfa.recording import RecordingReader
+        from ndfa.eval.segmentation import segmentation_recall
+        from ndfa.io.recording import RecordingReader
 
         reader = RecordingReader(recording)
         r = segmentation_recall(reader.frames(step=step), SegmentationConfig())

@@ -10,7 +10,7 @@ import typer
 from rich.table import Table
 
 from ndfa.cli.app import app, console, err_console, progress_bar
-from ndfa.errors import NdfaError
+from ndfa.core.errors import NdfaError
 
 
 @app.command("detect")
@@ -42,10 +42,10 @@ def detect_command(
         torch.set_num_threads(threads)
 
     from ndfa.change.detector import DetectorConfig
-    from ndfa.detect import run_detection
-    from ndfa.evaluate import changed_instances
+    from ndfa.run.detect import run_detection
+    from ndfa.eval.scoring import changed_instances
     from ndfa.pipeline import PipelineConfig
-    from ndfa.recording import RecordingReader
+    from ndfa.io.recording import RecordingReader
 
     overrides = {"association_distance_m": association_distance, "shape_similarity": shape_similarity,
                  "edge_m": edge_distance, "tree_length_m": tree_length}
@@ -110,7 +110,7 @@ def segment_command(
 ) -> None:
     """Copy a recording with its instance masks replaced by the geometric segmentation (planes + DBSCAN)."""
     from ndfa.perception.segmentation import SegmentationConfig
-    from ndfa.segment import segment_recording
+    from ndfa.run.segment import segment_recording
 
     with progress_bar() as progress:
         task = progress.add_task("segmenting", total=None)
@@ -148,9 +148,9 @@ def eval_command(
         return
     if source is None or target is None:
         raise typer.BadParameter("give SOURCE and TARGET recordings, or --sweep AXIS --values ...")
-    from ndfa.baselines.nn import NNConfig
-    from ndfa.baselines.table import evaluate_methods, write_table
-    from ndfa.baselines.tsdf import TSDFConfig
+    from ndfa.eval.baselines.nn import NNConfig
+    from ndfa.eval.table import evaluate_methods, write_table
+    from ndfa.eval.baselines.tsdf import TSDFConfig
 
     if frame_step < 1:
         raise typer.BadParameter(f"--frame-step must be >= 1, got {frame_step}")
@@ -187,7 +187,7 @@ def eval_command(
 def _eval_sweep(axis: str, values: Optional[str], seeds: str, preset: str, step: Optional[float],
                 workers: Optional[int], address: Optional[str], use_ray: Optional[bool], out: Path) -> None:
     """`ndfa eval --sweep`: run (or resume) the sweep, print the aggregated table, write parquet and PNG."""
-    from ndfa.sweep import aggregate, plot_sweep, run_sweep, spec_from_text
+    from ndfa.eval.sweep import aggregate, plot_sweep, run_sweep, spec_from_text
 
     if values is None:
         raise typer.BadParameter("--sweep needs --values, e.g. --values 0,0.001,0.002")

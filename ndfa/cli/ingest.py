@@ -11,7 +11,7 @@ from rich.progress import Progress, TextColumn
 from rich.table import Table
 
 from ndfa.cli.app import app, console, err_console, progress_bar
-from ndfa.errors import NdfaError
+from ndfa.core.errors import NdfaError
 
 ingest_app = typer.Typer(no_args_is_help=True, help="Turn a data source into ndfa recordings (MCAP).")
 app.add_typer(ingest_app, name="ingest")
@@ -60,7 +60,7 @@ def ingest_sim_command(
     drift_yaw: Optional[float] = typer.Option(None, help="Target drift: random-walk yaw step std, degrees/frame."),
 ) -> None:
     """Render a synthetic source/target pair of recordings with ground truth."""
-    from ndfa.ingest.synthetic import check_output_dir, ingest_sim
+    from ndfa.io.ingest.synthetic import check_output_dir, ingest_sim
     from ndfa.sim.noise import DepthNoise
     from ndfa.sim.presets import make_config
 
@@ -151,7 +151,7 @@ def ingest_tum_command(
     """Import a TUM RGB-D folder into one recording, and say what was dropped and why."""
     import warnings
 
-    from ndfa.ingest.tum import TumWarning, ingest_tum
+    from ndfa.io.ingest.tum import TumWarning, ingest_tum
 
     estimator = _pose_estimator(poses)
     camera = _parse_intrinsics(intrinsics)
@@ -200,7 +200,7 @@ def ingest_bag_command(
     poses: str = typer.Option("given", help="given (from the bag) | kiss-icp (estimated from depth)."),
 ) -> None:
     """Import a ROS1 or ROS2 bag into one recording, and say what was skipped and why."""
-    from ndfa.ingest.bag import ingest_bag, list_topics
+    from ndfa.io.ingest.bag import ingest_bag, list_topics
 
     if list_only:
         topics = list_topics(bag)
@@ -250,7 +250,7 @@ def export_tum_command(
     depth_scale: float = typer.Option(5000.0, help="Depth PNG units per metre (TUM: 5000)."),
 ) -> None:
     """Write a recording as a TUM RGB-D folder (plus calibration.txt, masks/ and ground truth)."""
-    from ndfa.export.tum import export_tum
+    from ndfa.io.export.tum import export_tum
 
     with progress_bar() as progress:
         task = progress.add_task(f"writing {out.name}", total=None)
@@ -274,7 +274,7 @@ def export_bag_command(
     color_format: str = typer.Option("jpeg", help="With --compressed: jpeg (lossy) | png."),
 ) -> None:
     """Write a recording as a ROS bag (images, CameraInfo, /tf, /tf_static, ground truth)."""
-    from ndfa.export.bag import export_bag
+    from ndfa.io.export.bag import export_bag
 
     with Progress(TextColumn("[bold]{task.description}"), console=err_console, transient=True) as progress:
         progress.add_task(f"writing {out.name}", total=None)
@@ -287,7 +287,7 @@ def export_bag_command(
 @app.command("info")
 def info_command(recording: Path = typer.Argument(..., help="An ndfa recording (.mcap).")) -> None:
     """Summarise a recording: source, frames, image size, poses and ground-truth changes."""
-    from ndfa.recording import RecordingReader
+    from ndfa.io.recording import RecordingReader
 
     reader = RecordingReader(recording)
     meta = reader.meta

@@ -45,7 +45,7 @@ def train_command(
 ) -> None:
     """Train the NDF on rendered partial views of train-split procedural mugs (CPU)."""
     from ndfa.ndf.model import NDFConfig
-    from ndfa.ndf.train import TrainConfig, train
+    from ndfa.training.train import TrainConfig, train
 
     config = TrainConfig(
         model=NDFConfig(code_head=code_head, pooling=pooling, decoder=decoder, local_points=local_points,
@@ -97,7 +97,7 @@ def ndf_export_command(
 ) -> None:
     """Strip a training checkpoint to the weights the package ships and loads by default."""
     from ndfa.ndf.encoder import DEFAULT_WEIGHTS
-    from ndfa.ndf.train import export_weights
+    from ndfa.training.train import export_weights
 
     destination = to or DEFAULT_WEIGHTS
     export_weights(checkpoint, destination)
@@ -116,9 +116,9 @@ def ndf_eval_command(
     first_mug: int = typer.Option(0, help="Index of the first mug in the split (e.g. 1000: the validation mugs after 1,000 training ones)."),
 ) -> None:
     """Model quality on unseen test-split mugs: center error, shape-code retrieval, IoU."""
-    from ndfa.atomic import write_parquet
-    from ndfa.ndf.data import ViewConfig, generate_views
-    from ndfa.ndf.evaluate import evaluate_ndf
+    from ndfa.io.atomic import write_parquet
+    from ndfa.training.data import ViewConfig, generate_views
+    from ndfa.training.ndf_eval import evaluate_ndf
 
     import polars as pl
 

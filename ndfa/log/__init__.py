@@ -1,1 +1,1 @@
-"""Sinks: turn the pipeline's events (`ndfa.events`) into a Rerun recording or Polars tables."""
+"""Sinks: turn the pipeline's events (`ndfa.core.events`) into a Rerun recording or Polars tables."""

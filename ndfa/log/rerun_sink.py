@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from ndfa.events import (AssociationEvent, DecisionEvent, FrameEvent, GraphEvent, ObservationEvent,
+from ndfa.core.events import (AssociationEvent, DecisionEvent, FrameEvent, GraphEvent, ObservationEvent,
                          RegistrationEvent, TimingEvent, TreeEvent)
 
 KIND_COLORS = {"added": (230, 60, 60), "removed": (240, 160, 30), "moved": (170, 80, 230), "unchanged": (90, 200, 90)}

@@ -23,8 +23,8 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from ndfa.atomic import write_parquet
-from ndfa.events import (AssociationEvent, DecisionEvent, FrameEvent, GraphEvent, ObservationEvent,
+from ndfa.io.atomic import write_parquet
+from ndfa.core.events import (AssociationEvent, DecisionEvent, FrameEvent, GraphEvent, ObservationEvent,
                          RegistrationEvent, TimingEvent, TreeEvent)
 
 TABLES = ("observations", "associations", "objects", "tree_nodes", "registration", "graphs", "decisions", "timings")

@@ -15,8 +15,8 @@ import numpy as np
 import torch
 from scipy.ndimage import binary_dilation
 
-from ndfa.errors import ModelError
-from ndfa.geometry import transform_points
+from ndfa.core.errors import ModelError
+from ndfa.core.geometry import transform_points
 from ndfa.ndf.model import load_model
 
 WEIGHTS_DIR = Path(__file__).parent / "weights"

@@ -29,8 +29,8 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from ndfa.atomic import atomic_path
-from ndfa.errors import ModelError
+from ndfa.io.atomic import atomic_path
+from ndfa.core.errors import ModelError
 from ndfa.ndf.vn import EPS, VNEdgeConv, VNLinear, VNResnetBlock, vn_invariant, vn_max_pool, vn_mean_pool
 
 CODE_HEADS = ("norms", "gram")

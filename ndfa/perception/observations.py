@@ -19,8 +19,8 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from ndfa.geometry import backproject
-from ndfa.recording import Frame
+from ndfa.core.geometry import backproject
+from ndfa.core.frame import Frame
 
 
 @dataclass(frozen=True)

@@ -37,7 +37,7 @@ mugs closer than `dbscan_eps_m` merge; the inside of a mug, cut off from its bod
 dropout at the rim, can become a segment of its own (small: the pipeline's `min_pixels` skips it).
 
 The ids are labels 1..N within one frame, nothing more: the method never uses an instance id
-except to group the pixels of one frame (`ndfa.perception.segmentation_scoring` scores them against ground truth).
+except to group the pixels of one frame (`ndfa.eval.segmentation` scores them against ground truth).
 
 Pure numpy/scipy; no I/O.
 """
@@ -49,9 +49,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ndfa.geometry import backproject
+from ndfa.core.geometry import backproject
 from ndfa.perception.dbscan import dbscan
-from ndfa.recording import Frame
+from ndfa.core.frame import Frame
 
 
 @dataclass(frozen=True)

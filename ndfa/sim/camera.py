@@ -1,6 +1,6 @@
 """The pinhole camera model: intrinsics, pixel rays, projection and back-projection.
 
-Frames and conventions follow ndfa.geometry: the OpenCV camera frame (x right, y down, z forward
+Frames and conventions follow ndfa.core.geometry: the OpenCV camera frame (x right, y down, z forward
 along the optical axis), metres. Pixel (row v, column u) has its centre at image coordinates
 (u, v); the top-left pixel's centre is (0, 0), so a centred principal point is ((W-1)/2, (H-1)/2).
 Depth images hold z-depth (the point's z in the camera frame), not the length of the ray.
@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ndfa.errors import SimError
+from ndfa.core.errors import SimError
 
 # 60 degrees of horizontal field of view over 640 pixels: fx = 320 / tan(30 deg) ~ 554.26 px.
 _DEFAULT_FOCAL_PX = 320.0 / math.tan(math.radians(30.0))

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ndfa.geometry import transform_points
+from ndfa.core.geometry import transform_points
 
 
 @dataclass(frozen=True)

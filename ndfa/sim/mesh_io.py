@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ndfa.errors import SimError
+from ndfa.core.errors import SimError
 from ndfa.sim.mesh import Mesh
 from ndfa.sim.mug import Mug
 

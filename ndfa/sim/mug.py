@@ -30,7 +30,7 @@ from functools import cached_property
 
 import numpy as np
 
-from ndfa.errors import SimError
+from ndfa.core.errors import SimError
 from ndfa.sim.mesh import Mesh
 
 PROFILES = ("straight", "tapered", "bulged", "flared")

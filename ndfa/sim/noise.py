@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ndfa.errors import SimError
+from ndfa.core.errors import SimError
 from ndfa.sim.camera import PinholeCamera
 
 

@@ -8,7 +8,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ndfa.geometry import axis_angle_to_matrix, make_pose, rotation_z
+from ndfa.core.geometry import axis_angle_to_matrix, make_pose, rotation_z
 
 
 @dataclass(frozen=True)

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ndfa.errors import SimError
+from ndfa.core.errors import SimError
 from ndfa.sim.camera import PinholeCamera
 from ndfa.sim.noise import DepthNoise
 from ndfa.sim.pose_error import PoseError

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 import open3d as o3d
 
-from ndfa.errors import SimError
+from ndfa.core.errors import SimError
 from ndfa.sim.camera import PinholeCamera
 from ndfa.sim.mesh import Mesh
 

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ndfa.geometry import make_pose, rotation_z, transform_points
+from ndfa.core.geometry import make_pose, rotation_z, transform_points
 from ndfa.sim.mesh import Mesh, box_mesh
 
 

@@ -6,7 +6,7 @@ disjoint, so no test mug is ever seen in training.
 
 from __future__ import annotations
 
-from ndfa.errors import SimError
+from ndfa.core.errors import SimError
 from ndfa.sim.mug import Mug, make_mug
 
 TRAIN_SEEDS = range(0, 1_000_000)

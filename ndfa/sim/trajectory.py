@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ndfa.errors import SimError
-from ndfa.geometry import look_at
+from ndfa.core.errors import SimError
+from ndfa.core.geometry import look_at
 from ndfa.sim.scene import Table
 
 ROUTES = ("perimeter", "corridor", "weave", "circles")

@@ -2,7 +2,7 @@
 
 A `World` is the whole synthetic ground truth: static room and tables, the mug models, one
 layout per session (instance id -> placement) and the change labels. It is pure data; rendering
-and writing recordings happen elsewhere (`ndfa.ingest.synthetic`).
+and writing recordings happen elsewhere (`ndfa.io.ingest.synthetic`).
 
 A physical mug keeps its instance id in both sessions, so a moved or switched mug is the same id
 at a new place. Changes are counted per object, as the paper counts them: a switch of two mugs
@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ndfa.errors import SimError
-from ndfa.geometry import make_pose, rotation_z
+from ndfa.core.errors import SimError
+from ndfa.core.geometry import make_pose, rotation_z
 from ndfa.sim.mug import Mug
 from ndfa.sim.presets import SimConfig
 from ndfa.sim.scene import Room, Table, room_around, table_grid

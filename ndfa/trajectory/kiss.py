@@ -26,9 +26,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ndfa.errors import TrajectoryError
-from ndfa.geometry import backproject
-from ndfa.recording.frame import Frame
+from ndfa.core.errors import TrajectoryError
+from ndfa.core.geometry import backproject
+from ndfa.core.frame import Frame
 from ndfa.trajectory.refine import refine_point_to_plane
 
 # Below this many valid depth points a frame is not registered: its pose is the constant-velocity

@@ -22,7 +22,7 @@ from typing import Literal
 
 import numpy as np
 
-from ndfa.errors import TrajectoryError
+from ndfa.core.errors import TrajectoryError
 
 
 @dataclass(frozen=True)

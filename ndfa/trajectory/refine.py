@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ndfa.geometry import axis_angle_to_matrix, make_pose
+from ndfa.core.geometry import axis_angle_to_matrix, make_pose
 
 
 @dataclass(frozen=True)

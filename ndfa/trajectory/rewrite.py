@@ -15,8 +15,8 @@ from typing import Callable
 
 import numpy as np
 
-from ndfa.errors import TrajectoryError
-from ndfa.recording import Frame, RecordingReader, RecordingWriter
+from ndfa.core.errors import TrajectoryError
+from ndfa.io.recording import Frame, RecordingReader, RecordingWriter
 from ndfa.trajectory.kiss import DepthOdometry, OdometryConfig
 from ndfa.trajectory.metrics import AbsoluteError, RelativeError, absolute_trajectory_error, relative_pose_error
 
@@ -107,7 +107,7 @@ def rewrite_poses(recording_in: str | Path, recording_out: str | Path, method: s
 
 def _output_meta(meta: dict, method: str, config: OdometryConfig) -> dict:
     """The input's meta (less what the writer sets itself), with the poses' provenance."""
-    from ndfa.recording.writer import _WRITER_META_KEYS
+    from ndfa.io.recording.writer import _WRITER_META_KEYS
 
     output = {key: value for key, value in meta.items() if key not in _WRITER_META_KEYS}
     output["poses"] = method

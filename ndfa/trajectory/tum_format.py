@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ndfa.atomic import atomic_path
-from ndfa.errors import TrajectoryError
-from ndfa.geometry import make_pose, matrix_from_quaternion_xyzw, quaternion_xyzw_from_matrix
+from ndfa.io.atomic import atomic_path
+from ndfa.core.errors import TrajectoryError
+from ndfa.core.geometry import make_pose, matrix_from_quaternion_xyzw, quaternion_xyzw_from_matrix
 
 
 def write_tum(path: str | Path, timestamps: Sequence[float] | np.ndarray,

@@ -1,0 +1,1 @@
+"""The facts every stage shares: frames, geometry, events, errors and conventions. Pure: no I/O."""

@@ -1,0 +1,138 @@
+"""What the pipeline tells its sinks: one dataclass per kind of intermediate result.
+
+The method's core (perception, NDF encoding, change detection) returns these instead of writing
+anything; `ndfa.log` turns them into Rerun entities and Polars rows. Frames: `*_world` is the
+session's own world frame; `*_source` is the source world (target points registered with T_rel).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ndfa.core.frame import Frame
+
+
+@dataclass(frozen=True)
+class FrameEvent:
+    """A frame entered the pipeline (sinks may log its images and camera)."""
+
+    session: str
+    frame: Frame
+
+
+@dataclass(frozen=True)
+class ObservationEvent:
+    """One instance of a frame: its cleaned partial cloud and what the NDF made of it, or why it was skipped."""
+
+    session: str
+    frame_index: int
+    instance_id: int
+    n_pixels: int
+    skipped: str | None                      # the reason, or None when encoded
+    n_points: int = 0
+    touches_border: bool = False
+    points_world: np.ndarray | None = None   # (N, 3) the cleaned partial cloud
+    shape_code: np.ndarray | None = None     # (D,)
+    center_world: np.ndarray | None = None   # (3,)
+    mean_occupancy: float = float("nan")
+    reconstruction_world: np.ndarray | None = None  # (M, 3) grid points the NDF calls occupied
+
+
+@dataclass(frozen=True)
+class AssociationEvent:
+    """The intra-session update of one measurement (paper Sec. IV-A)."""
+
+    session: str
+    frame_index: int
+    instance_id: int
+    object_id: int
+    created: bool
+    replaced: bool
+    distance_m: float
+    similarity: float
+    candidates: int
+    center_world: np.ndarray                 # the object's center after the update
+    shape_code: np.ndarray                   # the object's code after the update
+
+
+@dataclass(frozen=True)
+class TreeEvent:
+    """The session's object tree after a frame that changed it: nodes per axis and occupied cells."""
+
+    session: str
+    frame_index: int
+    x_intervals: np.ndarray                  # (Nx, 2) low, high
+    y_intervals: np.ndarray                  # (Ny, 2)
+    cells: list[tuple[int, int, tuple[int, ...]]] = field(default_factory=list)  # (x node, y node, object ids)
+
+
+@dataclass(frozen=True)
+class RegistrationEvent:
+    """A registration attempt (paper Sec. IV-B): T_rel maps target-world points into the source world."""
+
+    frame_index: int
+    accepted: bool
+    n_pairs: int
+    n_hypotheses: int
+    transform: np.ndarray | None             # (4, 4)
+    inlier_pairs: tuple[tuple[int, int], ...]  # (target object, source object)
+    residual_m: float
+    target_centers: np.ndarray               # (K, 3) inlier target centers, target world
+    source_centers: np.ndarray               # (K, 3) their source partners, source world
+
+
+@dataclass(frozen=True)
+class GraphEvent:
+    """One comparison of target object O with a shape-matched source object o' (paper Fig. 5)."""
+
+    frame_index: int
+    target_id: int
+    source_id: int
+    similarity: float
+    mode: str                                # "graph", "in place" or "fallback" (ndfa.change.graph)
+    consistent: bool
+    distance_m: float
+    center_source: np.ndarray                # T_rel t_O, source world
+    partner_center_source: np.ndarray        # t_o'
+    edges: tuple[tuple[int, int, float, bool], ...]  # (target neighbour, source neighbour, error m, consistent)
+    target_edges_source: np.ndarray          # (E, 3) R e_Oj, source-world vectors
+    source_edges: np.ndarray                 # (E, 3) e_o'j'
+
+
+@dataclass(frozen=True)
+class DecisionEvent:
+    """A change test of a target object, or a removal decided at the end.
+
+    kind: "unchanged", "added" (changed in the target: new here), "removed" (a source object observed
+    but never matched) or "moved" (a changed target object that matches a removed source object by
+    shape; assigned at the end). A change is reported the first time it is found and never retracted.
+    """
+
+    frame_index: int
+    session: str                             # whose object: "target" (added/moved/unchanged) or "source" (removed)
+    object_id: int
+    kind: str
+    reason: str
+    center_world: np.ndarray                 # in that session's world frame
+    center_source: np.ndarray | None         # in the source world (target objects: via T_rel)
+    partner_id: int | None = None            # the source object it matched or moved from
+    instance_ids: tuple[int, ...] = ()       # mask ids of the object's measurements
+    partner_instance_ids: tuple[int, ...] = ()  # a move's source object's mask ids (it is reported with it)
+
+    @property
+    def reported_instances(self) -> tuple[int, ...]:
+        """The mask ids this report stands for (for scoring): the object's first, and for a move
+        also the source object's first."""
+        ids = self.instance_ids[:1] + self.partner_instance_ids[:1]
+        return tuple(dict.fromkeys(ids))
+
+
+@dataclass(frozen=True)
+class TimingEvent:
+    """Wall time of each stage for one frame, milliseconds."""
+
+    session: str
+    frame_index: int
+    stage_ms: dict[str, float]

@@ -1,0 +1,169 @@
+"""`ndfa bench sim`: per-stage timings of the synthetic pipeline on the `paper` scene.
+
+Times each stage separately over the first frames of the source session: building the world,
+ray casting, depth noise, writing a frame to MCAP and reading it back. Medians, in milliseconds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ndfa.io.ingest.synthetic import SESSION_START, render_objects
+from ndfa.io.recording import Frame, RecordingReader, RecordingWriter
+from ndfa.sim.presets import make_config
+from ndfa.sim.render import SceneRenderer
+from ndfa.sim.trajectory import camera_poses
+from ndfa.sim.world import build_world, procedural_models
+
+
+def bench_sim(frames: int = 60, preset: str = "paper", seed: int = 0) -> dict[str, float]:
+    """Median milliseconds per stage (per frame for the per-frame stages) and the machine."""
+    timings: dict[str, list[float]] = {k: [] for k in ("render", "noise", "write", "read")}
+
+    start = time.perf_counter()
+    config = make_config(preset, seed)
+    world = build_world(config, procedural_models(config))
+    world_ms = (time.perf_counter() - start) * 1e3
+    renderer = SceneRenderer(render_objects(world, "source"))
+    trajectory = dataclasses.replace(config.trajectory, route=config.source_route)
+    poses = camera_poses(world.tables, trajectory, np.random.default_rng(0))[:frames]
+    rng = np.random.default_rng(0)
+    renderer.render(config.camera, poses[0])  # the first cast builds the ray-tracing structure
+
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "bench.mcap"
+        with RecordingWriter(path, {"source": "bench", "session": "source"}) as writer:
+            for index, pose in enumerate(poses):
+                t0 = time.perf_counter()
+                view = renderer.render(config.camera, pose)
+                t1 = time.perf_counter()
+                depth = config.depth_noise.apply(view.depth, view.normals_camera, rng, config.camera)
+                t2 = time.perf_counter()
+                writer.write_frame(Frame(index, SESSION_START["source"] + index, view.rgb, depth,
+                                         config.camera.K, pose, view.instance))
+                t3 = time.perf_counter()
+                timings["render"].append(t1 - t0)
+                timings["noise"].append(t2 - t1)
+                timings["write"].append(t3 - t2)
+        reader = RecordingReader(path)
+        t_last = time.perf_counter()
+        for _ in reader.frames():
+            now = time.perf_counter()
+            timings["read"].append(now - t_last)
+            t_last = now
+
+    result = {f"{stage}_ms": float(np.median(values) * 1e3) for stage, values in timings.items()}
+    result.update(world_ms=world_ms, frames=len(poses), triangles=renderer.triangle_count,
+                  width=config.camera.width, height=config.camera.height,
+                  machine=f"{platform.processor() or platform.machine()}, {_cpu_count()} cores")
+    result["total_ms_per_frame"] = sum(result[f"{s}_ms"] for s in ("render", "noise", "write"))
+    return result
+
+
+def _cpu_count() -> int:
+    import os
+
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def bench_ndf(weights: Path | None = None, repeats: int = 30, points: int = 1000, threads: int = 2) -> dict[str, float]:
+    """Median milliseconds to encode one observation of `points` points, and a batch of 8:
+    shape code and center from the head alone (`head_*`), then the full `NDFEncoder.encode_batch`
+    with the reconstruction grid at the encoder's default resolution and at the detector's 12^3."""
+    import torch
+
+    from ndfa.ndf.encoder import EncoderConfig, NDFEncoder
+
+    torch.set_num_threads(threads)
+    encoders = {"": NDFEncoder(weights), "grid12_": NDFEncoder(weights, EncoderConfig(grid_resolution=12))}
+    model = encoders[""].model
+    rng = np.random.default_rng(0)
+    clouds = [rng.normal(scale=0.03, size=(points, 3)) + [0.0, 0.0, 1.0] for _ in range(8)]
+    poses = [np.eye(4)] * 8
+
+    @torch.inference_mode()
+    def head_only(count: int) -> None:  # what the center and code need: resample, centre, encode, heads
+        cloud = np.stack([encoders[""].resample(c) for c in clouds[:count]])
+        z = encoders[""].latent(cloud, poses[:count])[0]
+        model.shape_code(z), model.center_offset(z)
+
+    def median_ms(run) -> float:
+        run()  # warm-up
+        times = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            run()
+            times.append(time.perf_counter() - start)
+        return float(np.median(times) * 1e3)
+
+    result = {}
+    for name, count in (("one", 1), ("batch8", 8)):
+        result[f"head_{name}_ms"] = median_ms(lambda: head_only(count))
+        for prefix, encoder in encoders.items():
+            result[f"{prefix}{name}_ms"] = median_ms(lambda: encoder.encode_batch(clouds[:count], poses[:count]))
+    for prefix in ("head_", "", "grid12_"):
+        result[f"{prefix}batch8_ms_per_observation"] = result[f"{prefix}batch8_ms"] / 8
+    result.update(points=points, threads=threads, grid=encoders[""].config.grid_resolution,
+                  machine=f"{platform.processor() or platform.machine()}, {_cpu_count()} cores")
+    return result
+
+
+def bench_detect(source: Path, target: Path, threads: int = 2, frame_step: int = 1) -> dict:
+    """The whole target pass without sinks: frames per second, and ms per frame of each stage
+    (reading = the pass's wall time minus the stages)."""
+    import torch
+
+    from ndfa.run.detect import run_detection
+
+    torch.set_num_threads(threads)
+    result = run_detection(source, target, sinks=[], frame_step=frame_step)
+    per_frame_ms = result.seconds["target"] / result.frames["target"] * 1e3
+    stages = dict(result.stage_ms)
+    stages["reading"] = max(per_frame_ms - sum(stages.values()), 0.0)
+    return {"fps": result.target_fps, "frames": result.frames["target"], "total_ms": per_frame_ms,
+            "stage_ms": stages, "threads": threads,
+            "machine": f"{platform.processor() or platform.machine()}, {_cpu_count()} cores"}
+
+
+def bench_detection_scaling(sizes: tuple[int, ...] = (40, 100, 1000, 10_000), frames: int = 50,
+                            per_frame: int = 4, seed: int = 0) -> list[dict]:
+    """ms per target frame of the detection step alone (tree, association, graphs) with maps of
+    `size` objects: mugs in groups of four on tables 1.5 m apart, the target revisiting them."""
+    from ndfa.change.associate import Measurement
+    from ndfa.change.detector import ChangeDetector
+
+    rows = []
+    for size in sizes:
+        rng = np.random.default_rng(seed)
+        tables = int(np.ceil(size / 4))
+        side = int(np.ceil(np.sqrt(tables)))
+        centers = np.array([[1.5 * (t % side), 1.5 * (t // side), 0.8] for t in range(tables)])
+        offsets = np.array([[-0.2, -0.15, 0], [0.2, -0.1, 0], [-0.15, 0.2, 0], [0.25, 0.2, 0]])
+        positions = (centers[:, None] + offsets[None]).reshape(-1, 3)[:size]
+        codes = rng.normal(size=(size, 32))
+        detector = ChangeDetector()
+        for start in range(0, size, per_frame):
+            detector.add_source([Measurement(start, i, codes[i], positions[i], 0.5) for i in range(start, min(start + per_frame, size))])
+
+        def frame(index, start):
+            ids = range(start, min(start + per_frame, size))
+            return [Measurement(index, i, codes[i] + rng.normal(scale=0.02, size=32),
+                                positions[i] + rng.normal(scale=0.004, size=3), 0.6) for i in ids]
+
+        for k in range(4):  # enough objects to register
+            detector.add_target(frame(k, 4 * k % size))
+        times = []
+        for k in range(frames):
+            measurements = frame(100 + k, int(rng.integers(0, max(size // per_frame, 1))) * per_frame)
+            start = time.perf_counter()
+            detector.add_target(measurements)
+            times.append(time.perf_counter() - start)
+        rows.append({"objects": size, "ms_per_frame": float(np.median(times) * 1e3),
+                     "registered": detector.registration is not None})
+    return rows

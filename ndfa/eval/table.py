@@ -1,0 +1,162 @@
+"""`ndfa eval`: the paper's Table I -- ndfa and the two baselines on the same pair of recordings.
+
+ndfa runs as `ndfa detect` does, on the recordings' given poses (the target's may carry a
+deliberate offset or drift); the baselines get the true poses and the instance masks as
+ground-truth associations, as in the paper. All three are scored by `ndfa.eval.scoring.score` with
+the same visible sets (an instance is visible in a session when some frame shows at least
+`VISIBLE_PIXELS` of its pixels with depth in ndfa's range, ndfa's own rule). Seconds are the wall
+time of each method's whole run, reading the recordings included.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import polars as pl
+
+from ndfa.io.atomic import atomic_path, write_parquet
+from ndfa.eval.baselines.common import BaselineError, run_baseline
+from ndfa.eval.baselines.nn import NNBaseline, NNConfig
+from ndfa.eval.baselines.tsdf import TSDFBaseline, TSDFConfig
+from ndfa.eval.scoring import VISIBLE_PIXELS, score
+from ndfa.perception.observations import ObservationConfig
+from ndfa.io.recording import Frame, RecordingReader
+
+ProgressCallback = Callable[[str, str, int, int], None]  # (method, session, frames done, frames in session)
+
+
+@dataclass(frozen=True)
+class MethodRow:
+    """One row of the table."""
+
+    method: str
+    poses: str                       # what the method was given: "given" (ndfa) or "true" (baselines)
+    tp: int
+    fp: int
+    fn: int
+    precision: float
+    recall: float
+    seconds: float
+    false_positive_ids: tuple[int, ...]
+    false_negative_ids: tuple[int, ...]
+    reported_ids: tuple[int, ...]
+
+
+@dataclass
+class EvalResult:
+    rows: list[MethodRow]
+    visible: dict[str, set[int]]
+    unscored_ids: tuple[int, ...]
+    notes: list[str] = field(default_factory=list)
+
+    def frame(self) -> pl.DataFrame:
+        return pl.DataFrame([{
+            "method": r.method, "poses": r.poses, "tp": r.tp, "fp": r.fp, "fn": r.fn,
+            "precision": r.precision, "recall": r.recall, "seconds": r.seconds,
+            "false_positive_ids": list(r.false_positive_ids), "false_negative_ids": list(r.false_negative_ids),
+            "reported_ids": list(r.reported_ids)} for r in self.rows],
+            schema_overrides={"false_positive_ids": pl.List(pl.Int64), "false_negative_ids": pl.List(pl.Int64),
+                              "reported_ids": pl.List(pl.Int64)})
+
+    def markdown(self) -> str:
+        lines = ["| method | poses | TP | FP | FN | precision | recall | seconds | false positives | missed |",
+                 "|---|---|---|---|---|---|---|---|---|---|"]
+        for r in self.rows:
+            ids = lambda values: ", ".join(map(str, values)) or "—"  # noqa: E731
+            lines.append(f"| {r.method} | {r.poses} | {r.tp} | {r.fp} | {r.fn} | {r.precision:.1%} | {r.recall:.1%} "
+                         f"| {r.seconds:.1f} | {ids(r.false_positive_ids)} | {ids(r.false_negative_ids)} |")
+        return "\n".join(lines) + "\n"
+
+
+def open_for_baselines(source: Path, target: Path) -> tuple[RecordingReader, RecordingReader, dict]:
+    """Both readers and the target's ground truth, or a BaselineError saying what is missing."""
+    readers = []
+    for name, path in (("source", source), ("target", target)):
+        reader = RecordingReader(path)
+        if not reader.has_instances:
+            raise BaselineError(f"{path}: the {name} has no instance masks; the baselines need ground-truth "
+                                "associations (masks whose ids name the same object in both sessions)")
+        if len(reader) == 0:
+            raise BaselineError(f"{path}: the {name} has no frames")
+        readers.append(reader)
+    truth = readers[1].ground_truth
+    if truth is None or "objects" not in truth:
+        raise BaselineError(f"{target}: the target has no ground truth (/ndfa/ground_truth with objects): "
+                            "nothing to score the methods against")
+    return readers[0], readers[1], truth
+
+
+def visible_instances(frame: Frame, config: ObservationConfig = ObservationConfig()) -> set[int]:
+    """Instances with at least VISIBLE_PIXELS mask pixels with depth in range (ndfa's rule)."""
+    if frame.instances is None:
+        return set()
+    depth = frame.depth
+    in_range = np.isfinite(depth) & (depth >= config.min_depth_m) & (depth <= config.max_depth_m)
+    counts = np.bincount(frame.instances[in_range].ravel())
+    return {int(i) for i in np.flatnonzero(counts >= VISIBLE_PIXELS) if i > 0}
+
+
+def evaluate_methods(source: Path, target: Path, nn: NNConfig = NNConfig(), tsdf: TSDFConfig = TSDFConfig(),
+                     frame_step: int = 1, on_frame: ProgressCallback | None = None) -> EvalResult:
+    """Run ndfa, NN and PMT on the pair and score them alike."""
+    from ndfa.run.detect import run_detection
+    from ndfa.pipeline import PipelineConfig
+
+    source_reader, target_reader, truth = open_for_baselines(Path(source), Path(target))
+    visible: dict[str, set[int]] = {"source": set(), "target": set()}
+    reported: dict[str, list[int]] = {}
+    seconds: dict[str, float] = {}
+
+    for baseline in (NNBaseline(nn), TSDFBaseline(tsdf)):
+        started = time.perf_counter()
+        source_frames = _frames(source_reader, "source", baseline.name, frame_step, visible, on_frame)
+        target_frames = _frames(target_reader, "target", baseline.name, frame_step, visible, on_frame)
+        decisions = run_baseline(baseline, source_frames, target_frames)
+        seconds[baseline.name] = time.perf_counter() - started
+        reported[baseline.name] = [d.instance_id for d in decisions]
+
+    started = time.perf_counter()
+    progress = None if on_frame is None else (lambda session, done, total: on_frame("ndfa", session, done, total))
+    detection = run_detection(Path(source), Path(target), PipelineConfig(), frame_step=frame_step, on_frame=progress)
+    seconds["ndfa"] = time.perf_counter() - started
+    reported["ndfa"] = [i for change in detection.changes for i in change.reported_instances]
+
+    rows, notes, unscored = [], [], ()
+    for method, poses in (("NN", "true"), ("PMT", "true"), ("ndfa", "given")):
+        s = score(reported[method], truth, visible)
+        unscored = s.unscored_ids
+        rows.append(MethodRow(method, poses, s.tp, s.fp, s.fn, s.precision, s.recall, seconds[method],
+                              s.false_positive_ids, s.false_negative_ids, tuple(sorted(set(reported[method])))))
+    own = detection.score
+    if own is not None and (own.tp, own.fp, own.fn) != (rows[-1].tp, rows[-1].fp, rows[-1].fn):
+        notes.append(f"ndfa's own score (TP {own.tp} FP {own.fp} FN {own.fn}) differs from this table's: "
+                     "its visible sets come from its observations")
+    if unscored:
+        notes.append(f"unscored (not visible where their change would show): {', '.join(map(str, unscored))}")
+    return EvalResult(rows, visible, unscored, notes + detection.notes)
+
+
+def write_table(result: EvalResult, out: Path) -> tuple[Path, Path]:
+    """DIR/table.parquet and DIR/table.md, each written to a temporary file and renamed."""
+    out.mkdir(parents=True, exist_ok=True)
+    parquet, markdown = out / "table.parquet", out / "table.md"
+    write_parquet(result.frame(), parquet)
+    with atomic_path(markdown) as temporary:
+        temporary.write_text(result.markdown())
+    return parquet, markdown
+
+
+def _frames(reader: RecordingReader, session: str, method: str, step: int, visible: dict[str, set[int]],
+            on_frame: ProgressCallback | None) -> Iterator[Frame]:
+    """The session's frames, noting the visible instances and reporting progress on the way."""
+    total = len(range(0, len(reader), step))
+    for done, frame in enumerate(reader.frames(step=step), start=1):
+        visible[session] |= visible_instances(frame)
+        yield frame
+        if on_frame is not None:
+            on_frame(method, session, done, total)
+

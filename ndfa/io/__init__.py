@@ -1,0 +1,1 @@
+"""Files in and out: atomic writes, the MCAP recording contract, importers and exporters."""

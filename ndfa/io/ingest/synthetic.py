@@ -1,0 +1,171 @@
+"""`ndfa ingest sim`: render a synthetic source/target pair into two recordings.
+
+The world (`ndfa.sim.world`) says where every mug stands in each session; this module moves the
+camera along each session's route, renders depth, instance ids and colour, adds sensor noise,
+perturbs the target's poses, and writes `source.mcap` and `target.mcap` with the full ground truth.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+import ndfa
+from ndfa.core.errors import IngestError
+from ndfa.io.recording import Frame, RecordingWriter
+from ndfa.sim.mug import Mug
+from ndfa.sim.presets import SimConfig
+from ndfa.sim.render import RenderObject, SceneRenderer
+from ndfa.sim.trajectory import camera_poses
+from ndfa.sim.world import SESSIONS, World, build_world, procedural_models
+
+# Sessions start on fixed, distinct days so that the two recordings read as two traversals.
+SESSION_START = {
+    "source": datetime(2026, 1, 5, 9, 0, tzinfo=timezone.utc).timestamp(),
+    "target": datetime(2026, 1, 6, 9, 0, tzinfo=timezone.utc).timestamp(),
+}
+
+ProgressCallback = Callable[[str, int, int], None]  # (session, frames done, frames in session)
+
+
+@dataclass(frozen=True)
+class SessionSummary:
+    session: str
+    path: Path
+    frames: int
+    objects: int
+    changes: dict[str, int]
+    size_bytes: int
+
+
+def ingest_sim(
+    config: SimConfig,
+    out_dir: Path,
+    models: list[Mug] | None = None,
+    on_progress: ProgressCallback | None = None,
+) -> list[SessionSummary]:
+    """Render both sessions of `config` into `out_dir/source.mcap` and `out_dir/target.mcap`.
+
+    `models` replaces the procedural test-split mugs (e.g. meshes from `--mesh-dir`).
+    """
+    out_dir = Path(out_dir)
+    check_output_dir(out_dir)
+    world = build_world(config, models if models is not None else procedural_models(config))
+    ground_truth = world_ground_truth(world, config)
+    return [
+        _render_session(world, config, session, out_dir / f"{session}.mcap", ground_truth, on_progress)
+        for session in SESSIONS
+    ]
+
+
+def _render_session(world: World, config: SimConfig, session: str, path: Path, ground_truth: dict,
+                    on_progress: ProgressCallback | None) -> SessionSummary:
+    # One stream per session and purpose: changing the noise model does not move the cameras.
+    stream = SESSIONS.index(session)
+    route = config.source_route if session == "source" else config.target_route
+    true_poses = camera_poses(world.tables, dataclasses.replace(config.trajectory, route=route),
+                              np.random.default_rng([config.seed, 10, stream]))
+    recorded_poses, offset = true_poses, None
+    if session == "target" and config.target_pose_error.enabled:
+        recorded_poses, offset = config.target_pose_error.apply(true_poses, np.random.default_rng([config.seed, 11]))
+    noise_rng = np.random.default_rng([config.seed, 12, stream])
+
+    renderer = SceneRenderer(render_objects(world, session))
+    meta = {
+        "source": "sim",
+        "session": session,
+        "preset": config.preset,
+        "seed": config.seed,
+        "route": route,
+        "frame_rate_hz": config.fps,
+        "poses": "perturbed" if offset is not None else "true",
+        "instances": "rendered",
+        "generator": f"ndfa {ndfa.__version__} ingest sim",
+        "config": dataclasses.asdict(config),
+    }
+    session_truth = dict(ground_truth, session=session,
+                         pose_offset=None if offset is None else offset.tolist())
+    camera = config.camera
+    with RecordingWriter(path, meta) as writer:
+        writer.write_ground_truth(session_truth)
+        for index, pose in enumerate(true_poses):
+            view = renderer.render(camera, pose)
+            depth = config.depth_noise.apply(view.depth, view.normals_camera, noise_rng, camera)
+            writer.write_frame(Frame(
+                index=index,
+                timestamp=SESSION_START[session] + index / config.fps,
+                rgb=view.rgb,
+                depth=depth,
+                K=camera.K,
+                pose_world_camera=recorded_poses[index],
+                instances=view.instance,
+                pose_world_camera_true=pose if offset is not None else None,
+            ))
+            if on_progress is not None:
+                on_progress(session, index + 1, len(true_poses))
+    layout = world.layout(session)
+    changes = {kind: n for kind, n in world.change_counts().items()
+               if kind != ("added" if session == "source" else "removed")}
+    return SessionSummary(session, path, len(true_poses), len(layout), changes, path.stat().st_size)
+
+
+def render_objects(world: World, session: str) -> list[RenderObject]:
+    """Room, tables and the session's mugs as renderable objects; mugs carry their instance ids."""
+    gray, wood = (0.75, 0.75, 0.72), (0.55, 0.40, 0.28)
+    objects = [RenderObject(mesh, 0, gray) for mesh in world.room.meshes()]
+    objects += [RenderObject(table.mesh(), 0, wood) for table in world.tables]
+    for instance_id, placement in world.layout(session).items():
+        mesh = world.mugs[placement.model_id].mesh.transformed(world.object_pose(placement))
+        objects.append(RenderObject(mesh, instance_id, world.colors[instance_id]))
+    return objects
+
+
+def world_ground_truth(world: World, config: SimConfig) -> dict:
+    """The scene as JSON-ready data: tables, models, every instance in each session, change labels."""
+    change_of = {c.instance_id: c for c in world.changes}
+
+    def where(session: str, instance_id: int) -> dict | None:
+        placement = world.layout(session).get(instance_id)
+        if placement is None:
+            return None
+        return {"table_id": placement.table_id, "pose_world_object": world.object_pose(placement).tolist()}
+
+    objects = []
+    for instance_id in sorted(world.source.keys() | world.target.keys()):
+        placement = world.source.get(instance_id) or world.target[instance_id]
+        change = change_of.get(instance_id)
+        objects.append({
+            "instance_id": instance_id,
+            "model_id": placement.model_id,
+            "source": where("source", instance_id),
+            "target": where("target", instance_id),
+            "change": change.kind if change else "unchanged",
+            "partner": change.partner if change else None,
+        })
+    counts = world.change_counts()
+    return {
+        "format": "ndfa.ground_truth/1",
+        "preset": config.preset,
+        "seed": config.seed,
+        "room": {"size_xy": list(world.room.size_xy), "wall_height": world.room.wall_height},
+        "tables": [dataclasses.asdict(t) for t in world.tables],
+        "models": [{"model_id": m.model_id, "seed": m.seed, "watertight": m.watertight} for m in world.mugs.values()],
+        "objects": objects,
+        "changes": dict(counts, total=sum(counts.values())),
+    }
+
+
+def check_output_dir(out_dir: Path) -> None:
+    """Fail early, before rendering for minutes, when `out_dir` cannot be written."""
+    probe = Path(out_dir) / ".ndfa-write-test"
+    try:
+        Path(out_dir).mkdir(parents=True, exist_ok=True)
+        probe.touch()
+        probe.unlink()
+    except OSError as error:
+        raise IngestError(f"cannot write to output directory {out_dir}: {error.strerror or error}") from None

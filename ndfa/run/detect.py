@@ -1,0 +1,157 @@
+"""`ndfa detect`: run the pipeline over a source and a target recording, feed the sinks, score the result.
+
+This is the I/O shell around `ChangeDetectionPipeline`: it opens and checks the recordings, streams
+their frames (source first, then target), hands every event to every sink, and summarises the
+reported changes (scored when the target carries ground truth).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Protocol
+
+import numpy as np
+
+from ndfa.change.detector import reported_changes
+from ndfa.core.errors import RecordingError
+from ndfa.eval.scoring import VISIBLE_PIXELS, Score, score
+from ndfa.core.events import DecisionEvent, ObservationEvent, TimingEvent
+from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
+from ndfa.io.recording import INSTANCES, RecordingReader
+
+
+class Sink(Protocol):
+    def log(self, event) -> None: ...
+    def close(self) -> None: ...
+
+
+ProgressCallback = Callable[[str, int, int], None]  # (session, frames done, frames in session)
+
+
+@dataclass
+class DetectionResult:
+    changes: list[DecisionEvent]                 # reported changes: added / moved (target), removed (source)
+    frames: dict[str, int]
+    objects: dict[str, int]
+    seconds: dict[str, float]                    # wall time per session pass
+    stage_ms: dict[str, float]                   # mean ms per target frame, per stage
+    score: Score | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def target_fps(self) -> float:
+        return self.frames["target"] / self.seconds["target"] if self.seconds.get("target") else float("nan")
+
+    def summary(self) -> dict:
+        """The `--json` summary."""
+        out = {}
+        if self.score is not None:
+            out |= self.score.as_dict()
+        out |= {
+            "frames": self.frames["source"] + self.frames["target"],
+            "frames_source": self.frames["source"], "frames_target": self.frames["target"],
+            "objects_source": self.objects["source"], "objects_target": self.objects["target"],
+            "fps": self.target_fps,
+            "stage_ms": self.stage_ms,
+            "changes": [{"object": c.object_id, "session": c.session, "kind": c.kind, "frame": c.frame_index,
+                         "position": [round(float(v), 4) for v in (c.center_source if c.center_source is not None
+                                                                   else c.center_world)],
+                         "instance_ids": list(c.instance_ids)} for c in self.changes],
+            "notes": self.notes,
+        }
+        return out
+
+
+def open_pair(source: Path, target: Path, segment: bool = True) -> tuple[RecordingReader, RecordingReader, list[str]]:
+    """Open and check both recordings; notes say what differs between them but is allowed.
+
+    segment: a recording without instance masks is accepted (its frames are segmented
+    geometrically by the pipeline); False: it is an error.
+    """
+    readers, notes = {}, []
+    for name, path in (("source", source), ("target", target)):
+        reader = RecordingReader(path)
+        if not reader.has_instances:
+            if not segment:
+                raise RecordingError(f"{path}: has no instance masks ({INSTANCES}) and segmentation is off")
+            notes.append(f"the {name} has no instance masks: each of its frames is segmented geometrically "
+                         "(support planes removed, DBSCAN; ndfa.perception.segmentation)")
+        if len(reader) == 0:
+            raise RecordingError(f"{path}: has no frames")
+        readers[name] = reader
+    first = {name: next(r.frames(stop=1)) for name, r in readers.items()}
+    if not np.allclose(first["source"].K, first["target"].K) or first["source"].image_size != first["target"].image_size:
+        notes.append("source and target cameras differ (intrinsics or image size); each frame is "
+                     "back-projected with its own K, so this is supported")
+    return readers["source"], readers["target"], notes
+
+
+def run_detection(
+    source: Path,
+    target: Path,
+    config: PipelineConfig = PipelineConfig(),
+    sinks: list[Sink] = (),
+    frame_step: int = 1,
+    on_frame: ProgressCallback | None = None,
+    pipeline: ChangeDetectionPipeline | None = None,
+) -> DetectionResult:
+    """Source pass, target pass, finish. Sinks are closed at the end, also when interrupted."""
+    source_reader, target_reader, notes = open_pair(Path(source), Path(target), segment=config.segmentation is not None)
+    pipeline = pipeline or ChangeDetectionPipeline(config)
+    frames, seconds, stage_totals, decisions, changes = {}, {}, {}, [], []
+    visible: dict[str, set[int]] = {"source": set(), "target": set()}  # for scoring (`ndfa.eval.scoring`)
+    try:
+        for session, reader in (("source", source_reader), ("target", target_reader)):
+            total = len(range(0, len(reader), frame_step))
+            started, count = time.perf_counter(), 0
+            for frame in reader.frames(step=frame_step):
+                for event in pipeline.process(session, frame):
+                    _emit(event, sinks)
+                    if isinstance(event, DecisionEvent):
+                        decisions.append(event)
+                    if isinstance(event, ObservationEvent) and event.n_pixels >= VISIBLE_PIXELS:
+                        visible[session].add(event.instance_id)
+                    if isinstance(event, TimingEvent) and session == "target":
+                        for stage, ms in event.stage_ms.items():
+                            stage_totals[stage] = stage_totals.get(stage, 0.0) + ms
+                count += 1
+                if on_frame is not None:
+                    on_frame(session, count, total)
+            frames[session], seconds[session] = count, time.perf_counter() - started
+        final_events = pipeline.finish()
+        for event in final_events:
+            _emit(event, sinks)
+        changes = reported_changes(decisions + [e for e in final_events if isinstance(e, DecisionEvent)])
+    finally:
+        for sink in sinks:
+            sink.close()
+
+    detector = pipeline.detector
+    if not detector.target.objects:
+        notes.append("the target has no objects: nothing to compare")
+    if detector.registration is None and detector.target.objects:
+        notes.append("no registration between the sessions was found: no target object was tested, "
+                     "so only the source's observed objects could be reported")
+    result = DetectionResult(
+        changes=changes,
+        frames=frames,
+        objects={"source": len(detector.source), "target": len(detector.target)},
+        seconds=seconds,
+        stage_ms={stage: total / max(frames["target"], 1) for stage, total in stage_totals.items()},
+        notes=notes,
+    )
+    truth = target_reader.ground_truth
+    segmented = not (source_reader.has_instances and target_reader.has_instances)
+    if truth is not None and "objects" in truth and segmented:
+        notes.append("not scored: without masks the objects' ids are segment labels, not ground-truth "
+                     "instances (`ndfa segment --keep-truth` relabels segments for scoring)")
+    elif truth is not None and "objects" in truth:
+        result.score = score([i for c in changes for i in c.reported_instances], truth, visible)
+    return result
+
+
+def _emit(event, sinks) -> None:
+    for sink in sinks:
+        sink.log(event)

@@ -1,0 +1,70 @@
+"""Re-run the change detector on the measurements of an earlier run's observations table.
+
+Perception and encoding are most of a run's time, and they do not depend on the detector's
+parameters; the observations table (`ndfa detect --tables DIR`) holds every measurement the
+detector saw. Replaying it with another `DetectorConfig` takes well under a second, which is what
+parameter studies and error analysis in a notebook need:
+
+    observations = pl.read_parquet("out/tables/observations.parquet")
+    result = replay(observations, DetectorConfig(shape_similarity=0.8))
+    result.score            # TP/FP/FN over the instances the table labels
+
+The score counts the instances the table has a label for, visible as `ndfa.eval.scoring` asks; it
+matches `ndfa detect`'s own score (from the recording's ground truth) whenever every mug of the
+ground truth appears in the table, which a mug that is never in view does not.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import polars as pl
+
+from ndfa.change.associate import Measurement
+from ndfa.change.detector import ChangeDetector, DetectorConfig, reported_changes
+from ndfa.eval.scoring import VISIBLE_PIXELS, Score, score
+from ndfa.core.events import DecisionEvent
+
+
+@dataclass
+class ReplayResult:
+    changes: list[DecisionEvent]  # as `ndfa detect` reports them: a moved object replaces its "added"
+    events: list                  # every event of the detector, in order
+    detector: ChangeDetector      # its final state (maps, registration), for inspection
+    score: Score | None
+
+
+def measurements_by_frame(observations: pl.DataFrame, session: str) -> list[list[Measurement]]:
+    """The measurements of one session, grouped by frame in frame order (skipped views left out)."""
+    used = observations.filter((pl.col("session") == session) & pl.col("skipped").is_null()).sort("frame", "instance_id")
+    frames: dict[int, list[Measurement]] = {}
+    for row in used.iter_rows(named=True):
+        frames.setdefault(row["frame"], []).append(Measurement(
+            row["frame"], row["instance_id"], np.asarray(row["shape_code"]),
+            np.array([row["center_x"], row["center_y"], row["center_z"]]), row["mean_occupancy"]))
+    return [frames[f] for f in sorted(frames)]
+
+
+def replay(observations: pl.DataFrame, config: DetectorConfig = DetectorConfig()) -> ReplayResult:
+    detector = ChangeDetector(config)
+    events: list = []
+    for frame in measurements_by_frame(observations, "source"):
+        events += detector.add_source(frame)
+    for frame in measurements_by_frame(observations, "target"):
+        events += detector.add_target(frame)
+    events += detector.finish()
+    changes = reported_changes([e for e in events if isinstance(e, DecisionEvent)])
+    truth = _truth(observations)
+    seen = observations.filter(pl.col("n_pixels") >= VISIBLE_PIXELS)
+    visible = {s: set(seen.filter(pl.col("session") == s)["instance_id"].to_list()) for s in ("source", "target")}
+    result_score = score([i for c in changes for i in c.reported_instances], truth, visible) if truth else None
+    return ReplayResult(changes, events, detector, result_score)
+
+
+def _truth(observations: pl.DataFrame) -> dict | None:
+    """A ground-truth dict (as `ndfa.eval.scoring.score` takes it) from the table's per-instance labels."""
+    if "truth" not in observations.columns or observations["truth"].null_count() == len(observations):
+        return None
+    labels = observations.select("instance_id", "truth").drop_nulls().unique("instance_id")
+    return {"objects": [{"instance_id": i, "change": t} for i, t in labels.iter_rows()]}

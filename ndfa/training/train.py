@@ -1,0 +1,368 @@
+"""`ndfa train`: fit the NDF on partial views of train-split procedural mugs, on the CPU.
+
+The loop, top to bottom: render (or load the cached) training and validation views; then for each
+step draw a batch of mugs with two views each, centre every view on its points' mean, and
+minimise
+
+    L = L_occ + alpha * L_b_shape + w_center * L_center [+ w_proxy * L_proxy + w_frame * L_frame
+                                                          + w_param * L_param]
+
+(the paper's objective plus an equivariant center head, and optionally an identity loss over all
+training mugs, the alignment of the decoder's object frame with the true pose, and a regression
+of each mug's shape parameters from its code; `losses.py`). Every
+`steps_per_epoch` steps: validate, append a metrics row, save a checkpoint (model, optimizer,
+step, RNG state), so that an interrupted run resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import polars as pl
+import torch
+
+from ndfa.io.atomic import write_parquet
+from ndfa.core.errors import ModelError
+from ndfa.training.data import (ViewConfig, batch_rows, generate_views, load_dataset, sample_batch, sample_rows,
+                           shape_parameters, write_dataset)
+from ndfa.training.losses import (batch_hard_shape_loss, center_loss, frame_loss, occupancy_loss, parameter_loss,
+                             proxy_identity_loss)
+from ndfa.training.metrics import center_errors_mm, pair_separation, retrieval_top1
+from ndfa.ndf.model import NDFConfig, NDFModel, load_model, save_checkpoint
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    model: NDFConfig = field(default_factory=NDFConfig)
+    view: ViewConfig = field(default_factory=ViewConfig)
+    train_mugs: int = 400            # train-split mug indices [0, train_mugs)
+    views_per_mug: int = 24
+    val_mugs: int = 24               # held-out train-split mugs, right after the training ones
+    val_views_per_mug: int = 8
+    batch_mugs: int = 16             # mugs per batch, two views each
+    steps: int = 8000
+    steps_per_epoch: int = 250       # validation, metrics row and checkpoint every epoch
+    lr: float = 6e-4                 # the paper's Adam learning rate
+    lr_final_fraction: float = 1.0   # cosine decay of lr to this fraction at the last step (1: constant, the paper's)
+    init_weights: str | None = None  # start from this checkpoint's weights (a fresh optimizer), e.g. to continue a shipped model
+    train_only: str = "all"          # "all", or refit only a fresh "code_head" or "decoder" on init_weights' frozen encoder
+    alpha: float = 0.01              # the paper's shape-loss weight
+    shape_margin: float | None = None  # None: the paper's loss; a number: hinge with this margin
+    center_weight: float = 1.0
+    frame_weight: float = 1.0        # weight of the frame loss (the "frame" decoder's axis and handle); 0: off
+    proxy_weight: float = 0.0        # weight of the proxy (cosine-softmax) identity loss on the codes; 0: off
+    proxy_scale: float = 16.0        # its logit scale: cosine similarities are multiplied by this
+    param_weight: float = 0.0        # weight of the shape-parameter regression from the code (`data.shape_parameters`); 0: off
+    up_tilt_deg: float = 3.0         # with the model's up cue: std. dev. of the random tilt of the true up per view (pose and table errors)
+    shape_threshold: float = 0.9     # delta_s, for the validation figures
+    seed: int = 0
+    threads: int = 2
+
+
+def train(
+    config: TrainConfig,
+    out_dir: Path,
+    resume: bool = False,
+    data_dir: Path | None = None,
+    on_step: Callable[[int, int, dict], None] | None = None,
+    on_epoch: Callable[[dict], None] | None = None,
+) -> pl.DataFrame:
+    """Train into `out_dir` (checkpoint.pt, metrics.parquet, config.json); returns the metrics.
+
+    `data_dir` caches rendered views (default `out_dir/data`); a cache is reused only when it
+    was made with the same view settings, mugs and seed.
+
+    With `train_only` "code_head" or "decoder", the model of `init_weights` keeps everything else
+    and only a fresh part is fitted, to the frozen encoder's z of every training view, computed
+    once. The code head then costs about a millisecond a step, so it can see many mugs per batch
+    (`batch_mugs`) and many steps in minutes; only the shape losses apply. The decoder (of this
+    run's model config, e.g. another decoder kind) learns with the occupancy and frame losses.
+    """
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    torch.set_num_threads(config.threads)
+    torch.manual_seed(config.seed)
+    train_set, val_set = _datasets(config, Path(data_dir or out_dir / "data"))
+
+    model = _initial_model(config)
+    # A trained model's codes seed the proxies; a fresh head's would be noise.
+    heads = TrainingHeads(config, model, train_set if config.init_weights and config.train_only != "code_head" else None)
+    optimizer = torch.optim.Adam(_trainable(model, heads, config), lr=config.lr)
+    rng = np.random.default_rng([config.seed, 100])
+    step, rows, elapsed = 0, [], 0.0
+    checkpoint_path = out_dir / "checkpoint.pt"
+    if resume and checkpoint_path.exists():
+        model, extra = load_model(checkpoint_path)
+        # A run may be resumed longer or with other threads; anything else must match.
+        if _without(extra.get("train_config", {}), RESUMABLE) != _without(_jsonable(config), RESUMABLE):
+            raise ModelError(f"{checkpoint_path}: was trained with other settings; use another --out or no --resume")
+        heads.load_state_dict(extra["training_heads"])
+        optimizer = torch.optim.Adam(_trainable(model, heads, config), lr=config.lr)
+        optimizer.load_state_dict(extra["optimizer"])
+        rng.bit_generator.state = json.loads(extra["rng_state"])
+        torch.set_rng_state(extra["torch_rng_state"])
+        step, rows, elapsed = extra["step"], json.loads(extra["metrics"]), extra["elapsed_s"]
+    (out_dir / "config.json").write_text(json.dumps(_jsonable(config), indent=2))
+
+    frozen_z = encode_views(model, train_set) if config.train_only != "all" else None
+    losses: list[dict] = []
+    started = time.perf_counter() - elapsed
+    while step < config.steps:
+        model.train()
+        for group in optimizer.param_groups:
+            group["lr"] = learning_rate(config, step)
+        if frozen_z is None:
+            terms = _loss_terms(model, sample_batch(train_set, config.batch_mugs, rng), config, heads)
+        elif config.train_only == "code_head":
+            picked = torch.from_numpy(batch_rows(train_set, config.batch_mugs, rng))
+            labels = torch.from_numpy(train_set["mug_index"].astype(np.int64))[picked]
+            terms = _shape_terms(model.shape_code(frozen_z[picked]), labels, config, heads)
+        else:
+            picked = batch_rows(train_set, config.batch_mugs, rng)
+            terms = _decoder_terms(model, frozen_z[torch.from_numpy(picked)], sample_rows(train_set, picked), config)
+        weights = {"occ": 1.0, "shape": config.alpha, "center": config.center_weight, "proxy": config.proxy_weight,
+                   "frame": config.frame_weight, "param": config.param_weight}
+        loss = sum(weights[name] * term for name, term in terms.items())
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        step += 1
+        losses.append({k: v.item() for k, v in terms.items()} | {"loss": loss.item()})
+        if on_step is not None:
+            on_step(step, config.steps, losses[-1])
+        if step % config.steps_per_epoch == 0 or step == config.steps:
+            row = {"epoch": len(rows) + 1, "step": step, "elapsed_s": time.perf_counter() - started}
+            row |= {f"train_{k}": float(np.mean([l[k] for l in losses])) for k in losses[0]}
+            row |= {f"val_{k}": v for k, v in validate(model, val_set, config.shape_threshold).items()}
+            rows.append(row)
+            losses = []
+            save_checkpoint(checkpoint_path, model, config.model, {
+                "train_config": _jsonable(config),
+                "n_points": config.view.n_points,
+                "optimizer": optimizer.state_dict(),
+                "rng_state": json.dumps(rng.bit_generator.state),
+                "torch_rng_state": torch.get_rng_state(),
+                "step": step,
+                "metrics": json.dumps(rows),
+                "elapsed_s": row["elapsed_s"],
+                "training_heads": heads.state_dict(),
+            })
+            metrics = pl.DataFrame(rows)
+            write_parquet(metrics, out_dir / "metrics.parquet")
+            if on_epoch is not None:
+                on_epoch(row)
+    return pl.DataFrame(rows)
+
+
+def learning_rate(config: TrainConfig, step: int) -> float:
+    """lr at `step`: cosine from `lr` down to `lr * lr_final_fraction` over the run's steps.
+    Decaying at the end lets the last steps settle instead of jittering at the full step size."""
+    progress = min(step / max(config.steps - 1, 1), 1.0)
+    fraction = config.lr_final_fraction + (1.0 - config.lr_final_fraction) * 0.5 * (1.0 + np.cos(np.pi * progress))
+    return float(config.lr * fraction)
+
+
+class TrainingHeads(torch.nn.Module):
+    """Parameters that only training uses and the shipped model leaves out: one learned proxy code
+    per training mug (the proxy loss) and a linear read-out of the mugs' shape parameters from the
+    code (the parameter loss), each present only when its loss weight is above 0."""
+
+    def __init__(self, config: TrainConfig, model: NDFModel, train_set: dict[str, np.ndarray] | None = None) -> None:
+        super().__init__()
+        code_dim = model.config.code_dim_out
+        self.proxies = None
+        if config.proxy_weight > 0:
+            # A trained model's proxies start at its mean code per mug: random ones would pull
+            # every code toward noise until they were learnt (measured: the loss stayed near
+            # chance, log(400), for 1,000 steps of fine-tuning at lr 2e-4).
+            initial = torch.randn(config.train_mugs, code_dim) if train_set is None else mean_codes(model, train_set, config.train_mugs)
+            self.proxies = torch.nn.Parameter(initial.clone())
+        self.param_readout = None
+        if config.param_weight > 0:
+            table = torch.from_numpy(shape_parameters("train", list(range(config.train_mugs))))
+            # Standardised over the training mugs, so that centimetres and fractions weigh alike.
+            self.register_buffer("param_targets", (table - table.mean(0)) / table.std(0).clamp_min(1e-6))
+            self.param_readout = torch.nn.Linear(code_dim, table.shape[1])
+
+    def losses(self, codes: torch.Tensor, mug_index: torch.Tensor, config: TrainConfig) -> dict[str, torch.Tensor]:
+        terms = {}
+        if self.proxies is not None:
+            terms["proxy"] = proxy_identity_loss(codes, mug_index, self.proxies, config.proxy_scale)
+        if self.param_readout is not None:
+            terms["param"] = parameter_loss(self.param_readout(codes), self.param_targets[mug_index])
+        return terms
+
+
+@torch.inference_mode()
+def mean_codes(model: NDFModel, dataset: dict[str, np.ndarray], n_mugs: int, views: int = 4) -> torch.Tensor:
+    """The mean unit shape code of each mug `[n_mugs, D]` over its first `views` views."""
+    rows = np.flatnonzero(dataset["view_id"] < views)
+    codes = torch.nn.functional.normalize(model.shape_code(encode_views(model, _subset(dataset, rows))), dim=1)
+    labels = torch.from_numpy(dataset["mug_index"][rows].astype(np.int64))
+    return torch.zeros(n_mugs, codes.shape[1]).index_add_(0, labels, codes) / torch.bincount(labels, minlength=n_mugs).clamp_min(1)[:, None]
+
+
+def _subset(dataset: dict[str, np.ndarray], rows: np.ndarray) -> dict[str, np.ndarray]:
+    return {name: values[rows] if values.ndim else values for name, values in dataset.items()}
+
+
+def _loss_terms(model: NDFModel, batch: dict[str, torch.Tensor], config: TrainConfig,
+                heads: TrainingHeads) -> dict[str, torch.Tensor]:
+    # The model sees each view centred on its points' mean (the translation part of SE(3)
+    # equivariance); queries and the true center are expressed relative to the same mean.
+    centroid = batch["points"].mean(dim=1, keepdim=True)
+    # Tilted only for a model that reads up: drawing noise otherwise would shift the torch RNG
+    # stream of runs without the cue.
+    up = tilted(batch["rotation"][..., 2], config.up_tilt_deg) if config.model.up_cue else None
+    out = model(batch["points"] - centroid, batch["queries"] - centroid, up, centroid[:, 0])
+    return {
+        "occ": occupancy_loss(out["occupancy_logits"], batch["occupancy"]),
+        "center": center_loss(out["center_offset"], batch["center"] - centroid[:, 0], config.model.input_scale),
+    } | _shape_terms(out["shape_code"], batch["mug_index"], config, heads) | (
+        {"frame": frame_loss(out["frame_vectors"], batch["rotation"])}
+        if "frame_vectors" in out and config.frame_weight > 0 else {})
+
+
+def tilted(up: torch.Tensor, std_deg: float) -> torch.Tensor:
+    """Unit vectors `[B, 3]` tilted from `up` by random small angles (about `std_deg` per axis):
+    the up the detector derives from a camera pose is off by the pose's error and the table's slope."""
+    noisy = up + torch.randn_like(up) * np.radians(std_deg)
+    return torch.nn.functional.normalize(noisy, dim=-1)
+
+
+def view_cues(dataset: dict[str, np.ndarray], rows: slice | np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+    """The true up (the mug's axis: it stands on a level table) and the view ray `[V, 3]` of views `rows`."""
+    up = torch.from_numpy(dataset["pose_camera_object"][rows, :3, 2].astype(np.float32))
+    return up, torch.from_numpy(dataset["points"][rows].mean(axis=1).astype(np.float32))
+
+
+def _decoder_terms(model: NDFModel, z: torch.Tensor, batch: dict[str, torch.Tensor], config: TrainConfig) -> dict[str, torch.Tensor]:
+    centroid = batch["points"].mean(dim=1, keepdim=True)
+    logits = model.occupancy_logits(z, batch["queries"] - centroid, batch["points"] - centroid)
+    frame_vectors = model.frame_vectors(z)
+    return {"occ": occupancy_loss(logits, batch["occupancy"])} | (
+        {"frame": frame_loss(frame_vectors, batch["rotation"])} if frame_vectors is not None and config.frame_weight > 0 else {})
+
+
+def _shape_terms(codes: torch.Tensor, mug_index: torch.Tensor, config: TrainConfig, heads: TrainingHeads) -> dict[str, torch.Tensor]:
+    return {"shape": batch_hard_shape_loss(codes, mug_index, config.shape_margin)} | heads.losses(codes, mug_index, config)
+
+
+def _trainable(model: NDFModel, heads: TrainingHeads, config: TrainConfig) -> list[torch.nn.Parameter]:
+    parts = {"all": model, "code_head": model.gram_code, "decoder": model.decoder}
+    return list(parts[config.train_only].parameters()) + list(heads.parameters())
+
+
+def _initial_model(config: TrainConfig) -> NDFModel:
+    """A fresh model, or `init_weights`' weights in this run's model; with `train_only`, the part
+    to refit starts fresh (the others must fit)."""
+    model = NDFModel(config.model)
+    if config.train_only not in ("all", "code_head", "decoder"):
+        raise ModelError(f"train_only must be all, code_head or decoder, not {config.train_only!r}")
+    if config.init_weights is None:
+        if config.train_only != "all":
+            raise ModelError(f"refitting the {config.train_only} needs --init weights")
+        return model
+    if config.train_only == "code_head" and config.model.code_head != "gram":
+        raise ModelError("refitting the code head needs the gram code head")
+    fresh = {"all": "", "code_head": "gram_code.", "decoder": "decoder."}[config.train_only]
+    initial = load_model(config.init_weights)[0].state_dict()
+    kept = {name: value for name, value in initial.items() if not (fresh and name.startswith(fresh))}
+    try:
+        missing, unexpected = model.load_state_dict(kept, strict=False)
+    except RuntimeError as exc:
+        raise ModelError(f"{config.init_weights}: its weights do not fit this run's model ({exc})") from exc
+    if unexpected or any(not (fresh and name.startswith(fresh)) for name in missing):
+        raise ModelError(f"{config.init_weights}: its weights do not fit this run's model "
+                         f"(missing {missing[:5]}, unexpected {unexpected[:5]})")
+    return model
+
+
+@torch.inference_mode()
+def encode_views(model: NDFModel, dataset: dict[str, np.ndarray], batch_size: int = 256) -> torch.Tensor:
+    """z `[V, k, 3]` of every view of `dataset`, each centred on its points' mean."""
+    model.eval()
+    out = []
+    for start in range(0, len(dataset["points"]), batch_size):
+        points = torch.from_numpy(dataset["points"][start:start + batch_size])
+        up, view_ray = view_cues(dataset, slice(start, start + batch_size))
+        out.append(model.encode(points - points.mean(dim=1, keepdim=True), up, view_ray))
+    return torch.cat(out).clone()  # a normal tensor: inference tensors cannot enter autograd
+
+
+@torch.inference_mode()
+def validate(model: NDFModel, dataset: dict[str, np.ndarray], shape_threshold: float, batch_size: int = 64) -> dict[str, float]:
+    """Occupancy accuracy on the views' query points, center error and shape-code retrieval."""
+    model.eval()
+    codes, centers, correct, axis_cosines = [], [], [], []
+    for start in range(0, len(dataset["points"]), batch_size):
+        points = torch.from_numpy(dataset["points"][start:start + batch_size])
+        queries = torch.from_numpy(dataset["queries"][start:start + batch_size])
+        centroid = points.mean(dim=1, keepdim=True)
+        out = model(points - centroid, queries - centroid, *view_cues(dataset, slice(start, start + batch_size)))
+        codes.append(out["shape_code"].numpy())
+        centers.append((centroid[:, 0] + out["center_offset"]).numpy())
+        labels = dataset["occupancy"][start:start + batch_size]
+        correct.append(((out["occupancy_logits"] > 0).numpy() == labels).mean(axis=1))
+        if "frame_vectors" in out:
+            true_axis = torch.from_numpy(dataset["pose_camera_object"][start:start + batch_size, :3, 2])
+            axis_cosines.append(torch.cosine_similarity(out["frame_vectors"][..., 0], true_axis, dim=-1).numpy())
+    codes = np.concatenate(codes)
+    # How far the decoder's frame axis is from the mug's true axis, median degrees.
+    axis = {"axis_error_deg": float(np.degrees(np.median(np.arccos(np.clip(np.concatenate(axis_cosines), -1, 1)))))} if axis_cosines else {}
+    labels = dataset["mug_index"]
+    separation = pair_separation(codes, labels, shape_threshold)
+    return {
+        "occ_accuracy": float(np.concatenate(correct).mean()),
+        **center_errors_mm(np.concatenate(centers), dataset["center"]),
+        "retrieval_top1": retrieval_top1(codes, labels),
+        "auc": separation["auc"],
+        "same_above": separation["same_above"],
+        "different_above": separation["different_above"],
+    } | axis
+
+
+def _datasets(config: TrainConfig, data_dir: Path) -> tuple[dict, dict]:
+    train_indices = list(range(config.train_mugs))
+    val_indices = list(range(config.train_mugs, config.train_mugs + config.val_mugs))
+    return (
+        _cached_views(data_dir, "train", train_indices, config.views_per_mug, config.seed, config.view),
+        _cached_views(data_dir, "val", val_indices, config.val_views_per_mug, config.seed + 1, config.view),
+    )
+
+
+def _cached_views(data_dir: Path, name: str, indices: list[int], views_per_mug: int, seed: int, view: ViewConfig) -> dict:
+    key = json.dumps({"indices": [indices[0], indices[-1]], "views": views_per_mug, "seed": seed,
+                      "view": _jsonable(view)}, sort_keys=True)
+    path = data_dir / f"{name}-{hashlib.sha1(key.encode()).hexdigest()[:10]}.npz"
+    if not path.exists():
+        data_dir.mkdir(parents=True, exist_ok=True)
+        write_dataset(path, generate_views("train", indices, views_per_mug, seed, view))
+    return load_dataset(path)
+
+
+RESUMABLE = ("steps", "threads")  # TrainConfig fields a resumed run may change
+
+
+def _without(config: dict, keys: tuple[str, ...]) -> dict:
+    return {k: v for k, v in config.items() if k not in keys}
+
+
+def _jsonable(value):
+    """Dataclasses (nested) as JSON-compatible data, for configs stored beside results."""
+    return json.loads(json.dumps(dataclasses.asdict(value), default=str))
+
+
+def export_weights(checkpoint: Path, destination: Path) -> None:
+    """The shippable part of a training checkpoint: model config and weights, the point count,
+    the training config and its metrics; no optimizer or RNG state."""
+    model, extra = load_model(checkpoint)
+    keep = {key: extra[key] for key in ("n_points", "train_config", "metrics", "step", "elapsed_s") if key in extra}
+    save_checkpoint(destination, model, model.config, keep)
