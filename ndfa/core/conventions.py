@@ -1,0 +1,45 @@
+"""The conventions every stage shares: one place for each fact that more than one stage relies on.
+
+Units are SI: metres, seconds, radians inside the code (degrees only at the CLI and in reports).
+
+Frames:
+- `camera`: OpenCV axes (x right, y down, z forward), as ROS optical frames.
+- `world`: one per session, metres, **z up** (gravity along -z). The core (perception, NDF,
+  change detection) assumes it: the support planes are horizontal in it, the object trees cut its
+  x and y, the NDF's up cue is its z. A recording whose world is not z-up is levelled before the
+  core sees it (the rotation that levels it comes from the recording or from an estimate of
+  gravity), so nothing downstream needs another notion of up.
+
+Thresholds that several stages must agree on:
+- `VISIBLE_PIXELS`: a view of an object is encoded (perception) and counts as the object being
+  visible (scoring, the baselines) from this many mask pixels with valid depth in range.
+- `MIN_DEPTH_M`, `MAX_DEPTH_M`: the depth range the method uses. Beyond ~4 m a mug covers a few
+  hundred pixels and the depth noise of a Kinect-class sensor reaches centimetres.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+WORLD_UP = (0.0, 0.0, 1.0)   # the world's up direction (z): see the module docstring
+HORIZONTAL_AXES = (0, 1)     # the world axes that span the ground plane (x, y)
+UP_AXIS = 2                  # the world axis along WORLD_UP
+
+VISIBLE_PIXELS = 300
+MIN_DEPTH_M = 0.1
+MAX_DEPTH_M = 4.0
+
+
+def world_up() -> np.ndarray:
+    """WORLD_UP as a fresh float64 array (3,)."""
+    return np.array(WORLD_UP, dtype=np.float64)
+
+
+def horizontal(points_world: np.ndarray) -> np.ndarray:
+    """The ground-plane coordinates (..., 2) of world points (..., 3)."""
+    return np.asarray(points_world)[..., list(HORIZONTAL_AXES)]
+
+
+def depth_in_range(depth: np.ndarray, min_depth_m: float = MIN_DEPTH_M, max_depth_m: float = MAX_DEPTH_M) -> np.ndarray:
+    """Mask of the depth pixels the method uses: finite and within [min_depth_m, max_depth_m]."""
+    return np.isfinite(depth) & (depth >= min_depth_m) & (depth <= max_depth_m)
