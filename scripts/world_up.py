@@ -31,7 +31,7 @@ def report(case: str, frames: list[Frame], true_up: np.ndarray | None, **kwargs)
     estimate = estimate_up(frames, **kwargs)
     cpu = time.process_time() - cpu
     error = angle_deg(estimate.up_world, true_up) if estimate.ok and true_up is not None else float("nan")
-    print(f"{case:44s} frames {estimate.frames:3d}  ok {estimate.ok!s:5s}  error {error:5.2f} deg  "
+    print(f"{case:46s} frames {estimate.frames:3d}  ok {estimate.ok!s:5s}  error {error:5.2f} deg  "
           f"{estimate.seconds:5.2f} s ({cpu:4.2f} s CPU)  {estimate.reason}", flush=True)
     return estimate
 
