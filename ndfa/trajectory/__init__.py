@@ -1,11 +1,21 @@
 """Poses for a recording: KISS-ICP odometry on depth (kiss.py, refined point-to-plane in refine.py),
-trajectory errors (metrics.py), TUM trajectory files (tum_format.py), and `rewrite_poses`, which
-writes a copy of a recording with estimated poses (rewrite.py)."""
+trajectory errors (metrics.py), TUM trajectory files (tum_format.py), `rewrite_poses`, which
+writes a copy of a recording with estimated poses (rewrite.py), and world up from the data with
+the rotation that levels a session's world (up.py)."""
 
 from ndfa.trajectory.kiss import DepthOdometry, OdometryConfig, depth_points, estimate_poses
 from ndfa.trajectory.metrics import AbsoluteError, RelativeError, absolute_trajectory_error, relative_pose_error
 from ndfa.trajectory.rewrite import PoseReport, rewrite_poses
 from ndfa.trajectory.tum_format import read_tum, write_tum
+from ndfa.trajectory.up import (
+    UpConfig,
+    UpEstimate,
+    estimate_up,
+    level_frame,
+    level_poses,
+    levelling_rotation,
+    up_from_accelerations,
+)
 
 __all__ = [
     "AbsoluteError",
@@ -13,11 +23,18 @@ __all__ = [
     "OdometryConfig",
     "PoseReport",
     "RelativeError",
+    "UpConfig",
+    "UpEstimate",
     "absolute_trajectory_error",
     "depth_points",
     "estimate_poses",
+    "estimate_up",
+    "level_frame",
+    "level_poses",
+    "levelling_rotation",
     "read_tum",
     "relative_pose_error",
     "rewrite_poses",
+    "up_from_accelerations",
     "write_tum",
 ]
