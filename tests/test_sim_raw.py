@@ -31,6 +31,11 @@ def frames_of(path):
     return list(RecordingReader(path).frames())
 
 
+def true_pose(frame):
+    """The frame's true camera pose: its own where it is not perturbed."""
+    return frame.pose_world_camera if frame.pose_world_camera_true is None else frame.pose_world_camera_true
+
+
 @pytest.fixture(scope="module")
 def recordings(tmp_path_factory):
     """The same small scene three ways: as it was, with a tilted world, and raw with everything on."""
@@ -76,11 +81,14 @@ def test_textures_change_the_colour_image_but_not_depth_or_instances():
         room = a.hit & ~mugs
         assert np.mean(np.any(a.rgb[room] != b.rgb[room], axis=-1)) > 0.9
         # Texture is detail a photometric term can use: much more change between neighbours.
-        def detail(rgb):
-            gray = rgb.astype(float).mean(axis=-1)
-            step = np.abs(np.diff(gray, axis=1))[room[:, 1:] & room[:, :-1]]
-            return np.mean(step > 2)
-        assert detail(b.rgb) > 3 * detail(a.rgb) and detail(b.rgb) > 0.3
+        assert detail(b.rgb, room) > 3 * detail(a.rgb, room) and detail(b.rgb, room) > 0.3
+
+
+def detail(rgb, mask):
+    """Fraction of horizontal neighbours inside `mask` whose grey levels differ by more than 2."""
+    gray = rgb.astype(float).mean(axis=-1)
+    step = np.abs(np.diff(gray, axis=1))[mask[:, 1:] & mask[:, :-1]]
+    return np.mean(step > 2)
 
 
 # --- clutter -----------------------------------------------------------------------------------
@@ -151,8 +159,7 @@ def test_raw_recording_has_no_masks_and_no_poses_but_keeps_the_truth(recordings)
         for frame, reference in zip(raw, tilted):
             assert frame.instances is None
             assert np.array_equal(frame.pose_world_camera, np.eye(4))
-            truth = reference.pose_world_camera if reference.pose_world_camera_true is None else reference.pose_world_camera_true
-            assert np.allclose(frame.pose_world_camera_true, truth, atol=1e-6)
+            assert np.allclose(frame.pose_world_camera_true, true_pose(reference), atol=1e-6)
 
 
 def test_cli_info_says_a_raw_recording_has_no_poses(recordings):
@@ -191,16 +198,15 @@ def test_world_tilt_keeps_the_trajectory_and_tilts_up_by_the_angle(recordings, s
         assert np.dot(a.pose_world_camera[:3, 2], [0, 0, 1]) == pytest.approx(np.dot(b.pose_world_camera[:3, 2], up), abs=1e-6)
         assert np.allclose(b.pose_world_camera, tilt @ a.pose_world_camera, atol=1e-6)
     for i, j in [(0, 1), (0, len(plain) - 1)]:  # relative poses: the trajectory's shape
-        relative = lambda frames: invert_pose(frames[i].pose_world_camera) @ frames[j].pose_world_camera  # noqa: E731
-        assert np.allclose(relative(plain), relative(tilted), atol=1e-6)
-    # Objects are tilted with the cameras: each one stays where the cameras see it.
+        assert np.allclose(invert_pose(plain[i].pose_world_camera) @ plain[j].pose_world_camera,
+                           invert_pose(tilted[i].pose_world_camera) @ tilted[j].pose_world_camera, atol=1e-6)
+    # Objects are tilted with the cameras: each one stays where the (true) camera sees it.
     plain_truth = RecordingReader(recordings["plain"] / f"{session}.mcap").ground_truth
+    camera_plain, camera_tilted = true_pose(plain[0]), true_pose(tilted[0])
     for o_plain, o_tilted in zip(plain_truth["objects"], truth["objects"]):
         if o_plain[session] is not None:
-            camera_plain = plain[0].pose_world_camera_true if plain[0].pose_world_camera_true is not None else plain[0].pose_world_camera
-            camera_tilted = tilted[0].pose_world_camera_true if tilted[0].pose_world_camera_true is not None else tilted[0].pose_world_camera
-            in_camera = lambda camera, o: invert_pose(camera) @ np.array(o[session]["pose_world_object"])  # noqa: E731
-            assert np.allclose(in_camera(camera_plain, o_plain), in_camera(camera_tilted, o_tilted), atol=1e-6)
+            assert np.allclose(invert_pose(camera_plain) @ np.array(o_plain[session]["pose_world_object"]),
+                               invert_pose(camera_tilted) @ np.array(o_tilted[session]["pose_world_object"]), atol=1e-6)
     if truth["pose_offset"] is not None:  # the target's perturbation still maps true onto given poses
         offset = np.array(truth["pose_offset"])
         assert np.allclose(offset @ tilted[0].pose_world_camera_true, tilted[0].pose_world_camera, atol=1e-5)

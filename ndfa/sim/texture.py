@@ -108,7 +108,7 @@ class TextureAtlas:
         column = np.remainder(u0.astype(np.intp), stride - 1)
         row = np.remainder(v0.astype(np.intp), self._height[texture_index])
         k = self._offset[texture_index] + row * stride + column
-        texel = lambda index: np.take(self._texels, index, axis=0)  # noqa: E731 - local shorthand
+        texel = lambda index: np.take(self._texels, index, axis=0)
         low, high = texel(k), texel(k + stride)
         low += (texel(k + 1) - low) * fu
         high += (texel(k + stride + 1) - high) * fu
@@ -265,7 +265,7 @@ def room_textures(room: Room, tables: list[Table], rng: np.random.Generator) -> 
     surface once (origin at the surface's corner)."""
     lx, ly = room.size_xy
     t, h = room.wall_thickness, room.wall_height
-    corner = lambda x, y: make_pose(np.eye(3), np.array([x, y, 0.0]))  # noqa: E731 - texture origin
+    corner = lambda x, y: make_pose(np.eye(3), np.array([x, y, 0.0]))
     floor = SurfaceTexture(floor_image(lx + 2 * t, ly + 2 * t, rng), pose_world_texture=corner(-lx / 2 - t, -ly / 2 - t))
     # Room.meshes(): floor, wall at y-, wall at y+, wall at x-, wall at x+; each wall's image
     # spans its length (x or y) and its height (z).

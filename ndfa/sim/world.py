@@ -18,7 +18,12 @@ import numpy as np
 
 from ndfa.core.errors import SimError
 from ndfa.core.geometry import make_pose, rotation_z
-from ndfa.sim.clutter import CLUTTER_FIRST_ID, CLUTTER_KINDS, ClutterItem, make_clutter_mesh
+from ndfa.sim.clutter import (
+    CLUTTER_FIRST_ID,
+    CLUTTER_KINDS,
+    ClutterItem,
+    make_clutter_mesh,
+)
 from ndfa.sim.clutter import footprint_radius as mesh_footprint_radius
 from ndfa.sim.mug import Mug
 from ndfa.sim.presets import SimConfig
