@@ -58,6 +58,13 @@ def ingest_sim_command(
     offset_yaw: Optional[float] = typer.Option(None, help="Target pose offset: max yaw, degrees."),
     drift: Optional[float] = typer.Option(None, help="Target drift: random-walk translation step std, metres/frame."),
     drift_yaw: Optional[float] = typer.Option(None, help="Target drift: random-walk yaw step std, degrees/frame."),
+    textures: bool = typer.Option(False, "--textures", help="Procedural colour texture on walls, floor and table tops."),
+    clutter: int = typer.Option(0, help="Non-mug objects per table (boxes, books, bowls, bottles); static, listed "
+                                        "as clutter in the ground truth."),
+    raw: bool = typer.Option(False, "--raw", help="Record as a sensor does: no instance masks, no camera poses "
+                                                  "(/tf); the true poses stay in the ground truth."),
+    world_tilt: float = typer.Option(0.0, help="Tilt the recorded world frame this many degrees away from z-up "
+                                               "(random roll/pitch axis from the seed)."),
 ) -> None:
     """Render a synthetic source/target pair of recordings with ground truth."""
     from ndfa.io.ingest.synthetic import check_output_dir, ingest_sim
@@ -92,6 +99,7 @@ def ingest_sim_command(
                                    drift_translation_m=drift, drift_yaw_deg=drift_yaw).items() if v is not None}
     if error:
         overrides["target_pose_error"] = dataclasses.replace(config.target_pose_error, **error)
+    overrides.update(textures=textures, clutter_per_table=clutter, raw=raw, world_tilt_deg=world_tilt)
     config = make_config(preset, seed, **overrides)
 
     check_output_dir(out)

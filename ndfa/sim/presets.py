@@ -45,6 +45,12 @@ class SimConfig:
     depth_noise: DepthNoise = DepthNoise()
     target_pose_error: PoseError = PoseError(offset_translation_m=1.0, offset_yaw_deg=180.0, offset_tilt_deg=3.0)
     fps: float = 5.0                                 # frames per second of the recorded timestamps
+    # What makes the scene closer to raw sensor data; all off by default, and off leaves every
+    # image of a scene as it was.
+    textures: bool = False          # procedural colour on walls, floor and table tops (for photometric odometry)
+    clutter_per_table: int = 0      # non-mug objects per table (boxes, books, bowls, bottles); static
+    raw: bool = False               # record as a sensor does: no instance masks, no camera poses (/tf)
+    world_tilt_deg: float = 0.0     # tilt of the recorded world frame away from z-up (roll/pitch, seeded)
 
     def __post_init__(self) -> None:
         lo, hi = self.mugs_per_table
@@ -55,6 +61,10 @@ class SimConfig:
                 raise SimError(f"unknown camera route {route!r}; expected one of {ROUTES}")
         if self.table_rows < 1 or self.table_cols < 1:
             raise SimError("a scene needs at least one table")
+        if self.clutter_per_table < 0:
+            raise SimError(f"clutter per table must be >= 0, got {self.clutter_per_table}")
+        if not 0.0 <= self.world_tilt_deg <= 90.0:
+            raise SimError(f"world tilt must be in [0, 90] degrees, got {self.world_tilt_deg}")
 
 
 def make_config(preset: str, seed: int = 0, **overrides) -> SimConfig:

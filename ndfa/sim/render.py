@@ -1,9 +1,10 @@
 """CPU raycast renderer: depth, instance ids, normals and a shaded colour image of a static scene.
 
 One ray per pixel centre is cast in the world frame through Open3D's Embree-backed
-`RaycastingScene`, which is built once per scene and reused for every frame. No textures and no
-shadows: the colour image only has to make shapes readable for a person (and give the method an
-rgb channel), the depth and instance images are what the method and the evaluation use.
+`RaycastingScene`, which is built once per scene and reused for every frame. No shadows. An
+object has one flat colour, or a `SurfaceTexture` looked up at each ray's hit point (for colour
+that odometry can track); the depth and instance images are what the method and the evaluation
+use.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import open3d as o3d
 from ndfa.core.errors import SimError
 from ndfa.sim.camera import PinholeCamera
 from ndfa.sim.mesh import Mesh
+from ndfa.sim.texture import SurfaceTexture, TextureAtlas
 
 # Shading: ambient + a fixed "sun" (direction towards the light, world frame, z up: high and to
 # one side, so the top, front and sides of a box get different shades) + a headlight at the camera
@@ -37,11 +39,13 @@ class RenderObject:
     instance_id: written to the instance image where the object is seen; 0 = not an instance
         (floor, walls, tables), 1..65535 for objects the evaluation tracks.
     color: (r, g, b) albedo in [0, 1].
+    texture: an albedo image that replaces `color` where the object is hit, or None.
     """
 
     mesh: Mesh
     instance_id: int = 0
     color: tuple[float, float, float] = (0.7, 0.7, 0.7)
+    texture: SurfaceTexture | None = None
 
     def __post_init__(self) -> None:
         if not 0 <= self.instance_id <= _MAX_INSTANCE_ID:
@@ -91,6 +95,12 @@ class SceneRenderer:
         for geometry_id, obj in zip(geometry_ids, objects):
             self._instance_of_geometry[geometry_id] = obj.instance_id
             self._color_of_geometry[geometry_id] = obj.color
+        # Textured objects: index into one atlas per geometry, -1 for a flat colour (and a miss).
+        textured = [(geometry_id, obj.texture) for geometry_id, obj in zip(geometry_ids, objects) if obj.texture is not None]
+        self._texture_of_geometry = np.full(rows, -1, dtype=np.intp)
+        self._atlas = TextureAtlas([texture for _, texture in textured]) if textured else None
+        for index, (geometry_id, _) in enumerate(textured):
+            self._texture_of_geometry[geometry_id] = index
         self.triangle_count = sum(len(obj.mesh.triangles) for obj in objects)
 
     def render(self, camera: PinholeCamera, pose_world_camera: np.ndarray) -> RenderedView:
@@ -124,7 +134,8 @@ class SceneRenderer:
         # Embree reports the geometric normal of the triangle hit (world frame, unit length, zero
         # on a miss). Back faces are hit too (open meshes, the inside of a mug), so turn every
         # normal towards the camera; the noise model and the shading both want the facing side.
-        normals_camera = hits["primitive_normals"].numpy() @ rotation32
+        normals_world = hits["primitive_normals"].numpy()
+        normals_camera = normals_world @ rotation32
         cos_ray = camera.ray_cosines(normals_camera)
         normals_camera *= np.where(cos_ray > 0, np.float32(-1.0), np.float32(1.0))[..., None]
 
@@ -133,6 +144,13 @@ class SceneRenderer:
         sun = np.maximum(normals_camera @ sun_camera, 0.0)
         brightness = _AMBIENT_WEIGHT + _SUN_WEIGHT * sun + _HEADLIGHT_WEIGHT * np.abs(cos_ray)
         rgb = np.take(self._color_of_geometry, row, axis=0)  # (H, W, 3) albedo, 0 on a miss
+        if self._atlas is not None:
+            texture_index = np.take(self._texture_of_geometry, row).ravel()
+            pixels = np.flatnonzero(texture_index >= 0)
+            # The hit point: the ray's origin plus its unit-depth direction times the z-depth.
+            points = rays.reshape(-1, 6)[pixels, 3:] * depth.ravel()[pixels, None] + origin.astype(np.float32)
+            rgb.reshape(-1, 3)[pixels] = self._atlas.albedo(texture_index[pixels], points,
+                                                            normals_world.reshape(-1, 3)[pixels])
         rgb *= (255.0 * brightness)[..., None]
         # The weights add up to 1 and colours are <= 1, so rgb <= 255 up to rounding: +0.5 rounds.
         rgb = np.minimum(rgb + 0.5, 255.0).astype(np.uint8)

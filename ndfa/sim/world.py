@@ -1,7 +1,8 @@
 """Where the mugs stand in each session, and what changed between the sessions.
 
 A `World` is the whole synthetic ground truth: static room and tables, the mug models, one
-layout per session (instance id -> placement) and the change labels. It is pure data; rendering
+layout per session (instance id -> placement), the change labels and the clutter (non-mug
+objects that stand still in both sessions). It is pure data; rendering
 and writing recordings happen elsewhere (`ndfa.io.ingest.synthetic`).
 
 A physical mug keeps its instance id in both sessions, so a moved or switched mug is the same id
@@ -17,6 +18,13 @@ import numpy as np
 
 from ndfa.core.errors import SimError
 from ndfa.core.geometry import make_pose, rotation_z
+from ndfa.sim.clutter import (
+    CLUTTER_FIRST_ID,
+    CLUTTER_KINDS,
+    ClutterItem,
+    make_clutter_mesh,
+)
+from ndfa.sim.clutter import footprint_radius as mesh_footprint_radius
 from ndfa.sim.mug import Mug
 from ndfa.sim.presets import SimConfig
 from ndfa.sim.scene import Room, Table, room_around, table_grid
@@ -59,6 +67,7 @@ class World:
     target: dict[int, Placement]
     changes: list[Change]
     colors: dict[int, tuple[float, float, float]] = field(default_factory=dict)
+    clutter: list[ClutterItem] = field(default_factory=list)
 
     def layout(self, session: str) -> dict[int, Placement]:
         if session not in SESSIONS:
@@ -70,6 +79,9 @@ class World:
 
     def object_pose(self, placement: Placement) -> np.ndarray:
         return placement.pose_world_object(self.table(placement.table_id))
+
+    def clutter_pose(self, item: ClutterItem) -> np.ndarray:
+        return item.pose_world_object(self.table(item.table_id))
 
     def change_counts(self) -> dict[str, int]:
         return {kind: sum(c.kind == kind for c in self.changes) for kind in CHANGE_KINDS}
@@ -95,7 +107,10 @@ def build_world(config: SimConfig, models: list[Mug]) -> World:
     target, changes = apply_changes(tables, mugs, source, config.changes, rng, config.switch_within_table)
     color_rng = np.random.default_rng([config.seed, 3])
     colors = {i: tuple(float(c) for c in color_rng.uniform(0.15, 0.95, size=3)) for i in sorted(source.keys() | target.keys())}
-    return World(tables, room_around(tables), mugs, source, target, changes, colors)
+    # Clutter last, from a stream of its own: adding it moves no mug of the same seed's scene.
+    clutter = place_clutter(tables, mugs, [source, target], config.clutter_per_table,
+                            np.random.default_rng([config.seed, 4])) if config.clutter_per_table else []
+    return World(tables, room_around(tables), mugs, source, target, changes, colors, clutter)
 
 
 def _mugs_per_table(n_tables: int, per_table: tuple[int, int], total: tuple[int, int] | None,
@@ -123,7 +138,9 @@ class TableSpace:
         self.radius = {model_id: footprint_radius(m) for model_id, m in mugs.items()}
         self.clearance = clearance
         self.edge_margin = edge_margin
-        self.occupied: dict[int, dict[int, tuple[np.ndarray, float]]] = {t.table_id: {} for t in tables}
+        # table id -> {key: (xy, radius)}; the key is a mug's instance id (or any other hashable
+        # name for things that are not one placement, as the clutter's).
+        self.occupied: dict[int, dict[object, tuple[np.ndarray, float]]] = {t.table_id: {} for t in tables}
 
     def fits(self, table_id: int, xy: np.ndarray, radius: float) -> bool:
         half = np.array(self.tables[table_id - 1].size_xy) / 2 - radius - self.edge_margin
@@ -142,7 +159,11 @@ class TableSpace:
 
     def find_spot(self, table_id: int, model_id: str, rng: np.random.Generator, tries: int = 300) -> np.ndarray | None:
         """A random collision-free position for `model_id` on the table, or None if none was found."""
-        radius = self.radius[model_id]
+        return self.find_spot_for_radius(table_id, self.radius[model_id], rng, tries)
+
+    def find_spot_for_radius(self, table_id: int, radius: float, rng: np.random.Generator,
+                             tries: int = 300) -> np.ndarray | None:
+        """A random collision-free position for a circle of `radius`, or None if none was found."""
         half = np.array(self.tables[table_id - 1].size_xy) / 2 - radius - self.edge_margin
         if np.any(half <= 0):
             return None
@@ -296,3 +317,35 @@ def _place_somewhere(space: TableSpace, tables: list[Table], instance_id: int, m
             space.add(placement)
             return placement
     raise SimError(f"no free spot left on any table for mug {instance_id}")
+
+
+def place_clutter(tables: list[Table], mugs: dict[str, Mug], layouts: list[dict[int, Placement]],
+                  per_table: int, rng: np.random.Generator) -> list[ClutterItem]:
+    """`per_table` pieces of clutter on every table, clear of every mug of every layout (so of
+    both sessions: clutter stands still while mugs move) and of each other. A piece that finds
+    no free spot after a few shapes is left out: a crowded table gets less clutter, never a
+    collision; the ground truth lists what was placed."""
+    if max((i for layout in layouts for i in layout), default=0) >= CLUTTER_FIRST_ID:
+        raise SimError(f"mug instance ids reach the clutter ids (from {CLUTTER_FIRST_ID})")
+    space = TableSpace(tables, mugs)
+    for session, layout in enumerate(layouts):
+        for placement in layout.values():
+            space.occupied[placement.table_id][(session, placement.instance_id)] = (
+                np.array(placement.xy), space.radius[placement.model_id])
+    items: list[ClutterItem] = []
+    for table in tables:
+        for _ in range(per_table):
+            for _attempt in range(5):  # a smaller shape may fit where a big one did not
+                kind = str(rng.choice(CLUTTER_KINDS))
+                mesh = make_clutter_mesh(kind, rng)
+                radius = mesh_footprint_radius(mesh)
+                xy = space.find_spot_for_radius(table.table_id, radius, rng, tries=100)
+                if xy is None:
+                    continue
+                instance_id = CLUTTER_FIRST_ID + len(items)
+                color = tuple(float(c) for c in rng.uniform(0.1, 0.9, size=3))
+                items.append(ClutterItem(instance_id, kind, table.table_id, (float(xy[0]), float(xy[1])),
+                                         float(rng.uniform(-np.pi, np.pi)), mesh, color))
+                space.occupied[table.table_id][("clutter", instance_id)] = (np.array(xy), radius)
+                break
+    return items

@@ -3,6 +3,12 @@
 The world (`ndfa.sim.world`) says where every mug stands in each session; this module moves the
 camera along each session's route, renders depth, instance ids and colour, adds sensor noise,
 perturbs the target's poses, and writes `source.mcap` and `target.mcap` with the full ground truth.
+
+Options that make the recordings closer to raw sensor data (`SimConfig`; all off by default):
+textured walls, floor and tables; clutter on the tables; `raw` recordings without instance masks
+and camera poses (the true poses stay in the ground-truth pose channel for scoring); and a world
+frame tilted away from z-up. The scene is always rendered in the level world; the tilt only
+re-expresses what is recorded (camera poses, given and true, and the ground-truth object poses).
 """
 
 from __future__ import annotations
@@ -21,8 +27,10 @@ from ndfa.io.recording import Frame, RecordingWriter
 from ndfa.sim.mug import Mug
 from ndfa.sim.presets import SimConfig
 from ndfa.sim.render import RenderObject, SceneRenderer
+from ndfa.sim.texture import RoomTextures, room_textures
 from ndfa.sim.trajectory import camera_poses
 from ndfa.sim.world import SESSIONS, World, build_world, procedural_models
+from ndfa.sim.world_tilt import tilt_pose
 
 # Sessions start on fixed, distinct days so that the two recordings read as two traversals.
 SESSION_START = {
@@ -57,25 +65,43 @@ def ingest_sim(
     check_output_dir(out_dir)
     world = build_world(config, models if models is not None else procedural_models(config))
     ground_truth = world_ground_truth(world, config)
+    # The room's look is part of the static scene: one set of textures for both sessions.
+    textures = room_textures(world.room, world.tables, np.random.default_rng([config.seed, 14])) if config.textures else None
     return [
-        _render_session(world, config, session, out_dir / f"{session}.mcap", ground_truth, on_progress)
+        _render_session(world, config, session, out_dir / f"{session}.mcap", ground_truth, on_progress, textures)
         for session in SESSIONS
     ]
 
 
+def world_tilt(config: SimConfig) -> np.ndarray:
+    """pose_world_level of `config`'s recordings: the identity unless `world_tilt_deg` is set."""
+    return tilt_pose(config.world_tilt_deg, np.random.default_rng([config.seed, 13]))
+
+
 def _render_session(world: World, config: SimConfig, session: str, path: Path, ground_truth: dict,
-                    on_progress: ProgressCallback | None) -> SessionSummary:
+                    on_progress: ProgressCallback | None, textures: RoomTextures | None = None) -> SessionSummary:
     # One stream per session and purpose: changing the noise model does not move the cameras.
     stream = SESSIONS.index(session)
     route = config.source_route if session == "source" else config.target_route
     true_poses = camera_poses(world.tables, dataclasses.replace(config.trajectory, route=route),
                               np.random.default_rng([config.seed, 10, stream]))
     recorded_poses, offset = true_poses, None
-    if session == "target" and config.target_pose_error.enabled:
+    if session == "target" and config.target_pose_error.enabled and not config.raw:
         recorded_poses, offset = config.target_pose_error.apply(true_poses, np.random.default_rng([config.seed, 11]))
     noise_rng = np.random.default_rng([config.seed, 12, stream])
+    # Rendered in the level world; recorded in the (possibly) tilted one.
+    pose_world_level = world_tilt(config)
+    recorded_poses_world = pose_world_level @ recorded_poses
+    true_poses_world = pose_world_level @ true_poses
+    if offset is not None:  # perturbed = offset @ drift @ true holds in the tilted world with this offset
+        offset = pose_world_level @ offset @ pose_world_level.T
 
-    renderer = SceneRenderer(render_objects(world, session))
+    renderer = SceneRenderer(render_objects(world, session, textures))
+    if config.raw:
+        # What a sensor writes: no poses (the writer then leaves /tf out) and no instance masks.
+        poses_meta, instances_meta = "none", "none"
+    else:
+        poses_meta, instances_meta = "perturbed" if offset is not None else "true", "rendered"
     meta = {
         "source": "sim",
         "session": session,
@@ -83,8 +109,8 @@ def _render_session(world: World, config: SimConfig, session: str, path: Path, g
         "seed": config.seed,
         "route": route,
         "frame_rate_hz": config.fps,
-        "poses": "perturbed" if offset is not None else "true",
-        "instances": "rendered",
+        "poses": poses_meta,
+        "instances": instances_meta,
         "generator": f"ndfa {ndfa.__version__} ingest sim",
         "config": dataclasses.asdict(config),
     }
@@ -102,9 +128,10 @@ def _render_session(world: World, config: SimConfig, session: str, path: Path, g
                 rgb=view.rgb,
                 depth=depth,
                 K=camera.K,
-                pose_world_camera=recorded_poses[index],
-                instances=view.instance,
-                pose_world_camera_true=pose if offset is not None else None,
+                # A raw recording's frames carry the identity, the recording has no poses.
+                pose_world_camera=np.eye(4) if config.raw else recorded_poses_world[index],
+                instances=None if config.raw else view.instance,
+                pose_world_camera_true=true_poses_world[index] if offset is not None or config.raw else None,
             ))
             if on_progress is not None:
                 on_progress(session, index + 1, len(true_poses))
@@ -114,26 +141,36 @@ def _render_session(world: World, config: SimConfig, session: str, path: Path, g
     return SessionSummary(session, path, len(true_poses), len(layout), changes, path.stat().st_size)
 
 
-def render_objects(world: World, session: str) -> list[RenderObject]:
-    """Room, tables and the session's mugs as renderable objects; mugs carry their instance ids."""
+def render_objects(world: World, session: str, textures: RoomTextures | None = None) -> list[RenderObject]:
+    """Room, tables, the session's mugs and the clutter as renderable objects (level world frame);
+    mugs and clutter carry their instance ids, room and tables the `textures` if given."""
     gray, wood = (0.75, 0.75, 0.72), (0.55, 0.40, 0.28)
-    objects = [RenderObject(mesh, 0, gray) for mesh in world.room.meshes()]
-    objects += [RenderObject(table.mesh(), 0, wood) for table in world.tables]
+    room_textures_ = textures.room if textures is not None else [None] * len(world.room.meshes())
+    table_textures = textures.tables if textures is not None else [None] * len(world.tables)
+    objects = [RenderObject(mesh, 0, gray, texture) for mesh, texture in zip(world.room.meshes(), room_textures_)]
+    objects += [RenderObject(table.mesh(), 0, wood, texture) for table, texture in zip(world.tables, table_textures)]
     for instance_id, placement in world.layout(session).items():
         mesh = world.mugs[placement.model_id].mesh.transformed(world.object_pose(placement))
         objects.append(RenderObject(mesh, instance_id, world.colors[instance_id]))
+    for item in world.clutter:
+        objects.append(RenderObject(item.mesh.transformed(world.clutter_pose(item)), item.instance_id, item.color))
     return objects
 
 
 def world_ground_truth(world: World, config: SimConfig) -> dict:
-    """The scene as JSON-ready data: tables, models, every instance in each session, change labels."""
+    """The scene as JSON-ready data: tables, models, every instance in each session, change labels;
+    with the options on, the clutter and the world tilt.
+
+    Object poses are in the recorded world frame (tilted, with `world_tilt_deg`); the room and the
+    tables are described in the level world, which `world_tilt.pose_world_level` maps into it."""
     change_of = {c.instance_id: c for c in world.changes}
+    pose_world_level = world_tilt(config)
 
     def where(session: str, instance_id: int) -> dict | None:
         placement = world.layout(session).get(instance_id)
         if placement is None:
             return None
-        return {"table_id": placement.table_id, "pose_world_object": world.object_pose(placement).tolist()}
+        return {"table_id": placement.table_id, "pose_world_object": (pose_world_level @ world.object_pose(placement)).tolist()}
 
     objects = []
     for instance_id in sorted(world.source.keys() | world.target.keys()):
@@ -148,7 +185,7 @@ def world_ground_truth(world: World, config: SimConfig) -> dict:
             "partner": change.partner if change else None,
         })
     counts = world.change_counts()
-    return {
+    truth = {
         "format": "ndfa.ground_truth/1",
         "preset": config.preset,
         "seed": config.seed,
@@ -158,6 +195,22 @@ def world_ground_truth(world: World, config: SimConfig) -> dict:
         "objects": objects,
         "changes": dict(counts, total=sum(counts.values())),
     }
+    # Only with the options on, so that a default scene's ground truth stays as it was.
+    if config.clutter_per_table:
+        # Static, in both sessions: never an object to score, never a change.
+        truth["clutter"] = [{
+            "instance_id": item.instance_id,
+            "kind": item.kind,
+            "table_id": item.table_id,
+            "pose_world_object": (pose_world_level @ world.clutter_pose(item)).tolist(),
+        } for item in world.clutter]
+    if config.world_tilt_deg:
+        truth["world_tilt"] = {
+            "degrees": config.world_tilt_deg,
+            "pose_world_level": pose_world_level.tolist(),
+            "up_world": pose_world_level[:3, 2].tolist(),
+        }
+    return truth
 
 
 def check_output_dir(out_dir: Path) -> None:

@@ -65,6 +65,9 @@ class RecordingReader:
     meta: the /ndfa/meta message (source, session, depth_scale, units, and what the importer added).
     ground_truth: the /ndfa/ground_truth message, or None when the recording has none.
     has_instances: whether the recording has instance images.
+    has_poses: whether the recording has camera poses (/tf). One without them (meta "poses":
+        "none", as a sensor records) yields frames whose `pose_world_camera` is the identity, the
+        placeholder a pose estimator replaces (`ndfa.io.ingest.PoseEstimator`).
     len(reader): number of frames (depth images), from the file's summary.
     """
 
@@ -79,12 +82,17 @@ class RecordingReader:
             self._frame_count = counts.get(self._channels[channels.DEPTH].id, 0)
             instances_channel = self._channels.get(channels.INSTANCES)
             self.has_instances = instances_channel is not None and counts.get(instances_channel.id, 0) > 0
+            self.has_poses = counts.get(self._channels[channels.TF].id, 0) > 0
 
             meta = self._read_json(mcap, channels.META)
             if meta is None:
                 raise RecordingError(f"{self.path}: channel {channels.META} has no message")
             self.meta: dict[str, Any] = meta
             self.ground_truth: dict[str, Any] | None = self._read_json(mcap, channels.GROUND_TRUTH)
+
+        if not self.has_poses and self._frame_count and self.meta.get("poses") != "none":
+            raise RecordingError(f"{self.path}: channel {channels.TF} has no message, and its meta does not say "
+                                 f'"poses": "none" (says {self.meta.get("poses")!r})')
 
         # Metres per unit of a 16UC1 depth image; ndfa always writes millimetres.
         self._depth_scale = self.meta.get("depth_scale", channels.DEPTH_SCALE_M)
@@ -208,7 +216,8 @@ class RecordingReader:
             yield self._complete_group(group_time, group)
 
     def _complete_group(self, time_ns: int, group: dict[str, Message]) -> tuple[int, dict[str, Message]]:
-        missing = [topic for topic in _REQUIRED_PER_FRAME if topic not in group]
+        missing = [topic for topic in _REQUIRED_PER_FRAME if topic not in group
+                   and (topic != channels.TF or self.has_poses)]
         if missing:
             raise RecordingError(f"{self.path}: the frame at {_time(time_ns)} has no message on {', '.join(missing)}")
         return time_ns, group
@@ -243,13 +252,16 @@ class RecordingReader:
         if channels.GROUND_TRUTH_POSE in group:
             pose_true = _pose_matrix(self._parse(channels.GROUND_TRUTH_POSE, group, PoseInFrame).pose)
 
-        transform = self._parse(channels.TF, group, FrameTransform)
-        if (transform.parent_frame_id, transform.child_frame_id) != (channels.WORLD_FRAME, channels.CAMERA_FRAME):
-            raise RecordingError(
-                f"{self.path}: channel {channels.TF} at {_time(time_ns)} is the transform "
-                f"{transform.parent_frame_id!r} <- {transform.child_frame_id!r}, expected "
-                f"{channels.WORLD_FRAME!r} <- {channels.CAMERA_FRAME!r}"
-            )
+        pose = np.eye(4)  # a recording without poses: the identity placeholder
+        if self.has_poses:
+            transform = self._parse(channels.TF, group, FrameTransform)
+            if (transform.parent_frame_id, transform.child_frame_id) != (channels.WORLD_FRAME, channels.CAMERA_FRAME):
+                raise RecordingError(
+                    f"{self.path}: channel {channels.TF} at {_time(time_ns)} is the transform "
+                    f"{transform.parent_frame_id!r} <- {transform.child_frame_id!r}, expected "
+                    f"{channels.WORLD_FRAME!r} <- {channels.CAMERA_FRAME!r}"
+                )
+            pose = _pose_matrix(transform)
 
         try:
             return Frame(
@@ -258,7 +270,7 @@ class RecordingReader:
                 rgb=rgb,
                 depth=depth,
                 K=np.array(calibration.K, dtype=np.float64).reshape(3, 3),
-                pose_world_camera=_pose_matrix(transform),
+                pose_world_camera=pose,
                 instances=instances,
                 pose_world_camera_true=pose_true,
             )

@@ -88,13 +88,16 @@ class RecordingWriter:
 
     `meta` must hold "source" and "session" (strings); any other JSON-compatible entries (e.g.
     "provenance": {...}) are kept as they are. The writer adds "format", "format_version",
-    "depth_scale" and "units". The file at `path` is replaced only when the block exits without an
-    exception (or `close()` is called); on an exception (or `abort()`) nothing at `path` changes.
+    "depth_scale" and "units". A meta with "poses": "none" (a recording as a sensor writes it,
+    without camera poses) makes the writer leave /tf out; the frames' poses are then ignored.
+    The file at `path` is replaced only when the block exits without an exception (or `close()`
+    is called); on an exception (or `abort()`) nothing at `path` changes.
     """
 
     def __init__(self, path: str | Path, meta: dict[str, Any], chunk_size: int = CHUNK_SIZE_BYTES) -> None:
         self.path = Path(path)
         self._meta_json = _encode_json(self.path, "meta", _complete_meta(self.path, meta))
+        self._writes_poses = meta.get("poses") != "none"
         self._ground_truth_json: bytes | None = None
         self._last_time_ns: int | None = None
         self._first_time_ns: int | None = None
@@ -166,7 +169,8 @@ class RecordingWriter:
         self._write(channels.CALIBRATION, _calibration(stamp, frame.K, frame.image_size), time_ns, frame.index)
         if frame.instances is not None:
             self._write(channels.INSTANCES, _raw_image(stamp, frame.instances, channels.MONO16), time_ns, frame.index)
-        self._write(channels.TF, _frame_transform(stamp, frame.pose_world_camera), time_ns, frame.index)
+        if self._writes_poses:
+            self._write(channels.TF, _frame_transform(stamp, frame.pose_world_camera), time_ns, frame.index)
         if frame.pose_world_camera_true is not None:
             true_pose = _pose_in_world(stamp, frame.pose_world_camera_true)
             self._write(channels.GROUND_TRUTH_POSE, true_pose, time_ns, frame.index)
