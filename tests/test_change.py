@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from ndfa.change.associate import Measurement, SessionMap, cosine_similarity
-from ndfa.change.detector import ChangeDetector, DetectorConfig
+from ndfa.change.config import AssociationConfig, DecisionConfig, DetectorConfig, RegistrationConfig
+from ndfa.change.detector import ChangeDetector
 from ndfa.change.graph import compare_graphs, local_graph
 from ndfa.change.register import apply, ransac_registration, rigid_transform
 from ndfa.change.tree import IntervalTree, ObjectTree
@@ -66,7 +67,8 @@ def _code(seed: int, dim: int = 16) -> np.ndarray:
 
 
 def test_association_merges_near_similar_measurements_and_keeps_the_most_confident():
-    session = SessionMap(tree_length_m=1.2, distance_m=0.05, shape_similarity=0.9)
+    session = SessionMap(AssociationConfig(tree_length_m=1.2, distance_m=0.05, shape_similarity=0.9, same_place_m=0.0,
+                                           fusion="best"))
     a = session.update(Measurement(0, 7, _code(1), np.array([1.0, 1.0, 0.8]), 0.6))
     b = session.update(Measurement(1, 7, _code(1) + 0.01, np.array([1.02, 1.0, 0.8]), 0.9))  # better: replaces
     c = session.update(Measurement(2, 7, _code(1), np.array([1.03, 1.0, 0.8]), 0.5))          # worse: kept out
@@ -187,7 +189,7 @@ def test_detector_finds_added_removed_and_switched_mugs_under_an_unknown_offset(
     target[20] = np.r_[3.0, -0.3, 0.8]                     # added on table 2
     target[5], target[6] = source[6], source[5]            # switched on table 2
     offset = _random_motion(rng)                           # the target's world frame is off by this
-    detector = ChangeDetector(DetectorConfig(registration_pairs=4))
+    detector = ChangeDetector(DetectorConfig(registration=RegistrationConfig(pairs=4)))
 
     def frames(layout, pose, frame0):
         """Each table in turn, seen in three frames, all its mugs in each, with centre noise."""
@@ -248,7 +250,8 @@ def test_a_changed_verdict_waits_for_confirm_measurements(confirm, reported):
     rng = np.random.default_rng(5)
     codes = {i: _code(200 + i) for i in range(1, 7)}
     source_frames, target_frames = _two_tables(rng, codes, unlike_first_views=3)
-    detector = ChangeDetector(DetectorConfig(confirm_measurements=confirm, min_measurements=3, registration_pairs=3))
+    detector = ChangeDetector(DetectorConfig(registration=RegistrationConfig(pairs=3),
+                                             decision=DecisionConfig(confirm_measurements=confirm, min_measurements=3)))
     for frame in source_frames:
         detector.add_source(frame)
     events = [e for frame in target_frames for e in detector.add_target(frame)] + detector.finish()

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ndfa.core.geometry import kabsch
+
 
 @dataclass(frozen=True)
 class Registration:
@@ -43,15 +45,7 @@ def rigid_transform(target: np.ndarray, source: np.ndarray) -> np.ndarray:
 
     target, source: (M, 3) corresponding points, M >= 3 and not all on one line.
     """
-    target_mean, source_mean = target.mean(axis=0), source.mean(axis=0)
-    covariance = (source - source_mean).T @ (target - target_mean)
-    u, _, vt = np.linalg.svd(covariance)
-    sign = np.sign(np.linalg.det(u @ vt)) or 1.0  # a reflection is not a motion: flip the last axis
-    rotation = u @ np.diag([1.0, 1.0, sign]) @ vt
-    transform = np.eye(4)
-    transform[:3, :3] = rotation
-    transform[:3, 3] = source_mean - rotation @ target_mean
-    return transform
+    return kabsch(target, source)[0]
 
 
 def apply(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
