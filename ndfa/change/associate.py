@@ -6,9 +6,10 @@ qualify); the object then takes the measurement's code and center if the measure
 occupancy (the NDF's confidence in its reconstruction) is higher than the object's. Otherwise the
 measurement starts a new object.
 
-ndfa changes two things (`AssociationConfig`; why: `docs/detector.md`): an object's code and center
-can be the mean of its measurements' (`fusion="mean"`) instead of the most confident one's, and a
-measurement within `same_place_m` of an object (horizontally) joins it whatever the codes say.
+ndfa changes two things (`AssociationConfig`; why: `docs/detector.md`): with `fusion="mean"` an
+object keeps the mean of its measurements' unit codes and the median of their centers instead of
+the most confident measurement's, and a measurement within `same_place_m` of an object (measured
+horizontally) joins it whatever the codes say.
 """
 
 from __future__ import annotations

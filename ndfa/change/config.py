@@ -21,7 +21,7 @@ class AssociationConfig:
     distance_m: float = 0.05          # delta_d: largest center distance of a measurement to its object (paper 0.02)
     shape_similarity: float = 0.7     # delta_s: smallest cosine similarity of two codes of one object (paper 0.9)
     same_place_m: float = 0.03        # a measurement this close (horizontally) to an object is that object; 0: off
-    fusion: Fusion = "mean"           # an object's code and center: "mean" of its measurements, or the "best" one's
+    fusion: Fusion = "mean"           # an object's code and center: its measurements' "mean" (median center) or the "best"
 
     def __post_init__(self) -> None:
         if self.fusion not in ("best", "mean"):

@@ -28,7 +28,6 @@ from ndfa.change.graph import local_graph
 from ndfa.change.policy import DecisionPolicy
 from ndfa.change.register import Registration, apply
 from ndfa.change.registrar import Registrar
-from ndfa.change.tree import in_cell
 from ndfa.change.verdict import graph_verdict, shape_verdict
 from ndfa.core.events import AssociationEvent, DecisionEvent, DecisionKind, Event, Session
 
@@ -40,7 +39,7 @@ class ChangeDetector:
         self.config = config
         self.source = SessionMap(config.association)
         self.target = SessionMap(config.association)
-        self.registrar = Registrar(config.registration, config.association.shape_similarity)
+        self.registrar = Registrar(config.registration, config.association.shape_similarity, self.source, self.target)
         self.policy = DecisionPolicy(config.decision)
         self.changed: dict[int, DecisionEvent] = {}  # target object -> the decision that marked it
         self.observed: set[int] = set()    # source objects that were in a tested object's neighbourhood
@@ -72,7 +71,7 @@ class ChangeDetector:
         frame_index = frame[0].frame_index
         self._last_frame = frame_index
         was_registered = self.registration is not None
-        events += self.registrar.after_target_frame(frame_index, associations, self.source, self.target)
+        events += self.registrar.after_target_frame(frame_index, associations)
         if self.registration is None:
             return events
         to_test = {a.object_id for a in associations}
@@ -92,7 +91,8 @@ class ChangeDetector:
                 events += self._test(object_id, self._last_frame, final=True)
         removed = [i for i in sorted(self.observed) if i not in self.matched
                    and self.source.objects[i].n_measurements >= self.config.decision.min_measurements]
-        moved_from = self._moves(removed)
+        moved_from = moves(sorted(self.changed), removed, self.target, self.source,
+                           self.config.association.shape_similarity)
         for target_id, source_id in moved_from.items():
             before = self.changed[target_id]
             events.append(DecisionEvent(
@@ -141,7 +141,10 @@ class ChangeDetector:
         shape_similarity = self.config.association.shape_similarity
         verdict = shape_verdict(source_ids, similarity, shape_similarity)
         if verdict is None:  # something around it looks like O: the local graphs decide
-            target_graph = local_graph(object_id, self._target_neighbourhood(center_source), self.target.objects)
+            # O's target neighbours: those in the same source cell (why: `docs/detector.md`)
+            cell = self.source.tree.cell_at(center_source)
+            target_ids = [] if cell is None else self.registrar.target_objects_in(cell)
+            target_graph = local_graph(object_id, target_ids, self.target.objects)
             verdict = graph_verdict(target_graph, center_source, source_ids, similarity, self.source.objects, rotation,
                                     shape_similarity, self.config.decision)
         verdict = self.policy.settle(object_id, obj.n_measurements, verdict, final)
@@ -164,27 +167,6 @@ class ChangeDetector:
                              center_world=obj.center_world, center_source=center_source, partner_id=partner_id,
                              instance_ids=obj.instance_ids)
 
-    def _target_neighbourhood(self, center_source: np.ndarray) -> list[int]:
-        """Target objects whose registered centers fall in the source tree cell of `center_source`:
-        both neighbourhoods are cut with the same cell (why: `docs/detector.md`)."""
-        cell = self.source.tree.cell_at(center_source)
-        if cell is None:
-            return []
-        return np.flatnonzero(in_cell(cell, self.registrar.registered_centers(self.target))).tolist()
-
-    def _moves(self, removed: list[int]) -> dict[int, int]:
-        """Changed target object -> the removed source object it moved from (the most shape-similar
-        one above delta_s that no other target object took first)."""
-        moved_from: dict[int, int] = {}
-        for target_id in sorted(self.changed):
-            code = self.target.objects[target_id].shape_code
-            options = [(float(cosine_similarity(code, self.source.objects[s].shape_code)), s)
-                       for s in removed if s not in moved_from.values()]
-            options = [o for o in options if o[0] > self.config.association.shape_similarity]
-            if options:
-                moved_from[target_id] = max(options)[1]
-        return moved_from
-
 
 def reported_changes(decisions: list[DecisionEvent]) -> list[DecisionEvent]:
     """The changes to report from every decision of a run, in order: not "unchanged", and a target
@@ -192,3 +174,18 @@ def reported_changes(decisions: list[DecisionEvent]) -> list[DecisionEvent]:
     changes = [d for d in decisions if d.kind != "unchanged"]
     moved = {(d.session, d.object_id) for d in changes if d.kind == "moved"}
     return [d for d in changes if d.kind == "moved" or (d.session, d.object_id) not in moved]
+
+
+def moves(changed_ids: list[int], removed: list[int], target: SessionMap, source: SessionMap,
+          shape_similarity: float) -> dict[int, int]:
+    """Changed target object -> the removed source object it moved from: the most shape-similar
+    one above delta_s that no earlier changed object took."""
+    moved_from: dict[int, int] = {}
+    for target_id in changed_ids:
+        code = target.objects[target_id].shape_code
+        options = [(float(cosine_similarity(code, source.objects[s].shape_code)), s)
+                   for s in removed if s not in moved_from.values()]
+        options = [o for o in options if o[0] > shape_similarity]
+        if options:
+            moved_from[target_id] = max(options)[1]
+    return moved_from

@@ -17,6 +17,7 @@ import numpy as np
 from ndfa.change.associate import Association, SessionMap, cosine_similarity
 from ndfa.change.config import RegistrationConfig
 from ndfa.change.register import Registration, apply, ransac_registration
+from ndfa.change.tree import Cell, in_cell
 from ndfa.core.events import RegistrationEvent
 
 
@@ -55,15 +56,18 @@ class RegisteredCenters:
 
 
 class Registrar:
-    def __init__(self, config: RegistrationConfig, shape_similarity: float) -> None:
+    """T_rel between the maps `source` and `target` as the target pass fills the latter."""
+
+    def __init__(self, config: RegistrationConfig, shape_similarity: float, source: SessionMap,
+                 target: SessionMap) -> None:
         self.config = config
         self.shape_similarity = shape_similarity
+        self.source, self.target = source, target
         self.registration: Registration | None = None
         self.centers = RegisteredCenters()
         self._last_try_frame = -(10**9)  # the last attempt before T_rel exists
 
-    def after_target_frame(self, frame_index: int, associations: list[Association], source: SessionMap,
-                           target: SessionMap) -> list[RegistrationEvent]:
+    def after_target_frame(self, frame_index: int, associations: list[Association]) -> list[RegistrationEvent]:
         """Note what a target frame's association changed; estimate T_rel if it is time to."""
         self.centers.stale(a.object_id for a in associations if a.created or a.replaced)
         created = any(a.created for a in associations)
@@ -71,17 +75,22 @@ class Registrar:
             if not created and frame_index - self._last_try_frame < self.config.retry_frames:
                 return []
             self._last_try_frame = frame_index
-            return self._estimate(frame_index, source, target)
+            return self._estimate(frame_index)
         if created and len(self.registration.inliers) < self.config.enough_inliers:
-            return self._estimate(frame_index, source, target)
+            return self._estimate(frame_index)
         return []
 
-    def registered_centers(self, target: SessionMap) -> np.ndarray:
+    def registered_centers(self) -> np.ndarray:
         """(n, 3) the target objects' centers in the source world (row i: object i); needs T_rel."""
-        return self.centers.get(self.registration.transform, target)
+        return self.centers.get(self.registration.transform, self.target)
 
-    def shape_pairs(self, source: SessionMap, target: SessionMap) -> list[tuple[int, int]]:
+    def target_objects_in(self, cell: Cell) -> list[int]:
+        """Target objects whose registered centers fall in `cell` (of the source's tree); needs T_rel."""
+        return np.flatnonzero(in_cell(cell, self.registered_centers())).tolist()
+
+    def shape_pairs(self) -> list[tuple[int, int]]:
         """(target, source) candidate pairs: each target object's most similar source objects above delta_s."""
+        source, target = self.source, self.target
         if not source.objects:
             return []
         source_ids = np.array(sorted(source.objects))
@@ -93,8 +102,9 @@ class Registrar:
             pairs += [(target_id, int(source_ids[j])) for j in order if similarity[j] > self.shape_similarity]
         return pairs
 
-    def _estimate(self, frame_index: int, source: SessionMap, target: SessionMap) -> list[RegistrationEvent]:
-        pairs = self.shape_pairs(source, target)
+    def _estimate(self, frame_index: int) -> list[RegistrationEvent]:
+        source, target = self.source, self.target
+        pairs = self.shape_pairs()
         # A small source map may have fewer objects than N: then all of them are enough.
         if len({t for t, _ in pairs}) < min(self.config.pairs, len(source.objects)):
             return []
