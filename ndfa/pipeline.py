@@ -16,7 +16,7 @@ from pathlib import Path
 
 from ndfa.change.associate import Measurement
 from ndfa.change.detector import ChangeDetector, DetectorConfig
-from ndfa.core.events import FrameEvent, ObservationEvent, TimingEvent
+from ndfa.core.events import Event, FrameEvent, ObservationEvent, Session, TimingEvent
 from ndfa.core.geometry import transform_points
 from ndfa.ndf.encoder import EncoderConfig, NDFEncoder
 from ndfa.perception.observations import ObservationConfig, extract_observations
@@ -49,7 +49,7 @@ class ChangeDetectionPipeline:
         self.encoder = encoder or NDFEncoder(config.weights, config.encoder)
         self.detector = ChangeDetector(config.detector)
 
-    def process(self, session: str, frame: Frame) -> list:
+    def process(self, session: Session, frame: Frame) -> list[Event]:
         if session not in SESSIONS:
             raise ValueError(f"session must be one of {SESSIONS}, got {session!r}")
         started = time.perf_counter()
@@ -58,7 +58,7 @@ class ChangeDetectionPipeline:
             frame = replace(frame, instances=segment_frame(frame, self.config.segmentation))
             segmentation_ms = {"segmentation": (time.perf_counter() - started) * 1e3}
             started = time.perf_counter()
-        events: list = [FrameEvent(session, frame)]
+        events: list[Event] = [FrameEvent(session=session, frame=frame)]
 
         observations, skipped = extract_observations(frame, self.config.observation)
         perceived = time.perf_counter()
@@ -68,17 +68,19 @@ class ChangeDetectionPipeline:
 
         measurements = []
         for skip in skipped:
-            events.append(ObservationEvent(session, frame.index, skip.instance_id, skip.n_pixels, skip.reason))
+            events.append(ObservationEvent(session=session, frame_index=frame.index, instance_id=skip.instance_id,
+                                           n_pixels=skip.n_pixels, skipped=skip.reason))
         for observation, code in zip(observations, codes):
             # No grid point above v0: the NDF does not see a whole object in this view (on the
             # `paper` scene such views gave centers several cm off); logged, not used.
             empty = code.mean_occupancy <= 0.0
             events.append(ObservationEvent(
-                session, frame.index, observation.instance_id, observation.n_pixels,
-                "empty reconstruction" if empty else None,
-                len(observation.points_camera), observation.touches_border,
-                transform_points(frame.pose_world_camera, observation.points_camera),
-                code.shape_code, code.center_world, code.mean_occupancy, code.reconstruction))
+                session=session, frame_index=frame.index, instance_id=observation.instance_id,
+                n_pixels=observation.n_pixels, skipped="empty reconstruction" if empty else None,
+                n_points=len(observation.points_camera), touches_border=observation.touches_border,
+                points_world=transform_points(frame.pose_world_camera, observation.points_camera),
+                shape_code=code.shape_code, center_world=code.center_world, mean_occupancy=code.mean_occupancy,
+                reconstruction_world=code.reconstruction))
             if empty:
                 continue
             measurements.append(Measurement(frame.index, observation.instance_id, code.shape_code, code.center_world,
@@ -86,13 +88,13 @@ class ChangeDetectionPipeline:
         add = self.detector.add_source if session == "source" else self.detector.add_target
         events += add(measurements)
         detected = time.perf_counter()
-        events.append(TimingEvent(session, frame.index, segmentation_ms | {
+        events.append(TimingEvent(session=session, frame_index=frame.index, stage_ms=segmentation_ms | {
             "perception": (perceived - started) * 1e3,
             "encoding": (encoded - perceived) * 1e3,
             "detection": (detected - encoded) * 1e3,
         }))
         return events
 
-    def finish(self) -> list:
+    def finish(self) -> list[Event]:
         """Removals and moves, after the target's last frame."""
         return self.detector.finish()

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from ndfa.change.associate import Measurement, SessionMap, cosine_similarity
-from ndfa.change.detector import ChangeDetector, DetectorConfig
+from ndfa.change.config import AssociationConfig, DecisionConfig, DetectorConfig, RegistrationConfig
+from ndfa.change.detector import ChangeDetector
 from ndfa.change.graph import compare_graphs, local_graph
 from ndfa.change.register import apply, ransac_registration, rigid_transform
 from ndfa.change.tree import IntervalTree, ObjectTree
@@ -66,7 +67,8 @@ def _code(seed: int, dim: int = 16) -> np.ndarray:
 
 
 def test_association_merges_near_similar_measurements_and_keeps_the_most_confident():
-    session = SessionMap(tree_length_m=1.2, distance_m=0.05, shape_similarity=0.9)
+    session = SessionMap(AssociationConfig(tree_length_m=1.2, distance_m=0.05, shape_similarity=0.9, same_place_m=0.0,
+                                           fusion="best"))
     a = session.update(Measurement(0, 7, _code(1), np.array([1.0, 1.0, 0.8]), 0.6))
     b = session.update(Measurement(1, 7, _code(1) + 0.01, np.array([1.02, 1.0, 0.8]), 0.9))  # better: replaces
     c = session.update(Measurement(2, 7, _code(1), np.array([1.03, 1.0, 0.8]), 0.5))          # worse: kept out
@@ -187,7 +189,7 @@ def test_detector_finds_added_removed_and_switched_mugs_under_an_unknown_offset(
     target[20] = np.r_[3.0, -0.3, 0.8]                     # added on table 2
     target[5], target[6] = source[6], source[5]            # switched on table 2
     offset = _random_motion(rng)                           # the target's world frame is off by this
-    detector = ChangeDetector(DetectorConfig(registration_pairs=4))
+    detector = ChangeDetector(DetectorConfig(registration=RegistrationConfig(pairs=4)))
 
     def frames(layout, pose, frame0):
         """Each table in turn, seen in three frames, all its mugs in each, with centre noise."""
@@ -248,9 +250,172 @@ def test_a_changed_verdict_waits_for_confirm_measurements(confirm, reported):
     rng = np.random.default_rng(5)
     codes = {i: _code(200 + i) for i in range(1, 7)}
     source_frames, target_frames = _two_tables(rng, codes, unlike_first_views=3)
-    detector = ChangeDetector(DetectorConfig(confirm_measurements=confirm, min_measurements=3, registration_pairs=3))
+    detector = ChangeDetector(DetectorConfig(registration=RegistrationConfig(pairs=3),
+                                             decision=DecisionConfig(confirm_measurements=confirm, min_measurements=3)))
     for frame in source_frames:
         detector.add_source(frame)
     events = [e for frame in target_frames for e in detector.add_target(frame)] + detector.finish()
     changed = {e.instance_ids[0] for e in events if getattr(e, "kind", "unchanged") != "unchanged"}
     assert changed == reported
+
+
+# -- configuration ------------------------------------------------------------------------------
+
+def test_the_default_config_is_ndfas_tuning_and_paper_gives_the_papers_parameters():
+    default = DetectorConfig()
+    assert default.association == AssociationConfig(tree_length_m=1.2, distance_m=0.05, shape_similarity=0.7,
+                                                     same_place_m=0.03, fusion="mean")
+    assert default.registration == RegistrationConfig(pairs=6, candidates=10, inlier_m=0.05, min_inliers=4,
+                                                      enough_inliers=12, retry_frames=10, seed=0)
+    assert default.decision == DecisionConfig(edge_m=0.03, fallback_distance_m=0.05, in_place_m=0.05,
+                                              min_measurements=3, confirm_measurements=8)
+    paper = DetectorConfig.paper()
+    a, r, d = paper.association, paper.registration, paper.decision
+    assert (a.tree_length_m, a.distance_m, a.shape_similarity, a.fusion) == (1.2, 0.02, 0.9, "best")  # l, delta_d, delta_s
+    assert (r.pairs, r.candidates, d.edge_m) == (6, 1, 0.03)                                          # N, delta_e
+    # ndfa's additions off: no same-place rule, no in-place test, no waiting for measurements,
+    # T_rel accepted as RANSAC returns it, never re-estimated, tried on every frame
+    assert (a.same_place_m, d.in_place_m, d.min_measurements, d.confirm_measurements) == (0.0, 0.0, 1, 1)
+    assert (r.min_inliers, r.enough_inliers, r.retry_frames) == (0, 0, 1)
+
+
+def test_session_maps_take_the_association_config():
+    config = AssociationConfig(tree_length_m=0.8, fusion="best")
+    session = SessionMap(config)
+    assert session.config is config and session.tree.x.length == 0.8
+    assert SessionMap().config == DetectorConfig().association
+    with pytest.raises(ValueError, match="fusion"):
+        AssociationConfig(fusion="median")
+
+
+def test_events_are_keyword_only():
+    from ndfa.core.events import DecisionEvent
+
+    with pytest.raises(TypeError):
+        DecisionEvent(0, "target", 1, "added", "reason", np.zeros(3), np.zeros(3))
+    event = DecisionEvent(frame_index=0, session="target", object_id=1, kind="added", reason="r",
+                          center_world=np.zeros(3), center_source=None)
+    assert event.partner_id is None and event.instance_ids == ()
+
+
+# -- one Kabsch ---------------------------------------------------------------------------------
+
+def test_kabsch_never_returns_a_reflection_and_fits_scale_when_asked():
+    from ndfa.core.geometry import kabsch
+
+    rng = np.random.default_rng(7)
+    points = rng.normal(size=(8, 3))
+    mirrored = points * np.array([1.0, 1.0, -1.0])  # best orthogonal fit: a reflection
+    transform, scale = kabsch(points, mirrored)
+    assert scale == 1.0 and np.linalg.det(transform[:3, :3]) == pytest.approx(1.0)
+    motion = _random_motion(rng)
+    scaled = 2.5 * points @ motion[:3, :3].T + motion[:3, 3]
+    transform, scale = kabsch(points, scaled, normalised=True, with_scale=True)
+    assert scale == pytest.approx(2.5)
+    np.testing.assert_allclose(points @ transform[:3, :3].T + transform[:3, 3], scaled, atol=1e-12)
+
+
+# -- the per-object test (pure) -----------------------------------------------------------------
+
+def _neighbourhoods(target_centers: dict[int, list[float]], target_codes=None):
+    """A source neighbourhood of three mugs (0 at the origin, 1 and 2 beside it) and target objects
+    at `target_centers` (target world = source world), with their graph for target object 0."""
+    codes = {0: _code(10), 1: _code(11), 2: _code(12)}
+    source = _objects({0: [0, 0, 0.8], 1: [0.3, 0, 0.8], 2: [0, 0.4, 0.8]}, codes)
+    target = _objects(target_centers, target_codes or codes)
+    similarity = {s: float(cosine_similarity(target[0].shape_code, source[s].shape_code)) for s in source}
+    return source, target, local_graph(0, sorted(target_centers), target), similarity
+
+
+def test_a_verdict_from_a_hand_built_neighbourhood():
+    from ndfa.change.verdict import graph_verdict, shape_verdict
+
+    decision = DecisionConfig()
+    # 0 and 1 stayed, 2 was moved away: 0 is unchanged, with source object 0 as its partner
+    source, target, graph, similarity = _neighbourhoods({0: [0, 0, 0.8], 1: [0.3, 0.01, 0.8], 2: [0.6, 0.6, 0.8]})
+    centers_before = {i: o.center_world.copy() for i, o in source.items()}
+    assert shape_verdict([0, 1, 2], similarity, 0.9) is None  # a shape match: the graphs decide
+    verdict = graph_verdict(graph, target[0].center_world, [0, 1, 2], similarity, source, np.eye(3), 0.9, decision)
+    assert verdict.kind == "unchanged" and verdict.partner_id == 0 and verdict.reason == "consistent with source object 0"
+    assert [c.result.source_id for c in verdict.comparisons] == [0] and verdict.comparisons[0].result.consistent
+    assert all(np.array_equal(source[i].center_world, c) for i, c in centers_before.items())  # nothing mutated
+
+    # 0 and 1 switched places (and 2 left): no edge agrees; as many target neighbours as the source has -> changed
+    source, target, graph, similarity = _neighbourhoods({0: [0.3, 0, 0.8], 1: [0, 0, 0.8], 2: [0.6, 0.6, 0.8]})
+    verdict = graph_verdict(graph, target[0].center_world, [0, 1, 2], similarity, source, np.eye(3), 0.9, decision)
+    assert verdict.kind == "changed" and verdict.partner_id is None
+    assert verdict.reason == "no consistent local graph with 1 shape matches" and len(verdict.comparisons) == 1
+
+    # the same switch seen with one neighbour so far: undecided (the one that stayed may come into view)
+    source, target, graph, similarity = _neighbourhoods({0: [0.3, 0, 0.8], 1: [0, 0, 0.8]})
+    verdict = graph_verdict(graph, target[0].center_world, [0, 1, 2], similarity, source, np.eye(3), 0.9, decision)
+    assert verdict.kind == "undecided" and verdict.otherwise.kind == "changed"
+    assert verdict.comparisons == verdict.otherwise.comparisons  # compared, and shown, while it waits
+
+    # alone in the target while the source neighbourhood has company: undecided before any comparison
+    source, target, graph, similarity = _neighbourhoods({0: [0.01, 0, 0.8]})
+    verdict = graph_verdict(graph, target[0].center_world, [0, 1, 2], similarity, source, np.eye(3), 0.9, decision)
+    assert verdict.kind == "undecided" and verdict.comparisons == ()
+    assert verdict.otherwise.kind == "unchanged" and verdict.otherwise.comparisons[0].result.mode == "fallback"
+
+    # nothing around it looks like it, or nothing is around it: changed on shapes alone
+    assert shape_verdict([0, 1, 2], {0: 0.1, 1: 0.2, 2: 0.3}, 0.9).reason == \
+        "no shape match among 3 source objects around it"
+    assert shape_verdict([], {}, 0.9).kind == "changed"
+
+
+def test_the_policy_waits_for_evidence_and_decides_at_the_end():
+    from ndfa.change.policy import DecisionPolicy
+    from ndfa.change.verdict import Verdict
+
+    policy = DecisionPolicy(DecisionConfig(min_measurements=3, confirm_measurements=8))
+    assert not policy.testable(2) and policy.testable(3)
+    policy.hold(5, final=False)
+    assert policy.pending == {5}
+    policy.hold(5, final=True)  # never measured enough: dropped, never reported
+    assert policy.pending == set()
+
+    changed = Verdict("changed", "no shape match")
+    waiting = policy.settle(1, 4, changed, final=False)  # too few measurements to report a change
+    assert waiting.kind == "undecided" and waiting.otherwise is changed and policy.pending == {1}
+    assert policy.settle(1, 8, changed, final=False) is changed and policy.pending == set()
+    assert policy.settle(1, 4, changed, final=True) is changed  # the end: decided with what there is
+    unchanged = Verdict("unchanged", "consistent", partner_id=3)
+    undecided = Verdict("undecided", "alone", otherwise=unchanged)
+    assert policy.settle(2, 4, undecided, final=False) is undecided and policy.pending == {2}
+    assert policy.settle(2, 4, undecided, final=True) is unchanged and policy.pending == set()
+
+
+# -- the registrar ------------------------------------------------------------------------------
+
+def test_the_registrar_keeps_registered_centers_until_an_object_or_T_rel_changes():
+    from ndfa.change.register import Registration
+    from ndfa.change.registrar import Registrar
+
+    source, target = SessionMap(), SessionMap(AssociationConfig(fusion="best"))
+    registrar = Registrar(RegistrationConfig(enough_inliers=4), 0.7, source, target)  # no re-estimates
+    motion = _random_motion(np.random.default_rng(8))
+    registrar.registration = Registration(motion, np.arange(4), 0.0, 4, 1)
+
+    def measure(frame, instance, center, occupancy):
+        return target.update(Measurement(frame, instance, _code(instance), np.array(center, dtype=float), occupancy))
+
+    first = [measure(0, 1, [0, 0, 0.8], 0.5), measure(0, 2, [0.3, 0, 0.8], 0.5)]
+    registrar.centers.stale(a.object_id for a in first)
+    expected = apply(motion, np.array([[0, 0, 0.8], [0.3, 0, 0.8]]))
+    np.testing.assert_allclose(registrar.registered_centers(), expected, atol=1e-12)
+
+    # the rule: a row is recomputed only when its object is marked (created or moved) or T_rel changes
+    target.objects[0].center_world = np.array([9.0, 9.0, 9.0])   # behind the registrar's back: not seen
+    np.testing.assert_allclose(registrar.registered_centers()[0], expected[0], atol=1e-12)
+    moved = measure(1, 2, [0.31, 0.0, 0.8], 0.9)                  # replaces object 1's center
+    created = measure(1, 3, [0.0, 0.3, 0.8], 0.5)                 # a new object: a new row
+    assert registrar.after_target_frame(1, [moved, created]) == []
+    rows = registrar.registered_centers()
+    assert len(rows) == 3
+    np.testing.assert_allclose(rows[0], expected[0], atol=1e-12)  # object 0 not marked: kept
+    np.testing.assert_allclose(rows[1:], apply(motion, np.array([[0.31, 0, 0.8], [0, 0.3, 0.8]])), atol=1e-12)
+
+    registrar.registration = Registration(np.eye(4), np.arange(4), 0.0, 4, 1)  # a new T_rel: every row anew
+    np.testing.assert_allclose(registrar.registered_centers(),
+                               [[9, 9, 9], [0.31, 0, 0.8], [0, 0.3, 0.8]], atol=1e-12)

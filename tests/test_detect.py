@@ -47,7 +47,7 @@ def test_summary_scores_the_sample_against_its_ground_truth(run):
 
 
 def test_replaying_the_observations_table_reproduces_the_run(run):
-    from ndfa.change.detector import DetectorConfig
+    from ndfa.change.config import DetectorConfig, RegistrationConfig
     from ndfa.run.replay import replay
 
     out, _ = run
@@ -58,7 +58,7 @@ def test_replaying_the_observations_table_reproduces_the_run(run):
         sorted((c["session"], c["object"], c["kind"]) for c in summary["changes"])
     assert (same.score.tp, same.score.fp, same.score.fn) == (summary["tp"], summary["fp"], summary["fn"])
     # another config gives another answer: without registration no target object is tested
-    never_registered = replay(observations, DetectorConfig(registration_min_inliers=1000))
+    never_registered = replay(observations, DetectorConfig(registration=RegistrationConfig(min_inliers=1000)))
     assert never_registered.detector.registration is None
     assert all(c.session == "source" for c in never_registered.changes)
 

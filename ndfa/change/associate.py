@@ -6,18 +6,10 @@ qualify); the object then takes the measurement's code and center if the measure
 occupancy (the NDF's confidence in its reconstruction) is higher than the object's. Otherwise the
 measurement starts a new object.
 
-`fusion="mean"` (ndfa's default) instead keeps the mean of the measurements' unit codes and the
-median of their centers: with the shipped NDF the most confident view was often an odd one (on
-the `paper` scene a mug's best-occupancy view put its center 5 cm too high, with a code unlike
-its other views'), and one odd view then decided the object. "best" is the paper's rule.
-
-One addition to the paper's rule: a measurement within `same_place_m` of an object (measured
-horizontally: the centers of odd views err most in height) joins it
-whatever the codes say. Two objects of the category cannot stand that close (two mugs' centers
-are at least a mug's diameter apart), and within one session nothing changes, so it can only
-be the same object; the codes of odd views (grazing, mostly hidden) can be far from the
-object's. On the `paper` scene this rule turned 43 source objects of 36 mugs into 36 (the
-duplicates, never matched in the target, were all reported "removed").
+ndfa changes two things (`AssociationConfig`; why: `docs/detector.md`): with `fusion="mean"` an
+object keeps the mean of its measurements' unit codes and the median of their centers instead of
+the most confident measurement's, and a measurement within `same_place_m` of an object (measured
+horizontally) joins it whatever the codes say.
 """
 
 from __future__ import annotations
@@ -26,7 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ndfa.change.config import AssociationConfig
 from ndfa.change.tree import ObjectTree
+from ndfa.core.conventions import horizontal
 
 
 @dataclass(frozen=True)
@@ -79,15 +73,9 @@ def cosine_similarity(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 class SessionMap:
     """The objects of one session and their spatial object tree."""
 
-    def __init__(self, tree_length_m: float, distance_m: float, shape_similarity: float, same_place_m: float = 0.0,
-                 fusion: str = "best") -> None:
-        if fusion not in ("best", "mean"):
-            raise ValueError(f"fusion must be 'best' or 'mean', got {fusion!r}")
-        self.fusion = fusion
-        self.tree = ObjectTree(tree_length_m)
-        self.distance_m = distance_m
-        self.shape_similarity = shape_similarity
-        self.same_place_m = same_place_m
+    def __init__(self, config: AssociationConfig = AssociationConfig()) -> None:
+        self.config = config
+        self.tree = ObjectTree(config.tree_length_m)
         self.objects: dict[int, SessionObject] = {}
 
     def __len__(self) -> int:
@@ -98,14 +86,15 @@ class SessionMap:
         return sorted(self.tree.neighbourhood(point))
 
     def update(self, m: Measurement) -> Association:
+        c = self.config
         candidates = self.neighbourhood(m.center_world)
         best, best_distance, best_similarity = None, np.inf, np.nan
         for object_id in candidates:
             obj = self.objects[object_id]
             distance = float(np.linalg.norm(obj.center_world - m.center_world))
             similarity = float(cosine_similarity(m.shape_code, obj.shape_code))
-            horizontal = float(np.linalg.norm(obj.center_world[:2] - m.center_world[:2]))
-            same = horizontal < self.same_place_m or (distance < self.distance_m and similarity > self.shape_similarity)
+            horizontal_distance = float(np.linalg.norm(horizontal(obj.center_world) - horizontal(m.center_world)))
+            same = horizontal_distance < c.same_place_m or (distance < c.distance_m and similarity > c.shape_similarity)
             if same and distance < best_distance:
                 best, best_distance, best_similarity = obj, distance, similarity
         if best is None:
@@ -119,7 +108,7 @@ class SessionMap:
         best.last_frame = m.frame_index
         if m.instance_id not in best.instance_ids:
             best.instance_ids += (m.instance_id,)
-        if self.fusion == "mean":
+        if c.fusion == "mean":
             best.code_sum = best.code_sum + _unit(m.shape_code)
             best.centers.append(m.center_world)
             best.shape_code = best.code_sum / best.n_measurements

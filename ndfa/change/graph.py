@@ -18,13 +18,9 @@ When O or o' is alone in its neighbourhood there are no edges, and the compariso
 the objects themselves: unchanged when the registered centers are within `fallback_distance_m`.
 
 ndfa adds one test to the paper's: O is also unchanged when no edge agrees but O itself stands
-within `in_place_m` of o' after registration ("in place"). The edge test needs one neighbour that
-stayed; on a table where every other object was moved, switched, added or removed, the one mug
-that stayed has none and the paper's rule calls it changed (on `random` seed 1, mug 3 stood
-exactly where it was, 2 cm from its source partner after registration, among three changed
-neighbours). The added test can only turn "changed" into "unchanged", and only for an object
-whose shape match is where T_rel puts it, which is what unchanged means; it does not replace
-the graph test where drift puts T_rel several cm off (the graphs still decide there).
+within `in_place_m` of o' after registration ("in place"): on a table where every other object
+changed, the one that stayed has no neighbour to agree with (`docs/detector.md`). It can only turn
+"changed" into "unchanged", and only for an object whose shape match is where T_rel puts it.
 """
 
 from __future__ import annotations
@@ -34,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ndfa.change.associate import SessionObject, cosine_similarity
+from ndfa.core.events import GraphMode
 
 
 @dataclass(frozen=True)
@@ -62,7 +59,7 @@ class GraphComparison:
     target_id: int
     source_id: int
     similarity: float            # shape similarity of O and o'
-    mode: str                    # "graph", "in place" (no edge agreed, O is at o's place) or
+    mode: GraphMode              # "graph", "in place" (no edge agreed, O is at o's place) or
                                  # "fallback" (a lone object: compared directly)
     edge_pairs: tuple[EdgePair, ...]
     distance_m: float            # |T_rel t_O - t_o'|, reported in both modes

@@ -1,7 +1,7 @@
 """Sequence registration (paper Sec. IV-B): the rigid transform from the target's world frame to the
 source's, from object centers matched by shape.
 
-`rigid_transform` is the SVD (Kabsch) least-squares fit without scale; `ransac_registration`
+`rigid_transform` is the SVD (Kabsch, `ndfa.core.geometry.kabsch`) least-squares fit without scale; `ransac_registration`
 draws minimal samples of three candidate pairs and keeps the transform that the most pairs
 agree with (within `inlier_m`), refitted on its inliers.
 
@@ -11,12 +11,8 @@ is often another mug of similar size, so few of those pairs are right. Here ever
 contributes up to `candidates` pairs (its most similar source objects above the shape
 threshold), and a sample is only fitted when its pairwise distances agree in both sessions
 (a rigid motion keeps them); one right pair per object is then enough, and the layout of the
-objects, not their codes alone, picks the transform. RANSAC starts once N
-target objects have candidates and reruns whenever a new target object arrives (and every
-`registration_retry_frames` frames, `ndfa.change.detector`), until a
-transform has `min_inliers` inliers; after that a new estimate replaces it only with more
-inliers, and only until it has `registration_enough_inliers` (the detector's config): decisions
-already made used it, and frequent re-estimates would let parts of the run disagree about the frame.
+objects, not their codes alone, picks the transform. When RANSAC runs, and when its result
+replaces the current T_rel, is `ndfa.change.registrar`'s business.
 """
 
 from __future__ import annotations
@@ -25,6 +21,8 @@ import itertools
 from dataclasses import dataclass
 
 import numpy as np
+
+from ndfa.core.geometry import kabsch
 
 
 @dataclass(frozen=True)
@@ -43,15 +41,7 @@ def rigid_transform(target: np.ndarray, source: np.ndarray) -> np.ndarray:
 
     target, source: (M, 3) corresponding points, M >= 3 and not all on one line.
     """
-    target_mean, source_mean = target.mean(axis=0), source.mean(axis=0)
-    covariance = (source - source_mean).T @ (target - target_mean)
-    u, _, vt = np.linalg.svd(covariance)
-    sign = np.sign(np.linalg.det(u @ vt)) or 1.0  # a reflection is not a motion: flip the last axis
-    rotation = u @ np.diag([1.0, 1.0, sign]) @ vt
-    transform = np.eye(4)
-    transform[:3, :3] = rotation
-    transform[:3, 3] = source_mean - rotation @ target_mean
-    return transform
+    return kabsch(target, source)[0]
 
 
 def apply(transform: np.ndarray, points: np.ndarray) -> np.ndarray:

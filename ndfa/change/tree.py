@@ -1,5 +1,8 @@
 """The spatial object tree of the paper (Sec. IV-A): two coordinate interval trees, T_x and T_y.
 
+x and y are the world's horizontal axes (`ndfa.core.conventions.HORIZONTAL_AXES`): a cell is a
+column over the ground, so objects stacked or seen at odd heights stay neighbours.
+
 Each tree cuts its axis into intervals of fixed length `l`. An interval (a node) is created by the
 first object center that falls outside every existing one, as [t - l/2, t + l/2]; it holds the
 ids of the objects whose center coordinate lies in it. The neighbourhood of a point is the set of
@@ -22,6 +25,10 @@ import bisect
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from ndfa.core.conventions import HORIZONTAL_AXES
+
+X, Y = HORIZONTAL_AXES  # the world axes that T_x and T_y cut
 
 
 @dataclass
@@ -73,6 +80,9 @@ class IntervalTree:
         return node
 
 
+Cell = tuple[IntervalNode, IntervalNode]  # (T_x node, T_y node): about l x l of ground
+
+
 class ObjectTree:
     """T = (T_x, T_y): where each object is, and which objects are neighbours of a point."""
 
@@ -87,7 +97,7 @@ class ObjectTree:
     def insert(self, object_id: int, center: np.ndarray) -> None:
         """Place (or move) `object_id` at `center` (x, y, z): in the nodes its x and y land in."""
         self.remove(object_id)
-        node_x, node_y = self.x.find_or_create(float(center[0])), self.y.find_or_create(float(center[1]))
+        node_x, node_y = self.x.find_or_create(float(center[X])), self.y.find_or_create(float(center[Y]))
         node_x.objects.add(object_id)
         node_y.objects.add(object_id)
         self._cells[object_id] = (node_x, node_y)
@@ -98,14 +108,28 @@ class ObjectTree:
             for node in cell:
                 node.objects.discard(object_id)
 
+    def cell_at(self, point: np.ndarray) -> Cell | None:
+        """The (T_x, T_y) nodes that `point` falls in, or None where either axis has no node."""
+        node_x, node_y = self.x.find(float(point[X])), self.y.find(float(point[Y]))
+        if node_x is None or node_y is None:
+            return None
+        return node_x, node_y
+
     def neighbourhood(self, point: np.ndarray) -> set[int]:
         """Ids of the objects in both the T_x and the T_y node that `point` falls in (empty if none)."""
-        node_x, node_y = self.x.find(float(point[0])), self.y.find(float(point[1]))
-        if node_x is None or node_y is None:
+        cell = self.cell_at(point)
+        if cell is None:
             return set()
-        small, large = sorted((node_x.objects, node_y.objects), key=len)
+        small, large = sorted((cell[0].objects, cell[1].objects), key=len)
         return {i for i in small if i in large}
 
-    def cell(self, object_id: int) -> tuple[IntervalNode, IntervalNode]:
+    def cell(self, object_id: int) -> Cell:
         """The (T_x, T_y) nodes that hold `object_id`."""
         return self._cells[object_id]
+
+
+def in_cell(cell: Cell, points: np.ndarray) -> np.ndarray:
+    """Which of `points` (N, 3) lie in `cell` (a tree of another session may never have held them): (N,) bool."""
+    node_x, node_y = cell
+    x, y = points[:, X], points[:, Y]
+    return (x >= node_x.low) & (x <= node_x.high) & (y >= node_y.low) & (y <= node_y.high)

@@ -33,6 +33,7 @@ def detect_command(
 ) -> None:
     """Detect added, removed and moved objects between two recordings (the paper's method)."""
     import json
+    from dataclasses import replace
 
     if threads is not None:
         import torch
@@ -47,9 +48,11 @@ def detect_command(
     from ndfa.pipeline import PipelineConfig
     from ndfa.io.recording import RecordingReader
 
-    overrides = {"association_distance_m": association_distance, "shape_similarity": shape_similarity,
-                 "edge_m": edge_distance, "tree_length_m": tree_length}
-    detector = DetectorConfig(**{k: v for k, v in overrides.items() if v is not None})
+    association = {"distance_m": association_distance, "shape_similarity": shape_similarity, "tree_length_m": tree_length}
+    defaults = DetectorConfig()
+    detector = replace(defaults,
+                       association=replace(defaults.association, **{k: v for k, v in association.items() if v is not None}),
+                       decision=replace(defaults.decision, **({} if edge_distance is None else {"edge_m": edge_distance})))
     config = PipelineConfig(detector=detector, weights=weights)
     if frame_step < 1:
         raise typer.BadParameter(f"--frame-step must be >= 1, got {frame_step}")

@@ -8,25 +8,30 @@ session's own world frame; `*_source` is the source world (target points registe
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 
 from ndfa.core.frame import Frame
 
+Session = Literal["source", "target"]
+DecisionKind = Literal["unchanged", "added", "removed", "moved"]
+GraphMode = Literal["graph", "in place", "fallback"]
 
-@dataclass(frozen=True)
+
+@dataclass(frozen=True, kw_only=True)
 class FrameEvent:
     """A frame entered the pipeline (sinks may log its images and camera)."""
 
-    session: str
+    session: Session
     frame: Frame
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ObservationEvent:
     """One instance of a frame: its cleaned partial cloud and what the NDF made of it, or why it was skipped."""
 
-    session: str
+    session: Session
     frame_index: int
     instance_id: int
     n_pixels: int
@@ -40,11 +45,11 @@ class ObservationEvent:
     reconstruction_world: np.ndarray | None = None  # (M, 3) grid points the NDF calls occupied
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class AssociationEvent:
     """The intra-session update of one measurement (paper Sec. IV-A)."""
 
-    session: str
+    session: Session
     frame_index: int
     instance_id: int
     object_id: int
@@ -57,18 +62,18 @@ class AssociationEvent:
     shape_code: np.ndarray                   # the object's code after the update
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class TreeEvent:
     """The session's object tree after a frame that changed it: nodes per axis and occupied cells."""
 
-    session: str
+    session: Session
     frame_index: int
     x_intervals: np.ndarray                  # (Nx, 2) low, high
     y_intervals: np.ndarray                  # (Ny, 2)
     cells: list[tuple[int, int, tuple[int, ...]]] = field(default_factory=list)  # (x node, y node, object ids)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class RegistrationEvent:
     """A registration attempt (paper Sec. IV-B): T_rel maps target-world points into the source world."""
 
@@ -83,7 +88,7 @@ class RegistrationEvent:
     source_centers: np.ndarray               # (K, 3) their source partners, source world
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class GraphEvent:
     """One comparison of target object O with a shape-matched source object o' (paper Fig. 5)."""
 
@@ -91,7 +96,7 @@ class GraphEvent:
     target_id: int
     source_id: int
     similarity: float
-    mode: str                                # "graph", "in place" or "fallback" (ndfa.change.graph)
+    mode: GraphMode                          # "graph", "in place" or "fallback" (ndfa.change.graph)
     consistent: bool
     distance_m: float
     center_source: np.ndarray                # T_rel t_O, source world
@@ -101,7 +106,7 @@ class GraphEvent:
     source_edges: np.ndarray                 # (E, 3) e_o'j'
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class DecisionEvent:
     """A change test of a target object, or a removal decided at the end.
 
@@ -111,9 +116,9 @@ class DecisionEvent:
     """
 
     frame_index: int
-    session: str                             # whose object: "target" (added/moved/unchanged) or "source" (removed)
+    session: Session                         # whose object: "target" (added/moved/unchanged) or "source" (removed)
     object_id: int
-    kind: str
+    kind: DecisionKind
     reason: str
     center_world: np.ndarray                 # in that session's world frame
     center_source: np.ndarray | None         # in the source world (target objects: via T_rel)
@@ -129,10 +134,15 @@ class DecisionEvent:
         return tuple(dict.fromkeys(ids))
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class TimingEvent:
     """Wall time of each stage for one frame, milliseconds."""
 
-    session: str
+    session: Session
     frame_index: int
     stage_ms: dict[str, float]
+
+
+Event = (FrameEvent | ObservationEvent | AssociationEvent | TreeEvent | RegistrationEvent | GraphEvent | DecisionEvent
+         | TimingEvent)
+"""Every event the core returns and the sinks accept."""

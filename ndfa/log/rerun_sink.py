@@ -27,8 +27,8 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from ndfa.core.events import (AssociationEvent, DecisionEvent, FrameEvent, GraphEvent, ObservationEvent,
-                         RegistrationEvent, TimingEvent, TreeEvent)
+from ndfa.core.events import (AssociationEvent, DecisionEvent, Event, FrameEvent, GraphEvent, ObservationEvent,
+                              RegistrationEvent, TimingEvent, TreeEvent)
 
 KIND_COLORS = {"added": (230, 60, 60), "removed": (240, 160, 30), "moved": (170, 80, 230), "unchanged": (90, 200, 90)}
 SESSION_COLORS = {"source": (80, 140, 255), "target": (255, 120, 80)}
@@ -47,7 +47,7 @@ class RerunSink:
         self._step = 0
         self._observation_entities: dict[str, set[str]] = {"source": set(), "target": set()}
 
-    def log(self, event) -> None:
+    def log(self, event: Event) -> None:
         handler = getattr(self, "_" + type(event).__name__, None)
         if handler is not None:
             handler(event)

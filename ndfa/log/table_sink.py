@@ -24,8 +24,8 @@ import numpy as np
 import polars as pl
 
 from ndfa.io.atomic import write_parquet
-from ndfa.core.events import (AssociationEvent, DecisionEvent, FrameEvent, GraphEvent, ObservationEvent,
-                         RegistrationEvent, TimingEvent, TreeEvent)
+from ndfa.core.events import (AssociationEvent, DecisionEvent, Event, FrameEvent, GraphEvent, ObservationEvent,
+                              RegistrationEvent, TimingEvent, TreeEvent)
 
 TABLES = ("observations", "associations", "objects", "tree_nodes", "registration", "graphs", "decisions", "timings")
 
@@ -42,7 +42,7 @@ class TableSink:
         self._trees: dict[str, TreeEvent] = {}
         self._frames = 0
 
-    def log(self, event) -> None:
+    def log(self, event: Event) -> None:
         if isinstance(event, FrameEvent):
             self._frames += 1
             if self._frames % self.flush_every == 0:

@@ -17,13 +17,13 @@ import numpy as np
 from ndfa.change.detector import reported_changes
 from ndfa.core.errors import RecordingError
 from ndfa.eval.scoring import VISIBLE_PIXELS, Score, score
-from ndfa.core.events import DecisionEvent, ObservationEvent, TimingEvent
+from ndfa.core.events import DecisionEvent, Event, ObservationEvent, TimingEvent
 from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
 from ndfa.io.recording import INSTANCES, RecordingReader
 
 
 class Sink(Protocol):
-    def log(self, event) -> None: ...
+    def log(self, event: Event) -> None: ...
     def close(self) -> None: ...
 
 

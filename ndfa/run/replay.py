@@ -6,7 +6,7 @@ detector saw. Replaying it with another `DetectorConfig` takes well under a seco
 parameter studies and error analysis in a notebook need:
 
     observations = pl.read_parquet("out/tables/observations.parquet")
-    result = replay(observations, DetectorConfig(shape_similarity=0.8))
+    result = replay(observations, DetectorConfig(association=AssociationConfig(shape_similarity=0.8)))
     result.score            # TP/FP/FN over the instances the table labels
 
 The score counts the instances the table has a label for, visible as `ndfa.eval.scoring` asks; it

@@ -23,6 +23,7 @@ from typing import Literal
 import numpy as np
 
 from ndfa.core.errors import TrajectoryError
+from ndfa.core.geometry import kabsch
 
 
 @dataclass(frozen=True)
@@ -58,22 +59,7 @@ def umeyama_alignment(source: np.ndarray, target: np.ndarray, with_scale: bool =
     source, target = np.asarray(source, dtype=float), np.asarray(target, dtype=float)
     if source.shape != target.shape or source.ndim != 2 or source.shape[1] != 3 or len(source) < 3:
         raise TrajectoryError(f"alignment needs two (N, 3) point sets with N >= 3, got {source.shape} and {target.shape}")
-    mean_source, mean_target = source.mean(axis=0), target.mean(axis=0)
-    centred_source, centred_target = source - mean_source, target - mean_target
-    covariance = centred_target.T @ centred_source / len(source)
-    u, singular, vt = np.linalg.svd(covariance)
-    reflection = np.eye(3)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0:  # the best orthogonal matrix would be a reflection
-        reflection[2, 2] = -1.0
-    rotation = u @ reflection @ vt
-    scale = 1.0
-    if with_scale:
-        variance = np.mean(np.sum(centred_source**2, axis=1))
-        scale = float(np.trace(np.diag(singular) @ reflection) / variance)
-    transform = np.eye(4)
-    transform[:3, :3] = scale * rotation
-    transform[:3, 3] = mean_target - scale * rotation @ mean_source
-    return transform, scale
+    return kabsch(source, target, normalised=True, with_scale=with_scale)
 
 
 def absolute_trajectory_error(estimate: Sequence[np.ndarray] | np.ndarray,

@@ -1,0 +1,75 @@
+"""The change detector's parameters, one frozen sub-config per step of the paper's Sec. IV.
+
+`DetectorConfig()` holds ndfa's defaults, `DetectorConfig.paper()` the paper's own parameters
+(Sec. V-C). Why each default differs from the paper's, and what was measured to choose it, is in
+`docs/detector.md`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+Fusion = Literal["mean", "best"]
+
+
+@dataclass(frozen=True)
+class AssociationConfig:
+    """Intra-session association (Sec. IV-A): measurements -> the objects of one session."""
+
+    tree_length_m: float = 1.2        # l: interval length of the object trees (paper: 1.2 m sim, 1.6 m real)
+    distance_m: float = 0.05          # delta_d: largest center distance of a measurement to its object (paper 0.02)
+    shape_similarity: float = 0.7     # delta_s: smallest cosine similarity of two codes of one object (paper 0.9)
+    same_place_m: float = 0.03        # a measurement this close (horizontally) to an object is that object; 0: off
+    fusion: Fusion = "mean"           # an object's code and center: its measurements' "mean" (median center) or the "best"
+
+    def __post_init__(self) -> None:
+        if self.fusion not in ("best", "mean"):
+            raise ValueError(f"fusion must be 'best' or 'mean', got {self.fusion!r}")
+
+
+@dataclass(frozen=True)
+class RegistrationConfig:
+    """T_rel, target world -> source world (Sec. IV-B), from objects matched by shape."""
+
+    pairs: int = 6                # N: target objects with a shape match before the first attempt
+    candidates: int = 10          # shape matches per target object offered to RANSAC (paper 1)
+    inlier_m: float = 0.05        # a registered pair this close supports a transform
+    min_inliers: int = 4          # inliers needed to accept T_rel; until then nothing is decided
+    enough_inliers: int = 12      # T_rel is re-estimated as target objects arrive until it has this many
+    retry_frames: int = 10        # before T_rel exists: an attempt per new target object, else every this many frames
+    seed: int = 0                 # RANSAC's sampling
+
+
+@dataclass(frozen=True)
+class DecisionConfig:
+    """The change test of a target object (Sec. IV-B) and when its verdict is reported."""
+
+    edge_m: float = 0.03               # delta_e: largest difference of two corresponding graph edges
+    fallback_distance_m: float = 0.05  # a lone object is unchanged this close to its shape match
+    in_place_m: float = 0.05           # no edge agrees, yet unchanged this close to its shape match; 0: off
+    min_measurements: int = 3          # an object is tested (and reported) only from this many measurements
+    confirm_measurements: int = 8      # a "changed" verdict on fewer measurements waits for more views
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Parameters of the change detector; the default is ndfa's tuning for the shipped NDF."""
+
+    association: AssociationConfig = field(default_factory=AssociationConfig)
+    registration: RegistrationConfig = field(default_factory=RegistrationConfig)
+    decision: DecisionConfig = field(default_factory=DecisionConfig)
+
+    @classmethod
+    def paper(cls) -> DetectorConfig:
+        """The paper's parameters (Sec. V-C, simulation), with ndfa's additions switched off where a
+        knob can: see `docs/detector.md` for the rules that stay (they have no knob) and for the two
+        values the paper does not give (the RANSAC inlier distance and the lone-object distance)."""
+        return cls(
+            association=AssociationConfig(tree_length_m=1.2, distance_m=0.02, shape_similarity=0.9, same_place_m=0.0,
+                                          fusion="best"),
+            registration=RegistrationConfig(pairs=6, candidates=1, inlier_m=0.05, min_inliers=0, enough_inliers=0,
+                                            retry_frames=1, seed=0),
+            decision=DecisionConfig(edge_m=0.03, fallback_distance_m=0.05, in_place_m=0.0, min_measurements=1,
+                                    confirm_measurements=1),
+        )

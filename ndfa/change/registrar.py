@@ -1,0 +1,129 @@
+"""T_rel over a target pass (paper Sec. IV-B): when to estimate it, the estimate, and the target
+centers it registers into the source world.
+
+Until T_rel exists, an estimate is tried when a target object is created and otherwise every
+`retry_frames` frames (the codes and centers of known objects still improve); after that, a new
+target object triggers a re-estimate while T_rel has fewer than `enough_inliers` inliers, and the
+new estimate replaces it only with more inliers (decisions already made used it). The estimate
+itself is `ndfa.change.register.ransac_registration` on shape-matched (target, source) pairs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+
+from ndfa.change.associate import Association, SessionMap, cosine_similarity
+from ndfa.change.config import RegistrationConfig
+from ndfa.change.register import Registration, apply, ransac_registration
+from ndfa.change.tree import Cell, in_cell
+from ndfa.core.events import RegistrationEvent
+
+
+class RegisteredCenters:
+    """Every target object's center mapped into the source world with one T_rel (row i: object i).
+
+    Invalidation: a row is valid while neither T_rel nor its object's center has changed. A new
+    T_rel recomputes every row; an object whose center changed (`stale`) gets its row recomputed,
+    alone, at the next query.
+    """
+
+    def __init__(self) -> None:
+        self._rows = np.zeros((0, 3))
+        self._transform: np.ndarray | None = None  # the T_rel the rows were computed with
+        self._stale: set[int] = set()
+
+    def stale(self, object_ids: Iterable[int]) -> None:
+        """These objects were created or their centers moved."""
+        self._stale.update(object_ids)
+
+    def get(self, transform: np.ndarray, target: SessionMap) -> np.ndarray:
+        n = len(target.objects)  # object ids are 0 .. n-1
+        if self._transform is transform:
+            for object_id in sorted(self._stale):
+                row = apply(transform, target.objects[object_id].center_world[None])  # (1, 3): a batch may round differently
+                if object_id < len(self._rows):
+                    self._rows[object_id] = row[0]
+                elif object_id == len(self._rows):
+                    self._rows = np.vstack([self._rows, row])
+        if self._transform is not transform or len(self._rows) != n:
+            centers = np.array([target.objects[i].center_world for i in range(n)]).reshape(n, 3)
+            self._rows = apply(transform, centers)
+            self._transform = transform
+        self._stale.clear()
+        return self._rows
+
+
+class Registrar:
+    """T_rel between the maps `source` and `target` as the target pass fills the latter."""
+
+    def __init__(self, config: RegistrationConfig, shape_similarity: float, source: SessionMap,
+                 target: SessionMap) -> None:
+        self.config = config
+        self.shape_similarity = shape_similarity
+        self.source, self.target = source, target
+        self.registration: Registration | None = None
+        self.centers = RegisteredCenters()
+        self._last_try_frame = -(10**9)  # the last attempt before T_rel exists
+
+    def after_target_frame(self, frame_index: int, associations: list[Association]) -> list[RegistrationEvent]:
+        """Note what a target frame's association changed; estimate T_rel if it is time to."""
+        self.centers.stale(a.object_id for a in associations if a.created or a.replaced)
+        created = any(a.created for a in associations)
+        if self.registration is None:
+            if not created and frame_index - self._last_try_frame < self.config.retry_frames:
+                return []
+            self._last_try_frame = frame_index
+            return self._estimate(frame_index)
+        if created and len(self.registration.inliers) < self.config.enough_inliers:
+            return self._estimate(frame_index)
+        return []
+
+    def registered_centers(self) -> np.ndarray:
+        """(n, 3) the target objects' centers in the source world (row i: object i); needs T_rel."""
+        return self.centers.get(self.registration.transform, self.target)
+
+    def target_objects_in(self, cell: Cell) -> list[int]:
+        """Target objects whose registered centers fall in `cell` (of the source's tree); needs T_rel."""
+        return np.flatnonzero(in_cell(cell, self.registered_centers())).tolist()
+
+    def shape_pairs(self) -> list[tuple[int, int]]:
+        """(target, source) candidate pairs: each target object's most similar source objects above delta_s."""
+        source, target = self.source, self.target
+        if not source.objects:
+            return []
+        source_ids = np.array(sorted(source.objects))
+        source_codes = np.array([source.objects[i].shape_code for i in source_ids])
+        pairs = []
+        for target_id in sorted(target.objects):
+            similarity = cosine_similarity(target.objects[target_id].shape_code, source_codes)
+            order = np.argsort(-similarity, kind="stable")[: self.config.candidates]
+            pairs += [(target_id, int(source_ids[j])) for j in order if similarity[j] > self.shape_similarity]
+        return pairs
+
+    def _estimate(self, frame_index: int) -> list[RegistrationEvent]:
+        source, target = self.source, self.target
+        pairs = self.shape_pairs()
+        # A small source map may have fewer objects than N: then all of them are enough.
+        if len({t for t, _ in pairs}) < min(self.config.pairs, len(source.objects)):
+            return []
+        result = ransac_registration(
+            pairs,
+            {i: o.center_world for i, o in target.objects.items()},
+            {i: o.center_world for i, o in source.objects.items()},
+            self.config.inlier_m, seed=self.config.seed)
+        if result is None:
+            return [RegistrationEvent(frame_index=frame_index, accepted=False, n_pairs=len(pairs), n_hypotheses=0,
+                                      transform=None, inlier_pairs=(), residual_m=float("nan"),
+                                      target_centers=np.zeros((0, 3)), source_centers=np.zeros((0, 3)))]
+        accepted = len(result.inliers) >= self.config.min_inliers and (
+            self.registration is None or len(result.inliers) > len(self.registration.inliers))
+        if accepted:
+            self.registration = result
+        inlier_pairs = tuple(pairs[i] for i in result.inliers)
+        return [RegistrationEvent(
+            frame_index=frame_index, accepted=accepted, n_pairs=len(pairs), n_hypotheses=result.n_hypotheses,
+            transform=result.transform, inlier_pairs=inlier_pairs, residual_m=result.residual_m,
+            target_centers=np.array([target.objects[t].center_world for t, _ in inlier_pairs]).reshape(-1, 3),
+            source_centers=np.array([source.objects[s].center_world for _, s in inlier_pairs]).reshape(-1, 3))]
