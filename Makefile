@@ -2,7 +2,7 @@
 VENV ?= .venv
 DEMO_OUT ?= out/demo
 
-.PHONY: setup demo test
+.PHONY: setup demo test lint
 setup:
 	bash scripts/setup.sh
 
@@ -12,5 +12,11 @@ demo: setup
 	$(VENV)/bin/ndfa detect recordings/sample/source.mcap recordings/sample/target.mcap \
 		--log $(DEMO_OUT).rrd --tables $(DEMO_OUT)-tables --json $(DEMO_OUT).json
 
-test: setup
+# Layering (import-linter: the core imports no I/O), lint (ruff) and types (mypy, strict on the core).
+lint: setup
+	$(VENV)/bin/lint-imports
+	$(VENV)/bin/ruff check ndfa tests scripts
+	$(VENV)/bin/mypy
+
+test: setup lint
 	$(VENV)/bin/python -m pytest -q
