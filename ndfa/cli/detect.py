@@ -91,10 +91,10 @@ def detect_command(
     for note in result.notes:
         console.print(f"note: {note}")
     if json_out is not None:
-        json_out.parent.mkdir(parents=True, exist_ok=True)
-        temporary = json_out.with_name(f".{json_out.name}.tmp")
-        temporary.write_text(json.dumps(summary, indent=2))
-        temporary.replace(json_out)
+        from ndfa.io.atomic import atomic_path
+
+        with atomic_path(json_out) as temporary:
+            temporary.write_text(json.dumps(summary, indent=2))
     for path in (log, tables, json_out):
         if path is not None:
             console.print(f"wrote {path}")
@@ -158,11 +158,10 @@ def eval_command(
     with progress_bar() as progress:
         tasks = {}
 
-        def on_frame(method: str, session: str, done: int, total: int) -> None:
-            key = f"{method} {session}"
-            if key not in tasks:
-                tasks[key] = progress.add_task(key, total=total)
-            progress.update(tasks[key], completed=done)
+        def on_frame(label: str, done: int, total: int) -> None:
+            if label not in tasks:
+                tasks[label] = progress.add_task(label, total=total)
+            progress.update(tasks[label], completed=done)
 
         result = evaluate_methods(source, target, nn, tsdf, frame_step=frame_step, on_frame=on_frame)
 

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ndfa.core.errors import TrajectoryError
-from ndfa.core.geometry import backproject
+from ndfa.core.geometry import backproject, project
 from ndfa.core.frame import Frame
 from ndfa.trajectory.refine import refine_point_to_plane
 
@@ -251,8 +251,7 @@ def _visible(map_points: np.ndarray, pose: np.ndarray, K: np.ndarray, image_size
     z = camera[:, 2]
     in_front = (z > config.min_range_m) & (z < config.max_range_m + config.refine_distance_m)
     camera, kept = camera[in_front], map_points[in_front]
-    u = K[0, 0] * camera[:, 0] / camera[:, 2] + K[0, 2]
-    v = K[1, 1] * camera[:, 1] / camera[:, 2] + K[1, 2]
+    u, v = project(K, camera).T
     height, width = image_size
     inside = (u > -0.1 * width) & (u < 1.1 * width) & (v > -0.1 * height) & (v < 1.1 * height)
     return kept[inside]

@@ -120,7 +120,7 @@ def ingest_bag(
     camera_frame: str | None = None,
     max_dt: float = 0.02,
     estimate_poses: PoseEstimator | None = None,
-    on_progress: Callable[[int, int], None] | None = None,
+    on_progress: Progress | None = None,
 ) -> BagSummary:
     """Import one bag into the recording `out`.
 

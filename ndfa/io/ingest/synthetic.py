@@ -11,12 +11,12 @@ import dataclasses
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 import ndfa
 from ndfa.core.errors import IngestError
+from ndfa.core.progress import LabelledProgress
 from ndfa.io.recording import Frame, RecordingWriter
 from ndfa.sim.mug import Mug
 from ndfa.sim.presets import SimConfig
@@ -30,7 +30,6 @@ SESSION_START = {
     "target": datetime(2026, 1, 6, 9, 0, tzinfo=timezone.utc).timestamp(),
 }
 
-ProgressCallback = Callable[[str, int, int], None]  # (session, frames done, frames in session)
 
 
 @dataclass(frozen=True)
@@ -47,7 +46,7 @@ def ingest_sim(
     config: SimConfig,
     out_dir: Path,
     models: list[Mug] | None = None,
-    on_progress: ProgressCallback | None = None,
+    on_progress: LabelledProgress | None = None,  # (session, frames done, frames in session)
 ) -> list[SessionSummary]:
     """Render both sessions of `config` into `out_dir/source.mcap` and `out_dir/target.mcap`.
 
@@ -64,7 +63,7 @@ def ingest_sim(
 
 
 def _render_session(world: World, config: SimConfig, session: str, path: Path, ground_truth: dict,
-                    on_progress: ProgressCallback | None) -> SessionSummary:
+                    on_progress: LabelledProgress | None) -> SessionSummary:
     # One stream per session and purpose: changing the noise model does not move the cameras.
     stream = SESSIONS.index(session)
     route = config.source_route if session == "source" else config.target_route

@@ -8,7 +8,6 @@ dropped and why, so a user can tell a short recording from a broken folder.
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,12 +15,11 @@ import numpy as np
 
 import ndfa
 from ndfa.core.errors import IngestError, NdfaError
-from ndfa.io.ingest.tum_folder import GROUNDTRUTH, Intrinsics, TumFolder, no_poses_message
+from ndfa.core.progress import Progress
+from ndfa.io.ingest.tum_folder import TumFolder, no_poses_message
+from ndfa.io.ingest.tum_layout import GROUNDTRUTH, Intrinsics
 from ndfa.io.ingest import PoseEstimator
 from ndfa.io.recording import Frame, RecordingWriter
-
-ProgressCallback = Callable[[int, int], None]  # (frames written, frames to write)
-
 
 class TumWarning(UserWarning):
     """Something in a TUM folder was off but could be worked around (see the message)."""
@@ -60,7 +58,7 @@ def ingest_tum(
     max_dt: float = 0.02,
     session: str | None = None,
     estimate_poses: PoseEstimator | None = None,
-    on_progress: ProgressCallback | None = None,
+    on_progress: Progress | None = None,  # (frames written, frames to write)
 ) -> TumSummary:
     """Write the TUM RGB-D folder `folder` into the recording `out` (.mcap).
 
