@@ -16,7 +16,7 @@ import numpy as np
 
 from ndfa.core.errors import TrajectoryError
 from ndfa.core.progress import Progress
-from ndfa.io.recording import Frame, RecordingReader, RecordingWriter
+from ndfa.io.recording import RecordingReader, RecordingWriter
 from ndfa.trajectory.kiss import DepthOdometry, OdometryConfig
 from ndfa.trajectory.metrics import AbsoluteError, RelativeError, absolute_trajectory_error, relative_pose_error
 

@@ -19,7 +19,7 @@ from ndfa.core.progress import Progress
 from ndfa.io.ingest.tum_folder import TumFolder, no_poses_message
 from ndfa.io.ingest.tum_layout import GROUNDTRUTH, Intrinsics
 from ndfa.io.ingest import PoseEstimator
-from ndfa.io.recording import Frame, RecordingWriter
+from ndfa.io.recording import RecordingWriter
 
 class TumWarning(UserWarning):
     """Something in a TUM folder was off but could be worked around (see the message)."""
