@@ -26,7 +26,7 @@ import ndfa
 from ndfa.core.errors import ExportError
 from ndfa.core.progress import Progress
 from ndfa.io.atomic import atomic_dir
-from ndfa.io.ingest.tum_layout import CALIBRATION, DEPTH_LIST, GROUND_TRUTH_JSON, GROUNDTRUTH, RGB_LIST, TRUE_POSES
+from ndfa.io.ingest.tum_layout import CALIBRATION, DEPTH_LIST, DEPTH_SCALE, GROUND_TRUTH_JSON, GROUNDTRUTH, RGB_LIST, TRUE_POSES
 from ndfa.io.recording import RecordingReader
 from ndfa.trajectory.tum_format import POSE_FIELDS, pose_line
 
@@ -46,7 +46,7 @@ class TumExportSummary:
     depth_clipped: int
 
 
-def export_tum(recording_path: str | Path, folder: str | Path, depth_scale: float = 5000.0,
+def export_tum(recording_path: str | Path, folder: str | Path, depth_scale: float = DEPTH_SCALE,
                on_progress: Progress | None = None) -> TumExportSummary:
     """Write the recording at `recording_path` as a TUM RGB-D folder `folder` (which must not exist,
     or be empty). depth_scale: depth PNG units per metre (TUM: 5000, i.e. 0.2 mm)."""

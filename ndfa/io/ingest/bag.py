@@ -39,7 +39,7 @@ from rosbags.typesys import Stores, get_typestore
 import ndfa
 from ndfa.core.errors import IngestError
 from ndfa.core.progress import Progress
-from ndfa.io.ingest import PoseEstimator
+from ndfa.io.ingest import MAX_DT_S, PoseEstimator
 from ndfa.io.ingest.bag_frames import plan_frames, write_frames
 from ndfa.io.ingest.bag_poses import pose_lookup
 from ndfa.io.ingest.bag_scan import scan_bag
@@ -111,7 +111,7 @@ def ingest_bag(
     pose_source: str | None = None,
     world_frame: str | None = None,
     camera_frame: str | None = None,
-    max_dt: float = 0.02,
+    max_dt: float = MAX_DT_S,
     estimate_poses: PoseEstimator | None = None,
     on_progress: Progress | None = None,
 ) -> BagSummary:

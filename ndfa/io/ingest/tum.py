@@ -17,8 +17,8 @@ import ndfa
 from ndfa.core.errors import IngestError, NdfaError
 from ndfa.core.progress import Progress
 from ndfa.io.ingest.tum_folder import TumFolder, no_poses_message
-from ndfa.io.ingest.tum_layout import GROUNDTRUTH, Intrinsics
-from ndfa.io.ingest import PoseEstimator
+from ndfa.io.ingest.tum_layout import DEPTH_SCALE, GROUNDTRUTH, Intrinsics
+from ndfa.io.ingest import MAX_DT_S, PoseEstimator
 from ndfa.io.recording import RecordingWriter
 
 class TumWarning(UserWarning):
@@ -53,9 +53,9 @@ def ingest_tum(
     out: str | Path,
     *,
     intrinsics: Intrinsics = None,
-    depth_scale: float = 5000.0,
+    depth_scale: float = DEPTH_SCALE,
     masks: str | Path | None = None,
-    max_dt: float = 0.02,
+    max_dt: float = MAX_DT_S,
     session: str | None = None,
     estimate_poses: PoseEstimator | None = None,
     on_progress: Progress | None = None,  # (frames written, frames to write)

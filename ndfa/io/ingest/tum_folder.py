@@ -42,9 +42,10 @@ from typing import Any
 import numpy as np
 
 from ndfa.core.errors import IngestError
+from ndfa.io.ingest import MAX_DT_S
 from ndfa.io.ingest.tum_images import check_size, read_depth, read_mask, read_rgb
 from ndfa.io.ingest.tum_layout import (
-    CALIBRATION, DEFAULT_INTRINSICS, DEPTH_LIST, GROUND_TRUTH_JSON, GROUNDTRUTH, INTRINSICS_PRESETS, MASKS_DIR, RGB_LIST,
+    CALIBRATION, DEFAULT_INTRINSICS, DEPTH_LIST, DEPTH_SCALE, GROUND_TRUTH_JSON, GROUNDTRUTH, INTRINSICS_PRESETS, MASKS_DIR, RGB_LIST,
     TRUE_POSES, Intrinsics, read_calibration)
 from ndfa.io.ingest.tum_lists import StampedList, associate, poses_at, read_list
 from ndfa.io.recording import Frame
@@ -79,9 +80,9 @@ class TumFolder:
 
     folder: Path
     intrinsics: Intrinsics = None
-    depth_scale: float = 5000.0
+    depth_scale: float = DEPTH_SCALE
     masks: Path | None = None
-    max_dt: float = 0.02
+    max_dt: float = MAX_DT_S
     entries: list[TumEntry] = field(init=False)
     K: np.ndarray = field(init=False)
     has_groundtruth: bool = field(init=False)

@@ -30,6 +30,9 @@ INTRINSICS_PRESETS: dict[str, tuple[float, float, float, float]] = {
 # TUM's "ROS default" calibration, which the dataset recommends when the sensor is unknown.
 DEFAULT_INTRINSICS = (525.0, 525.0, 319.5, 239.5)
 
+# Depth PNG units per metre (TUM: 5000, i.e. 0.2 mm).
+DEPTH_SCALE = 5000.0
+
 Intrinsics = str | tuple[float, float, float, float] | None
 
 
