@@ -10,7 +10,7 @@ import typer
 from rich.table import Table
 
 from ndfa.change.detector import DetectorConfig
-from ndfa.cli.app import app, console, err_console, progress_bar
+from ndfa.cli.app import app, bar_per_label, console, err_console, progress_bar
 from ndfa.core.errors import NdfaError
 from ndfa.trajectory.kiss import OdometryConfig
 
@@ -72,14 +72,7 @@ def detect_command(
         truth = RecordingReader(target).ground_truth
         sinks.append(TableSink(tables, changed_instances(truth) if truth and "objects" in truth else None))
     with progress_bar() as progress:
-        tasks = {}
-
-        def on_frame(session: str, done: int, total: int) -> None:
-            if session not in tasks:
-                tasks[session] = progress.add_task(session, total=total)
-            progress.update(tasks[session], completed=done)
-
-        result = run_detection(source, target, config, sinks, frame_step=frame_step, on_frame=on_frame)
+        result = run_detection(source, target, config, sinks, frame_step=frame_step, on_frame=bar_per_label(progress))
 
     table = Table(title="changes")
     for column in ("kind", "session", "object", "frame", "position (source world)", "masks"):
@@ -168,14 +161,7 @@ def eval_command(
     nn = NNConfig(**{k: v for k, v in nn_overrides.items() if v is not None})
     tsdf = TSDFConfig(**({} if tsdf_voxel is None else {"voxel_m": tsdf_voxel}))
     with progress_bar() as progress:
-        tasks = {}
-
-        def on_frame(label: str, done: int, total: int) -> None:
-            if label not in tasks:
-                tasks[label] = progress.add_task(label, total=total)
-            progress.update(tasks[label], completed=done)
-
-        result = evaluate_methods(source, target, nn, tsdf, frame_step=frame_step, on_frame=on_frame)
+        result = evaluate_methods(source, target, nn, tsdf, frame_step=frame_step, on_frame=bar_per_label(progress))
 
     table = Table(title=f"change detection, {source.name} -> {target.name} (object level)")
     for column in ("method", "poses", "TP", "FP", "FN", "precision", "recall", "seconds"):

@@ -10,7 +10,7 @@ import typer
 from rich.progress import Progress, TextColumn
 from rich.table import Table
 
-from ndfa.cli.app import app, console, err_console, progress_bar
+from ndfa.cli.app import app, bar_per_label, console, err_console, progress_bar
 from ndfa.core.errors import NdfaError
 from ndfa.io.ingest import MAX_DT_S
 from ndfa.io.ingest.tum_layout import DEFAULT_INTRINSICS, DEPTH_SCALE, INTRINSICS_PRESETS
@@ -106,14 +106,7 @@ def ingest_sim_command(
         user_models = load_mug_dir(mesh_dir, up=mesh_up)
 
     with progress_bar(transient=False) as progress:
-        tasks: dict[str, int] = {}
-
-        def on_progress(session: str, done: int, total: int) -> None:
-            if session not in tasks:
-                tasks[session] = progress.add_task(f"rendering {session}", total=total)
-            progress.update(tasks[session], completed=done)
-
-        summaries = ingest_sim(config, out, models=user_models, on_progress=on_progress)
+        summaries = ingest_sim(config, out, models=user_models, on_progress=bar_per_label(progress, "rendering "))
 
     table = Table(title=f"{config.preset} scene, seed {config.seed}: {config.table_rows * config.table_cols} tables -> {out}")
     for column in ("session", "frames", "mugs", "added", "removed", "moved", "switched", "size"):
