@@ -9,6 +9,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from ndfa.core.errors import NdfaError
+from ndfa.core.progress import LabelledProgress
 
 app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
                   help="Robust object-level change detection in RGB-D data with Neural Descriptor Fields.")
@@ -20,6 +21,18 @@ def progress_bar(transient: bool = True) -> Progress:
     """The progress bar of long commands: description, bar, done/total, time left (on stderr)."""
     return Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                     TimeRemainingColumn(), console=err_console, transient=transient)
+
+
+def bar_per_label(progress: Progress, prefix: str = "") -> LabelledProgress:
+    """A progress callback that shows one bar on `progress` per label (a session, "NN source", ...)."""
+    tasks: dict[str, int] = {}
+
+    def on_progress(label: str, done: int, total: int) -> None:
+        if label not in tasks:
+            tasks[label] = progress.add_task(prefix + label, total=total)
+        progress.update(tasks[label], completed=done)
+
+    return on_progress
 
 
 def main() -> None:

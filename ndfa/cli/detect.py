@@ -9,8 +9,14 @@ from typing import Optional
 import typer
 from rich.table import Table
 
-from ndfa.cli.app import app, console, err_console, progress_bar
+from ndfa.change.detector import DetectorConfig
+from ndfa.cli.app import app, bar_per_label, console, err_console, progress_bar
 from ndfa.core.errors import NdfaError
+from ndfa.trajectory.kiss import OdometryConfig
+
+# The help quotes the configs' defaults: DetectorConfig and OdometryConfig import without torch or
+# scipy. The baselines' configs (scipy, open3d) are named instead of imported.
+_DETECTOR, _ODOMETRY = DetectorConfig(), OdometryConfig()
 
 
 @app.command("detect")
@@ -23,10 +29,13 @@ def detect_command(
     weights: Optional[Path] = typer.Option(None, help="NDF checkpoint (default: the shipped weights)."),
     frame_step: int = typer.Option(1, help="Use every N-th frame of both recordings."),
     no_images: bool = typer.Option(False, "--no-images", help="Leave depth/colour/mask images out of the .rrd (smaller)."),
-    association_distance: Optional[float] = typer.Option(None, help="delta_d, metres (default 0.05)."),
-    shape_similarity: Optional[float] = typer.Option(None, help="delta_s (default 0.7; the paper: 0.9)."),
-    edge_distance: Optional[float] = typer.Option(None, help="delta_e, metres (default 0.03, the paper's)."),
-    tree_length: Optional[float] = typer.Option(None, help="Interval length l of the object trees, metres (default 1.2)."),
+    association_distance: Optional[float] = typer.Option(
+        None, help=f"delta_d, metres (default {_DETECTOR.association.distance_m})."),
+    shape_similarity: Optional[float] = typer.Option(
+        None, help=f"delta_s (default {_DETECTOR.association.shape_similarity}; the paper: 0.9)."),
+    edge_distance: Optional[float] = typer.Option(None, help=f"delta_e, metres (default {_DETECTOR.decision.edge_m}, the paper's)."),
+    tree_length: Optional[float] = typer.Option(
+        None, help=f"Interval length l of the object trees, metres (default {_DETECTOR.association.tree_length_m})."),
     threads: Optional[int] = typer.Option(None, help="Torch CPU threads for the NDF (default: torch's, one per core). "
                                                      "1 when other jobs share the cores: oversubscribed, 2 threads "
                                                      "ran ~10x slower than 1."),
@@ -42,7 +51,6 @@ def detect_command(
             raise typer.BadParameter(f"--threads must be >= 1, got {threads}")
         torch.set_num_threads(threads)
 
-    from ndfa.change.detector import DetectorConfig
     from ndfa.run.detect import run_detection
     from ndfa.eval.scoring import changed_instances
     from ndfa.pipeline import PipelineConfig
@@ -67,14 +75,7 @@ def detect_command(
         truth = RecordingReader(target).ground_truth
         sinks.append(TableSink(tables, changed_instances(truth) if truth and "objects" in truth else None))
     with progress_bar() as progress:
-        tasks = {}
-
-        def on_frame(session: str, done: int, total: int) -> None:
-            if session not in tasks:
-                tasks[session] = progress.add_task(session, total=total)
-            progress.update(tasks[session], completed=done)
-
-        result = run_detection(source, target, config, sinks, frame_step=frame_step, on_frame=on_frame)
+        result = run_detection(source, target, config, sinks, frame_step=frame_step, on_frame=bar_per_label(progress))
 
     table = Table(title="changes")
     for column in ("kind", "session", "object", "frame", "position (source world)", "masks"):
@@ -94,10 +95,10 @@ def detect_command(
     for note in result.notes:
         console.print(f"note: {note}")
     if json_out is not None:
-        json_out.parent.mkdir(parents=True, exist_ok=True)
-        temporary = json_out.with_name(f".{json_out.name}.tmp")
-        temporary.write_text(json.dumps(summary, indent=2))
-        temporary.replace(json_out)
+        from ndfa.io.atomic import atomic_path
+
+        with atomic_path(json_out) as temporary:
+            temporary.write_text(json.dumps(summary, indent=2))
     for path in (log, tables, json_out):
         if path is not None:
             console.print(f"wrote {path}")
@@ -127,9 +128,11 @@ def eval_command(
     source: Optional[Path] = typer.Argument(None, help="Source session recording (.mcap), with instance masks."),
     target: Optional[Path] = typer.Argument(None, help="Target session recording (.mcap), with masks and ground truth."),
     out: Path = typer.Option(..., "--out", "-o", help="Directory for table.parquet and table.md (sweep: sweep.parquet, sweep_AXIS.png)."),
-    nn_distance: float = typer.Option(0.002, help="NN: d, metres (the paper's 0.002)."),
-    nn_fraction: float = typer.Option(0.3, help="NN: r, share of change points that makes a view changed (paper: 0.3)."),
-    tsdf_voxel: float = typer.Option(0.01, help="PMT: submap voxel size, metres (PMT's small-object default: 0.02)."),
+    nn_distance: Optional[float] = typer.Option(None, help="NN: d, metres (default: NNConfig.distance_m, the paper's)."),
+    nn_fraction: Optional[float] = typer.Option(None, help="NN: r, share of change points that makes a view changed "
+                                                "(default: NNConfig.changed_fraction, the paper's)."),
+    tsdf_voxel: Optional[float] = typer.Option(None, help="PMT: submap voxel size, metres (default: TSDFConfig.voxel_m; "
+                                               "PMT's small-object default: 0.02)."),
     frame_step: int = typer.Option(1, help="Use every N-th frame of both recordings, for all methods."),
     sweep: Optional[str] = typer.Option(None, help="Instead of SOURCE TARGET: sweep an axis of synthetic scenes: "
                                         "drift | noise | objects | overlap."),
@@ -157,17 +160,11 @@ def eval_command(
 
     if frame_step < 1:
         raise typer.BadParameter(f"--frame-step must be >= 1, got {frame_step}")
-    nn, tsdf = NNConfig(distance_m=nn_distance, changed_fraction=nn_fraction), TSDFConfig(voxel_m=tsdf_voxel)
+    nn_overrides = {"distance_m": nn_distance, "changed_fraction": nn_fraction}
+    nn = NNConfig(**{k: v for k, v in nn_overrides.items() if v is not None})
+    tsdf = TSDFConfig(**({} if tsdf_voxel is None else {"voxel_m": tsdf_voxel}))
     with progress_bar() as progress:
-        tasks = {}
-
-        def on_frame(method: str, session: str, done: int, total: int) -> None:
-            key = f"{method} {session}"
-            if key not in tasks:
-                tasks[key] = progress.add_task(key, total=total)
-            progress.update(tasks[key], completed=done)
-
-        result = evaluate_methods(source, target, nn, tsdf, frame_step=frame_step, on_frame=on_frame)
+        result = evaluate_methods(source, target, nn, tsdf, frame_step=frame_step, on_frame=bar_per_label(progress))
 
     table = Table(title=f"change detection, {source.name} -> {target.name} (object level)")
     for column in ("method", "poses", "TP", "FP", "FN", "precision", "recall", "seconds"):
@@ -231,9 +228,10 @@ def poses_command(
     out: Path = typer.Option(..., "--out", "-o", help="The copy with estimated poses (.mcap)."),
     method: str = typer.Option("kiss-icp", help="Pose estimation method: kiss-icp."),
     tum_out: Optional[Path] = typer.Option(None, help="Also write the estimate as a TUM trajectory file (evo)."),
-    voxel_size: Optional[float] = typer.Option(None, help="KISS-ICP map voxel, metres (default 0.03)."),
-    max_range: Optional[float] = typer.Option(None, help="Farthest point used, metres (default 4.0)."),
-    stride: Optional[int] = typer.Option(None, help="Depth averaged over STRIDE x STRIDE pixel blocks (default 4)."),
+    voxel_size: Optional[float] = typer.Option(None, help=f"KISS-ICP map voxel, metres (default {_ODOMETRY.voxel_size_m})."),
+    max_range: Optional[float] = typer.Option(None, help=f"Farthest point used, metres (default {_ODOMETRY.max_range_m})."),
+    stride: Optional[int] = typer.Option(
+        None, help=f"Depth averaged over STRIDE x STRIDE pixel blocks (default {_ODOMETRY.pixel_stride})."),
     no_refine: bool = typer.Option(False, "--no-refine", help="KISS-ICP alone, without the point-to-plane refinement."),
 ) -> None:
     """Estimate camera poses from depth, write a copy of the recording with them, and print ATE/RPE."""

@@ -10,8 +10,12 @@ import typer
 from rich.progress import Progress, TextColumn
 from rich.table import Table
 
-from ndfa.cli.app import app, console, err_console, progress_bar
+from ndfa.cli.app import app, bar_per_label, console, err_console, progress_bar
 from ndfa.core.errors import NdfaError
+from ndfa.io.ingest import MAX_DT_S
+from ndfa.io.ingest.tum_layout import DEFAULT_INTRINSICS, DEPTH_SCALE, INTRINSICS_PRESETS
+
+_PRESETS = " | ".join(INTRINSICS_PRESETS)
 
 ingest_app = typer.Typer(no_args_is_help=True, help="Turn a data source into ndfa recordings (MCAP).")
 app.add_typer(ingest_app, name="ingest")
@@ -110,14 +114,7 @@ def ingest_sim_command(
         user_models = load_mug_dir(mesh_dir, up=mesh_up)
 
     with progress_bar(transient=False) as progress:
-        tasks: dict[str, int] = {}
-
-        def on_progress(session: str, done: int, total: int) -> None:
-            if session not in tasks:
-                tasks[session] = progress.add_task(f"rendering {session}", total=total)
-            progress.update(tasks[session], completed=done)
-
-        summaries = ingest_sim(config, out, models=user_models, on_progress=on_progress)
+        summaries = ingest_sim(config, out, models=user_models, on_progress=bar_per_label(progress, "rendering "))
 
     table = Table(title=f"{config.preset} scene, seed {config.seed}: {config.table_rows * config.table_cols} tables -> {out}")
     for column in ("session", "frames", "mugs", "added", "removed", "moved", "switched", "size"):
@@ -131,14 +128,14 @@ def ingest_sim_command(
 
 def _parse_intrinsics(text: Optional[str]) -> object:
     """None, a TUM preset name (fr1, fr2, fr3) or 'fx,fy,cx,cy' -> what ingest_tum takes."""
-    if text is None or text.lower() in ("fr1", "fr2", "fr3"):
+    if text is None or text.lower() in INTRINSICS_PRESETS:
         return text.lower() if text else None
     try:
         values = tuple(float(v) for v in text.split(","))
     except ValueError:
         values = ()
     if len(values) != 4:
-        raise NdfaError(f"--intrinsics must be fr1, fr2, fr3 or fx,fy,cx,cy, got {text!r}")
+        raise NdfaError(f"--intrinsics must be {', '.join(INTRINSICS_PRESETS)} or fx,fy,cx,cy, got {text!r}")
     return values
 
 
@@ -146,12 +143,13 @@ def _parse_intrinsics(text: Optional[str]) -> object:
 def ingest_tum_command(
     folder: Path = typer.Argument(..., help="A TUM RGB-D folder (rgb.txt, depth.txt, groundtruth.txt, rgb/, depth/)."),
     out: Path = typer.Option(..., "--out", "-o", help="The recording to write (.mcap)."),
-    intrinsics: Optional[str] = typer.Option(None, help="fr1 | fr2 | fr3 | fx,fy,cx,cy (default: the folder's "
-                                                        "calibration.txt, else TUM's ROS default 525,525,319.5,239.5)."),
-    depth_scale: float = typer.Option(5000.0, help="Depth PNG units per metre (TUM: 5000)."),
+    intrinsics: Optional[str] = typer.Option(None, help=f"{_PRESETS} | fx,fy,cx,cy (default: the folder's "
+                                             "calibration.txt, else TUM's ROS default "
+                                             f"{','.join(f'{v:g}' for v in DEFAULT_INTRINSICS)})."),
+    depth_scale: float = typer.Option(DEPTH_SCALE, help="Depth PNG units per metre (TUM: 5000)."),
     masks: Optional[Path] = typer.Option(None, help="Instance masks: 16-bit PNGs named as the depth PNGs, 0 = none "
                                                     "(default: the folder's masks/ if any)."),
-    max_dt: float = typer.Option(0.02, help="Largest rgb-depth timestamp difference to pair them, seconds."),
+    max_dt: float = typer.Option(MAX_DT_S, help="Largest rgb-depth timestamp difference to pair them, seconds."),
     poses: str = typer.Option("given", help="given (groundtruth.txt) | kiss-icp (estimated from depth; "
                                             "groundtruth.txt, if any, is kept as the true poses)."),
     session: Optional[str] = typer.Option(None, help="Session name (default: the folder's name)."),
@@ -204,7 +202,7 @@ def ingest_bag_command(
                                                         "(default: tf when the bag has it)."),
     world_frame: Optional[str] = typer.Option(None, help="tf frame of the world (default: map, odom or world)."),
     camera_frame: Optional[str] = typer.Option(None, help="tf frame of the camera (default: the depth images' frame_id)."),
-    max_dt: float = typer.Option(0.02, help="Largest depth-colour (and depth-mask) stamp difference, seconds."),
+    max_dt: float = typer.Option(MAX_DT_S, help="Largest depth-colour (and depth-mask) stamp difference, seconds."),
     poses: str = typer.Option("given", help="given (from the bag) | kiss-icp (estimated from depth)."),
 ) -> None:
     """Import a ROS1 or ROS2 bag into one recording, and say what was skipped and why."""
@@ -255,7 +253,7 @@ app.add_typer(export_app, name="export")
 def export_tum_command(
     recording: Path = typer.Argument(..., help="An ndfa recording (.mcap)."),
     out: Path = typer.Option(..., "--out", "-o", help="The TUM folder to create (must not exist, or be empty)."),
-    depth_scale: float = typer.Option(5000.0, help="Depth PNG units per metre (TUM: 5000)."),
+    depth_scale: float = typer.Option(DEPTH_SCALE, help="Depth PNG units per metre (TUM: 5000)."),
 ) -> None:
     """Write a recording as a TUM RGB-D folder (plus calibration.txt, masks/ and ground truth)."""
     from ndfa.io.export.tum import export_tum

@@ -127,3 +127,27 @@ def kabsch(moving: np.ndarray, fixed: np.ndarray, *, normalised: bool = False,
     transform[:3, :3] = scale * rotation
     transform[:3, 3] = fixed_mean - scale * rotation @ moving_mean
     return transform, scale
+
+
+def project(K: np.ndarray, points_camera: np.ndarray) -> np.ndarray:
+    """Pixel coordinates (N, 2), (column u, row v), of camera-frame points (N, 3): the OpenCV
+    pinhole model, pixel centres at integers, the inverse of `backproject`. Points at z <= 0 get
+    meaningless (or infinite) coordinates without a warning: callers keep those in front, and
+    round or bound the coordinates as they need."""
+    points_camera = np.asarray(points_camera)
+    z = points_camera[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = K[0, 0] * points_camera[:, 0] / z + K[0, 2]
+        v = K[1, 1] * points_camera[:, 1] / z + K[1, 2]
+    return np.stack([u, v], axis=1)
+
+
+def interpolate_pose(pose_a: np.ndarray, pose_b: np.ndarray, weight: float) -> np.ndarray:
+    """The pose `weight` (0..1) of the way from `pose_a` to `pose_b`: translation linearly, rotation
+    by slerp the shorter way round (as tf2 and TUM's tools interpolate)."""
+    from scipy.spatial.transform import Rotation, Slerp  # scipy only where poses are interpolated
+
+    rotations = Rotation.from_matrix(np.stack([pose_a[:3, :3], pose_b[:3, :3]]))
+    rotation = Slerp([0.0, 1.0], rotations)([weight]).as_matrix()[0]
+    translation = (1 - weight) * pose_a[:3, 3] + weight * pose_b[:3, 3]
+    return make_pose(rotation, translation)

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ndfa.core.conventions import VISIBLE_PIXELS
+
 
 @dataclass(frozen=True)
 class Score:
@@ -51,7 +53,11 @@ def changed_instances(ground_truth: dict) -> dict[int, str]:
             if o.get("change") not in (None, "unchanged")}
 
 
-VISIBLE_PIXELS = 300  # = ObservationConfig.min_pixels: smaller views are not encoded
+def is_visible(n_pixels):
+    """Whether a view whose mask holds `n_pixels` pixels with depth in range shows its object:
+    the one rule of every visible set (the detector's observations, the evaluation's masks, a
+    replayed table). Elementwise on arrays and on a polars expression."""
+    return n_pixels >= VISIBLE_PIXELS
 
 
 def scorable_instances(ground_truth: dict, visible: dict[str, set[int]]) -> set[int]:

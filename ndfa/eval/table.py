@@ -11,7 +11,7 @@ time of each method's whole run, reading the recordings included.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -22,12 +22,11 @@ from ndfa.io.atomic import atomic_path, write_parquet
 from ndfa.eval.baselines.common import BaselineError, run_baseline
 from ndfa.eval.baselines.nn import NNBaseline, NNConfig
 from ndfa.eval.baselines.tsdf import TSDFBaseline, TSDFConfig
-from ndfa.eval.scoring import VISIBLE_PIXELS, score
+from ndfa.core.conventions import depth_in_range
+from ndfa.core.progress import LabelledProgress
+from ndfa.eval.scoring import is_visible, score
 from ndfa.perception.observations import ObservationConfig
 from ndfa.io.recording import Frame, RecordingReader
-
-ProgressCallback = Callable[[str, str, int, int], None]  # (method, session, frames done, frames in session)
-
 
 @dataclass(frozen=True)
 class MethodRow:
@@ -91,18 +90,18 @@ def open_for_baselines(source: Path, target: Path) -> tuple[RecordingReader, Rec
 
 
 def visible_instances(frame: Frame, config: ObservationConfig = ObservationConfig()) -> set[int]:
-    """Instances with at least VISIBLE_PIXELS mask pixels with depth in range (ndfa's rule)."""
+    """Instances whose mask pixels with depth in range make them visible (ndfa's rule, `is_visible`)."""
     if frame.instances is None:
         return set()
-    depth = frame.depth
-    in_range = np.isfinite(depth) & (depth >= config.min_depth_m) & (depth <= config.max_depth_m)
+    in_range = depth_in_range(frame.depth, config.min_depth_m, config.max_depth_m)
     counts = np.bincount(frame.instances[in_range].ravel())
-    return {int(i) for i in np.flatnonzero(counts >= VISIBLE_PIXELS) if i > 0}
+    return {int(i) for i in np.flatnonzero(is_visible(counts)) if i > 0}
 
 
 def evaluate_methods(source: Path, target: Path, nn: NNConfig = NNConfig(), tsdf: TSDFConfig = TSDFConfig(),
-                     frame_step: int = 1, on_frame: ProgressCallback | None = None) -> EvalResult:
-    """Run ndfa, NN and PMT on the pair and score them alike."""
+                     frame_step: int = 1, on_frame: LabelledProgress | None = None) -> EvalResult:
+    """Run ndfa, NN and PMT on the pair and score them alike. `on_frame(label, done, total)` follows
+    each method's pass over each session, labelled "METHOD SESSION" (e.g. "NN source")."""
     from ndfa.run.detect import run_detection
     from ndfa.pipeline import PipelineConfig
 
@@ -120,7 +119,7 @@ def evaluate_methods(source: Path, target: Path, nn: NNConfig = NNConfig(), tsdf
         reported[baseline.name] = [d.instance_id for d in decisions]
 
     started = time.perf_counter()
-    progress = None if on_frame is None else (lambda session, done, total: on_frame("ndfa", session, done, total))
+    progress = None if on_frame is None else (lambda session, done, total: on_frame(f"ndfa {session}", done, total))
     detection = run_detection(Path(source), Path(target), PipelineConfig(), frame_step=frame_step, on_frame=progress)
     seconds["ndfa"] = time.perf_counter() - started
     reported["ndfa"] = [i for change in detection.changes for i in change.reported_instances]
@@ -151,12 +150,12 @@ def write_table(result: EvalResult, out: Path) -> tuple[Path, Path]:
 
 
 def _frames(reader: RecordingReader, session: str, method: str, step: int, visible: dict[str, set[int]],
-            on_frame: ProgressCallback | None) -> Iterator[Frame]:
+            on_frame: LabelledProgress | None) -> Iterator[Frame]:
     """The session's frames, noting the visible instances and reporting progress on the way."""
     total = len(range(0, len(reader), step))
     for done, frame in enumerate(reader.frames(step=step), start=1):
         visible[session] |= visible_instances(frame)
         yield frame
         if on_frame is not None:
-            on_frame(method, session, done, total)
+            on_frame(f"{method} {session}", done, total)
 

@@ -15,13 +15,14 @@ Entity layout (world frame: the source's; `target/` is placed into it with T_rel
 Timelines: `frame` (the frame index within its session) and `step` (frames processed so far,
 source then target), so that each decision sits at the target frame that made it.
 
-The file is streamed to `PATH.partial` and renamed to PATH on close: an interrupted run leaves a
-readable `.partial` with everything up to the interruption, and never a half-written PATH.
+The file is streamed to a hidden temporary beside PATH (`ndfa.io.atomic.Staged`) and moved onto
+PATH on close, which `ndfa detect` does also when interrupted: PATH then holds everything up to the
+interruption, and is never half-written. A process killed outright leaves the readable stream in
+`.PATH.tmp-*/`.
 """
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +30,7 @@ import rerun as rr
 
 from ndfa.core.events import (AssociationEvent, DecisionEvent, Event, FrameEvent, GraphEvent, ObservationEvent,
                               RegistrationEvent, TimingEvent, TreeEvent)
+from ndfa.io.atomic import Staged
 
 KIND_COLORS = {"added": (230, 60, 60), "removed": (240, 160, 30), "moved": (170, 80, 230), "unchanged": (90, 200, 90)}
 SESSION_COLORS = {"source": (80, 140, 255), "target": (255, 120, 80)}
@@ -38,11 +40,10 @@ TABLE_HEIGHT_BOX_M = 0.3  # height of the tree-cell boxes drawn around the objec
 class RerunSink:
     def __init__(self, path: Path, log_images: bool = True) -> None:
         self.path = Path(path)
-        self.partial = self.path.with_name(self.path.name + ".partial")
         self.log_images = log_images
         self.rec = rr.RecordingStream("ndfa_detect")
-        self.path.parent.mkdir(parents=True, exist_ok=True)  # `--log out/run.rrd` in a fresh checkout
-        self.rec.save(str(self.partial))
+        self._staged = Staged(self.path)  # makes the folder: `--log out/run.rrd` in a fresh checkout
+        self.rec.save(str(self._staged.temporary))
         self.rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         self._step = 0
         self._observation_entities: dict[str, set[str]] = {"source": set(), "target": set()}
@@ -55,7 +56,7 @@ class RerunSink:
     def close(self) -> None:
         self.rec.flush()
         self.rec.disconnect()
-        os.replace(self.partial, self.path)
+        self._staged.commit()
 
     # -- one method per event type --------------------------------------------------------------
 

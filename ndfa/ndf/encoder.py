@@ -15,6 +15,7 @@ import numpy as np
 import torch
 from scipy.ndimage import binary_dilation
 
+from ndfa.core.conventions import world_up
 from ndfa.core.errors import ModelError
 from ndfa.core.geometry import transform_points
 from ndfa.ndf.model import load_model
@@ -54,7 +55,6 @@ class EncoderConfig:
     grid_resolution: int = 20        # reconstruction grid cells per axis
     grid_half_extent_m: float = 0.11  # the grid spans +-this around the predicted center
     coarse_threshold: float = 0.05
-    up_world: tuple[float, float, float] = (0.0, 0.0, 1.0)  # gravity opposed, for models with the up cue
     seed: int = 0                    # of the point resampling, so encoding is deterministic
 
 
@@ -113,7 +113,8 @@ class NDFEncoder:
         centroids = points.mean(axis=1, keepdims=True)
         centred = torch.from_numpy((points - centroids).astype(np.float32))
         # The cues: world up seen from each camera, and each view's direction from its camera.
-        up = np.stack([np.asarray(pose)[:3, :3].T @ np.asarray(self.config.up_world) for pose in poses_world_camera])
+        up_world = world_up()  # the world is z-up by convention (`ndfa.core.conventions`)
+        up = np.stack([np.asarray(pose)[:3, :3].T @ up_world for pose in poses_world_camera])
         z = self.model.encode(centred, torch.from_numpy(up.astype(np.float32)),
                               torch.from_numpy(centroids[:, 0].astype(np.float32)))
         return z, centred, centroids

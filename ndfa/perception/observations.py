@@ -19,19 +19,22 @@ import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
-from ndfa.core.geometry import backproject
+from ndfa.core.conventions import MAX_DEPTH_M, MIN_DEPTH_M, VISIBLE_PIXELS, depth_in_range
 from ndfa.core.frame import Frame
+from ndfa.core.geometry import backproject
 
 
 @dataclass(frozen=True)
 class ObservationConfig:
     """How instance masks become point clouds. Lengths in metres.
 
-    min_depth_m, max_depth_m: depth range kept. Beyond ~4 m a mug covers a few hundred pixels
-        and the sensor noise (growing with depth squared) is a sizeable fraction of its size.
-    min_pixels: smaller masks are skipped: too little of the shape to encode reliably. On the
-        `paper` scene the shipped NDF's centers from masks of <= 300 pixels erred by 13 mm
-        (median; 41 mm p90), from larger ones by 3 mm (8 mm p90), in the horizontal plane.
+    min_depth_m, max_depth_m: depth range kept (`ndfa.core.conventions`: beyond ~4 m a mug covers
+        a few hundred pixels and the sensor noise, growing with depth squared, is a sizeable
+        fraction of its size).
+    min_pixels: smaller masks are skipped: too little of the shape to encode reliably
+        (`conventions.VISIBLE_PIXELS`, which scoring shares). On the `paper` scene the shipped
+        NDF's centers from masks of <= 300 pixels erred by 13 mm (median; 41 mm p90), from larger
+        ones by 3 mm (8 mm p90), in the horizontal plane.
     skip_border: skip masks that touch the image border: the object may be cut off, and the
         center of a cut-off view is pulled toward the part in view (median error 2-3x larger).
     max_points: the cloud is subsampled to this before cleaning (the encoder resamples to its own
@@ -44,9 +47,9 @@ class ObservationConfig:
         the mask is skipped as fragmented (e.g. split by an occluder into two unrelated pieces).
     """
 
-    min_depth_m: float = 0.1
-    max_depth_m: float = 4.0
-    min_pixels: int = 300
+    min_depth_m: float = MIN_DEPTH_M
+    max_depth_m: float = MAX_DEPTH_M
+    min_pixels: int = VISIBLE_PIXELS
     skip_border: bool = True
     max_points: int = 1000
     cluster_voxel_m: float = 0.015
@@ -92,7 +95,7 @@ def extract_observations(frame: Frame, config: ObservationConfig = ObservationCo
     order = np.argsort(labels, kind="stable")
     labelled, labels = labelled[order], labels[order]
     depth = frame.depth.ravel()[labelled]
-    in_range = np.isfinite(depth) & (depth >= config.min_depth_m) & (depth <= config.max_depth_m)
+    in_range = depth_in_range(depth, config.min_depth_m, config.max_depth_m)
     on_border = set(np.unique(np.concatenate([ids[0], ids[-1], ids[:, 0], ids[:, -1]])).tolist())
     instance_ids, starts, counts = np.unique(labels, return_index=True, return_counts=True)
 
@@ -112,7 +115,7 @@ def extract_observations(frame: Frame, config: ObservationConfig = ObservationCo
             rng = np.random.default_rng([config.seed, frame.index, instance_id])
             pixels = pixels[np.sort(rng.choice(n_pixels, size=config.max_points, replace=False))]
         rows, cols = np.divmod(pixels, width)
-        points = backproject_pixels(frame.depth, frame.K, rows, cols)
+        points = backproject(frame.K, rows, cols, frame.depth[rows, cols])
         cluster = largest_cluster(points, config.cluster_voxel_m)
         if len(cluster) < config.min_cluster_fraction * len(points):
             skipped.append(SkippedObservation(
@@ -121,11 +124,6 @@ def extract_observations(frame: Frame, config: ObservationConfig = ObservationCo
             continue
         observations.append(Observation(frame.index, instance_id, points[cluster], n_pixels, border))
     return observations, skipped
-
-
-def backproject_pixels(depth: np.ndarray, K: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """Camera-frame points (N, 3) of the given pixels (OpenCV pinhole model, pixel centres at integers)."""
-    return backproject(K, rows, cols, depth[rows, cols])
 
 
 def largest_cluster(points: np.ndarray, voxel_m: float) -> np.ndarray:

@@ -10,13 +10,14 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Protocol
+from typing import Protocol
 
 import numpy as np
 
 from ndfa.change.detector import reported_changes
 from ndfa.core.errors import RecordingError
-from ndfa.eval.scoring import VISIBLE_PIXELS, Score, score
+from ndfa.core.progress import LabelledProgress
+from ndfa.eval.scoring import Score, is_visible, score
 from ndfa.core.events import DecisionEvent, Event, ObservationEvent, TimingEvent
 from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
 from ndfa.io.recording import INSTANCES, RecordingReader
@@ -25,9 +26,6 @@ from ndfa.io.recording import INSTANCES, RecordingReader
 class Sink(Protocol):
     def log(self, event: Event) -> None: ...
     def close(self) -> None: ...
-
-
-ProgressCallback = Callable[[str, int, int], None]  # (session, frames done, frames in session)
 
 
 @dataclass
@@ -94,7 +92,7 @@ def run_detection(
     config: PipelineConfig = PipelineConfig(),
     sinks: list[Sink] = (),
     frame_step: int = 1,
-    on_frame: ProgressCallback | None = None,
+    on_frame: LabelledProgress | None = None,  # (session, frames done, frames in session)
     pipeline: ChangeDetectionPipeline | None = None,
 ) -> DetectionResult:
     """Source pass, target pass, finish. Sinks are closed at the end, also when interrupted."""
@@ -111,7 +109,7 @@ def run_detection(
                     _emit(event, sinks)
                     if isinstance(event, DecisionEvent):
                         decisions.append(event)
-                    if isinstance(event, ObservationEvent) and event.n_pixels >= VISIBLE_PIXELS:
+                    if isinstance(event, ObservationEvent) and is_visible(event.n_pixels):
                         visible[session].add(event.instance_id)
                     if isinstance(event, TimingEvent) and session == "target":
                         for stage, ms in event.stage_ms.items():

@@ -23,7 +23,7 @@ import polars as pl
 
 from ndfa.change.associate import Measurement
 from ndfa.change.detector import ChangeDetector, DetectorConfig, reported_changes
-from ndfa.eval.scoring import VISIBLE_PIXELS, Score, score
+from ndfa.eval.scoring import Score, is_visible, score
 from ndfa.core.events import DecisionEvent
 
 
@@ -56,7 +56,7 @@ def replay(observations: pl.DataFrame, config: DetectorConfig = DetectorConfig()
     events += detector.finish()
     changes = reported_changes([e for e in events if isinstance(e, DecisionEvent)])
     truth = _truth(observations)
-    seen = observations.filter(pl.col("n_pixels") >= VISIBLE_PIXELS)
+    seen = observations.filter(is_visible(pl.col("n_pixels")))
     visible = {s: set(seen.filter(pl.col("session") == s)["instance_id"].to_list()) for s in ("source", "target")}
     result_score = score([i for c in changes for i in c.reported_instances], truth, visible) if truth else None
     return ReplayResult(changes, events, detector, result_score)

@@ -11,9 +11,9 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Callable
 
 from ndfa.core.errors import RecordingError
+from ndfa.core.progress import Progress
 from ndfa.perception.segmentation import SegmentationConfig, segment_frame, valid_depth
 from ndfa.eval.segmentation import relabel_to_truth
 from ndfa.io.recording import RecordingReader, RecordingWriter
@@ -24,7 +24,7 @@ _WRITER_META_KEYS = ("format", "format_version", "depth_scale", "units")
 
 
 def segment_recording(source: Path, out: Path, config: SegmentationConfig = SegmentationConfig(),
-                      keep_truth: bool = False, on_frame: Callable[[int, int], None] | None = None) -> int:
+                      keep_truth: bool = False, on_frame: Progress | None = None) -> int:
     """Write `out`: `source` with every frame's instances replaced by its segmentation. Returns frames written."""
     reader = RecordingReader(source)
     if Path(out).resolve() == Path(source).resolve():

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ndfa.core.errors import SimError
+from ndfa.core.geometry import project
 
 # 60 degrees of horizontal field of view over 640 pixels: fx = 320 / tan(30 deg) ~ 554.26 px.
 _DEFAULT_FOCAL_PX = 320.0 / math.tan(math.radians(30.0))
@@ -125,11 +126,7 @@ class PinholeCamera:
         and -0.5 <= v < H - 0.5, and its pixel is (round(v), round(u)).
         """
         points_camera = np.asarray(points_camera, dtype=np.float64)
-        z = points_camera[:, 2]
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = self.fx * points_camera[:, 0] / z + self.cx
-            v = self.fy * points_camera[:, 1] / z + self.cy
-        return np.stack([u, v], axis=1), z
+        return project(self.K, points_camera), points_camera[:, 2]
 
 
 @functools.lru_cache(maxsize=8)

@@ -27,9 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ndfa.core.errors import TrajectoryError
-from ndfa.core.geometry import backproject
+from ndfa.core.geometry import backproject, project
 from ndfa.core.frame import Frame
-from ndfa.trajectory.refine import refine_point_to_plane
 
 # Below this many valid depth points a frame is not registered: its pose is the constant-velocity
 # prediction (the camera keeps its last motion), and the frame is counted as starved.
@@ -217,6 +216,10 @@ class DepthOdometry:
         plane or the correction exceeds twice the refinement distance."""
         import open3d as o3d
 
+        # Imported here, as open3d: scipy is slow to import, and the CLI imports this module for
+        # OdometryConfig's defaults on every call.
+        from ndfa.trajectory.refine import refine_point_to_plane
+
         config = self.config
         visible = _visible(self._kiss.local_map.point_cloud(), pose, K, image_size, config)
         if len(visible) < MIN_POINTS:
@@ -251,8 +254,7 @@ def _visible(map_points: np.ndarray, pose: np.ndarray, K: np.ndarray, image_size
     z = camera[:, 2]
     in_front = (z > config.min_range_m) & (z < config.max_range_m + config.refine_distance_m)
     camera, kept = camera[in_front], map_points[in_front]
-    u = K[0, 0] * camera[:, 0] / camera[:, 2] + K[0, 2]
-    v = K[1, 1] * camera[:, 1] / camera[:, 2] + K[1, 2]
+    u, v = project(K, camera).T
     height, width = image_size
     inside = (u > -0.1 * width) & (u < 1.1 * width) & (v > -0.1 * height) & (v < 1.1 * height)
     return kept[inside]

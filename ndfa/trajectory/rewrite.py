@@ -11,12 +11,12 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 from ndfa.core.errors import TrajectoryError
-from ndfa.io.recording import Frame, RecordingReader, RecordingWriter
+from ndfa.core.progress import Progress
+from ndfa.io.recording import RecordingReader, RecordingWriter
 from ndfa.trajectory.kiss import DepthOdometry, OdometryConfig
 from ndfa.trajectory.metrics import AbsoluteError, RelativeError, absolute_trajectory_error, relative_pose_error
 
@@ -25,7 +25,6 @@ METHODS = ("kiss-icp",)
 # The RPE distances reported: one frame (drift per step) and one metre travelled (drift per metre).
 RPE_DELTAS: tuple[tuple[float, str], ...] = ((1, "frames"), (1.0, "m"))
 
-ProgressCallback = Callable[[int, int], None]  # (frames done, frames in the recording)
 
 
 @dataclass
@@ -60,7 +59,7 @@ class PoseReport:
 
 
 def rewrite_poses(recording_in: str | Path, recording_out: str | Path, method: str = "kiss-icp",
-                  config: OdometryConfig = OdometryConfig(), on_progress: ProgressCallback | None = None) -> PoseReport:
+                  config: OdometryConfig = OdometryConfig(), on_progress: Progress | None = None) -> PoseReport:
     """Estimate the camera poses of `recording_in` with `method` and write `recording_out`: the same
     recording with /tf replaced by the estimate (see the module docstring). One pass, one frame in
     memory at a time; the output appears only when complete. Returns the `PoseReport`."""

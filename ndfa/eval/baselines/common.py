@@ -13,7 +13,8 @@ from typing import Protocol
 import numpy as np
 
 from ndfa.core.errors import NdfaError
-from ndfa.core.geometry import invert_pose
+from ndfa.core.conventions import MIN_DEPTH_M
+from ndfa.core.geometry import invert_pose, project
 from ndfa.io.recording import Frame
 
 
@@ -89,10 +90,8 @@ def free_fraction(points_world: np.ndarray, frame: Frame, margin_m: float, max_d
     camera = points_world @ world_camera[:3, :3].T + world_camera[:3, 3]
     z = camera[:, 2]
     height, width = frame.depth.shape
-    with np.errstate(divide="ignore", invalid="ignore"):
-        cols = np.round(frame.K[0, 0] * camera[:, 0] / z + frame.K[0, 2])
-        rows = np.round(frame.K[1, 1] * camera[:, 1] / z + frame.K[1, 2])
-    inside = (z > 0.1) & (z < max_depth_m) & (cols >= 0) & (cols < width) & (rows >= 0) & (rows < height)
+    cols, rows = np.round(project(frame.K, camera)).T
+    inside = (z > MIN_DEPTH_M) & (z < max_depth_m) & (cols >= 0) & (cols < width) & (rows >= 0) & (rows < height)
     if not inside.any():
         return 0.0
     measured = frame.depth[rows[inside].astype(int), cols[inside].astype(int)]

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ndfa.core.conventions import MAX_DEPTH_M
 from ndfa.eval.baselines.common import BaselineDecision, BaselineError, free_fraction, require_masks, true_pose
 from ndfa.core.geometry import transform_points
 from ndfa.perception.observations import ObservationConfig, extract_observations
@@ -45,7 +46,9 @@ class NNConfig:
     observations: how masks become clouds (ndfa's perception; cut-off views are kept: a partial
         cloud is as good as any for differencing).
     free_margin_m, free_fraction, visibility_points, max_depth_m: the "target looked at its place"
-        test for removed objects (see the module docstring), on this many points per object.
+        test for removed objects (see the module docstring), on `visibility_points` points sampled
+        from each object's reference cloud (a sample size, not the visibility rule's mask pixels)
+        within the method's depth range.
     """
 
     distance_m: float = 0.002
@@ -55,7 +58,7 @@ class NNConfig:
     free_margin_m: float = 0.02
     free_fraction: float = 0.5
     visibility_points: int = 300
-    max_depth_m: float = 4.0
+    max_depth_m: float = MAX_DEPTH_M
 
     def __post_init__(self) -> None:
         if self.distance_m <= 0 or not 0 < self.changed_fraction <= 1 or self.voxel_m <= 0:

@@ -37,7 +37,8 @@ import numpy as np
 import open3d as o3d
 
 from ndfa.eval.baselines.common import BaselineDecision, BaselineError, require_masks, true_pose
-from ndfa.core.geometry import backproject, invert_pose
+from ndfa.core.conventions import MAX_DEPTH_M, VISIBLE_PIXELS
+from ndfa.core.geometry import backproject, invert_pose, project
 from ndfa.io.recording import Frame
 
 _NO_COLOR = o3d.pipelines.integration.TSDFVolumeColorType.NoColor
@@ -56,8 +57,8 @@ class TSDFConfig:
     error_voxels: the conflict / match distance in voxels (PMT: error_threshold = -1, one voxel).
     min_voxel_weight, min_points, min_fraction: PMT's min_voxel_weight, match_*_points,
         match_*_percentage.
-    min_pixels: masks with fewer pixels with depth are not integrated (as ndfa's perception).
-    max_depth_m: depth beyond this is not integrated.
+    min_pixels: masks with fewer pixels with depth are not integrated (ndfa's visibility rule).
+    max_depth_m: depth beyond this is not integrated (ndfa's range).
     check_every: target frames between change checks (and one at the end).
     free_space_width_px: the source frames are kept, decimated to at most this width, to build
         free-space submaps where target objects appear.
@@ -70,8 +71,8 @@ class TSDFConfig:
     min_voxel_weight: float = 1e-6
     min_points: int = 50
     min_fraction: float = 0.1
-    min_pixels: int = 300
-    max_depth_m: float = 4.0
+    min_pixels: int = VISIBLE_PIXELS
+    max_depth_m: float = MAX_DEPTH_M
     check_every: int = 10
     free_space_width_px: int = 320
 
@@ -360,6 +361,5 @@ def _in_view(submap: Submap, view: DepthView, max_depth_m: float) -> bool:
         return False
     height, width = view.depth.shape
     ahead = z > 0.05
-    cols = view.K[0, 0] * camera[ahead, 0] / z[ahead] + view.K[0, 2]
-    rows = view.K[1, 1] * camera[ahead, 1] / z[ahead] + view.K[1, 2]
+    cols, rows = project(view.K, camera[ahead]).T
     return bool(np.any((cols >= 0) & (cols < width) & (rows >= 0) & (rows < height)))

@@ -24,9 +24,6 @@ optical rotation under it, so an importer must chain two transforms, as with a r
 from __future__ import annotations
 
 import json
-import os
-import secrets
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,6 +37,7 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from ndfa.core.errors import ExportError
+from ndfa.io.atomic import atomic_path
 from ndfa.core.geometry import invert_pose, make_pose, quaternion_xyzw_from_matrix
 from ndfa.io.ingest import ros_images
 from ndfa.io.ingest.bag_topics import GROUND_TRUTH_POSE_TOPIC, GROUND_TRUTH_TOPIC  # what `ndfa ingest bag` reads back
@@ -88,17 +86,12 @@ def export_bag(recording_path: str | Path, out_path: str | Path, version: int = 
         raise ExportError(f"{out_path} already exists; choose a new path (a bag is never overwritten)")
     reader = RecordingReader(recording_path)
 
-    staging = out_path.parent / f".{out_path.name}.tmp-{secrets.token_hex(4)}"
     try:
-        staging.mkdir(parents=True)
-        temporary = staging / out_path.name
-        with _BagWriter(temporary, version, storage) as bag:
+        # The temporary keeps the bag's name: a ROS2 bag names its database file after its folder.
+        with atomic_path(out_path) as temporary, _BagWriter(temporary, version, storage) as bag:
             frames = _write_recording(bag, reader, compressed, color_format)
-        os.replace(temporary, out_path)
     except (WriterError1, WriterError2, OSError) as error:
         raise ExportError(f"cannot write {out_path}: {error}") from None
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
     size = sum(p.stat().st_size for p in out_path.rglob("*") if p.is_file()) if out_path.is_dir() else out_path.stat().st_size
     return BagExport(out_path, frames, sorted(bag.connections), size)
 

@@ -16,9 +16,6 @@ folder is never written into.
 from __future__ import annotations
 
 import json
-import secrets
-import shutil
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,13 +24,13 @@ from PIL import Image
 
 import ndfa
 from ndfa.core.errors import ExportError
-from ndfa.core.geometry import quaternion_xyzw_from_matrix
-from ndfa.io.ingest.tum_folder import CALIBRATION, DEPTH_LIST, GROUND_TRUTH_JSON, GROUNDTRUTH, RGB_LIST, TRUE_POSES
+from ndfa.core.progress import Progress
+from ndfa.io.atomic import atomic_dir
+from ndfa.io.ingest.tum_layout import CALIBRATION, DEPTH_LIST, DEPTH_SCALE, GROUND_TRUTH_JSON, GROUNDTRUTH, RGB_LIST, TRUE_POSES
 from ndfa.io.recording import RecordingReader
+from ndfa.trajectory.tum_format import POSE_FIELDS, pose_line
 
-ProgressCallback = Callable[[int, int], None]  # (frames done, frames in the recording)
-
-_POSE_HEADER = "# timestamp tx ty tz qx qy qz qw (pose_world_camera: camera optical frame in world)"
+_POSE_HEADER = f"# {POSE_FIELDS} (pose_world_camera: camera optical frame in world)"
 
 
 @dataclass(frozen=True)
@@ -49,8 +46,8 @@ class TumExportSummary:
     depth_clipped: int
 
 
-def export_tum(recording_path: str | Path, folder: str | Path, depth_scale: float = 5000.0,
-               on_progress: ProgressCallback | None = None) -> TumExportSummary:
+def export_tum(recording_path: str | Path, folder: str | Path, depth_scale: float = DEPTH_SCALE,
+               on_progress: Progress | None = None) -> TumExportSummary:
     """Write the recording at `recording_path` as a TUM RGB-D folder `folder` (which must not exist,
     or be empty). depth_scale: depth PNG units per metre (TUM: 5000, i.e. 0.2 mm)."""
     if not depth_scale > 0:
@@ -60,24 +57,15 @@ def export_tum(recording_path: str | Path, folder: str | Path, depth_scale: floa
         raise ExportError(f"{folder} already exists and is not an empty directory; choose a new one")
     reader = RecordingReader(recording_path)
     try:
-        folder.parent.mkdir(parents=True, exist_ok=True)
-        temporary = folder.parent / f".{folder.name}.tmp-{secrets.token_hex(4)}"
-        temporary.mkdir()
+        with atomic_dir(folder) as temporary:  # renamed over an empty `folder`
+            summary = _write_folder(reader, temporary, depth_scale, on_progress)
     except OSError as error:
-        raise ExportError(f"cannot write to {folder.parent}: {error.strerror or error}") from None
-    try:
-        summary = _write_folder(reader, temporary, depth_scale, on_progress)
-        if folder.exists():
-            folder.rmdir()  # empty, checked above
-        temporary.rename(folder)
-    except BaseException:
-        shutil.rmtree(temporary, ignore_errors=True)
-        raise
+        raise ExportError(f"cannot write {folder}: {error.strerror or error}") from None
     return TumExportSummary(folder, *summary)
 
 
 def _write_folder(reader: RecordingReader, out: Path, depth_scale: float,
-                  on_progress: ProgressCallback | None) -> tuple[int, int, bool, bool, int]:
+                  on_progress: Progress | None) -> tuple[int, int, bool, bool, int]:
     for name in ("rgb", "depth") + (("masks",) if reader.has_instances else ()):
         (out / name).mkdir()
     origin = f"# exported from {reader.path.name} by ndfa {ndfa.__version__}"
@@ -111,9 +99,9 @@ def _write_folder(reader: RecordingReader, out: Path, depth_scale: float,
             with_rgb += 1
         if frame.instances is not None:
             _write_png(out / "masks" / f"{stamp}.png", frame.instances)
-        pose_lines.append(f"{stamp} {_pose_text(frame.pose_world_camera)}")
+        pose_lines.append(pose_line(frame.timestamp, frame.pose_world_camera))
         if frame.pose_world_camera_true is not None:
-            true_pose_lines.append(f"{stamp} {_pose_text(frame.pose_world_camera_true)}")
+            true_pose_lines.append(pose_line(frame.timestamp, frame.pose_world_camera_true))
         frames += 1
         if on_progress is not None:
             on_progress(frames, len(reader))
@@ -131,12 +119,6 @@ def _write_folder(reader: RecordingReader, out: Path, depth_scale: float,
     if truth is not None:
         (out / GROUND_TRUTH_JSON).write_text(json.dumps(truth, indent=1))
     return frames, with_rgb, reader.has_instances, truth is not None, clipped
-
-
-def _pose_text(pose: np.ndarray) -> str:
-    """'tx ty tz qx qy qz qw' with 9 decimals (nanometres; 1e-9 of a unit quaternion)."""
-    values = [*pose[:3, 3], *quaternion_xyzw_from_matrix(pose[:3, :3])]
-    return " ".join(f"{v:.9f}" for v in values)
 
 
 def _write_png(path: Path, pixels: np.ndarray) -> None:

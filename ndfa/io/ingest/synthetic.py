@@ -17,12 +17,12 @@ import dataclasses
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 import ndfa
 from ndfa.core.errors import IngestError
+from ndfa.core.progress import LabelledProgress
 from ndfa.io.recording import Frame, RecordingWriter
 from ndfa.sim.mug import Mug
 from ndfa.sim.presets import SimConfig
@@ -38,7 +38,6 @@ SESSION_START = {
     "target": datetime(2026, 1, 6, 9, 0, tzinfo=timezone.utc).timestamp(),
 }
 
-ProgressCallback = Callable[[str, int, int], None]  # (session, frames done, frames in session)
 
 
 @dataclass(frozen=True)
@@ -55,7 +54,7 @@ def ingest_sim(
     config: SimConfig,
     out_dir: Path,
     models: list[Mug] | None = None,
-    on_progress: ProgressCallback | None = None,
+    on_progress: LabelledProgress | None = None,  # (session, frames done, frames in session)
 ) -> list[SessionSummary]:
     """Render both sessions of `config` into `out_dir/source.mcap` and `out_dir/target.mcap`.
 
@@ -79,7 +78,7 @@ def world_tilt(config: SimConfig) -> np.ndarray:
 
 
 def _render_session(world: World, config: SimConfig, session: str, path: Path, ground_truth: dict,
-                    on_progress: ProgressCallback | None, textures: RoomTextures | None = None) -> SessionSummary:
+                    on_progress: LabelledProgress | None, textures: RoomTextures | None = None) -> SessionSummary:
     # One stream per session and purpose: changing the noise model does not move the cameras.
     stream = SESSIONS.index(session)
     route = config.source_route if session == "source" else config.target_route

@@ -19,9 +19,8 @@ import bisect
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
 
-from ndfa.core.geometry import invert_pose, make_pose, matrix_from_quaternion_xyzw
+from ndfa.core.geometry import interpolate_pose, invert_pose, make_pose, matrix_from_quaternion_xyzw
 
 
 class TfLookupError(LookupError):
@@ -55,7 +54,7 @@ class _Edge:
     def at(self, stamp_ns: int, tolerance_ns: int) -> np.ndarray:
         """T_parent_child at `stamp_ns`."""
         if self.static:
-            return make_pose(matrix_from_quaternion_xyzw(self.quaternions[-1]), self.translations[-1])
+            return self._sample(-1)
         self._sort()
         stamps = self.stamps
         if stamp_ns < stamps[0] - tolerance_ns or stamp_ns > stamps[-1] + tolerance_ns:
@@ -63,15 +62,14 @@ class _Edge:
                                 f"{stamps[-1] / 1e9:.3f} s, not at {stamp_ns / 1e9:.3f} s")
         right = bisect.bisect_left(stamps, stamp_ns)
         if right == 0 or right == len(stamps) or stamps[right] == stamp_ns:
-            i = min(right, len(stamps) - 1)
-            return make_pose(matrix_from_quaternion_xyzw(self.quaternions[i]), self.translations[i])
+            return self._sample(min(right, len(stamps) - 1))
         left = right - 1
-        s = (stamp_ns - stamps[left]) / (stamps[right] - stamps[left])
-        translation = (1 - s) * self.translations[left] + s * self.translations[right]
-        # scipy's slerp, as the TUM importer's (it takes the shorter way round).
-        pair = Rotation.from_quat([self.quaternions[left], self.quaternions[right]])
-        rotation = Slerp([0.0, 1.0], pair)([s]).as_matrix()[0]
-        return make_pose(rotation, translation)
+        weight = (stamp_ns - stamps[left]) / (stamps[right] - stamps[left])
+        return interpolate_pose(self._sample(left), self._sample(right), weight)
+
+    def _sample(self, i: int) -> np.ndarray:
+        """T_parent_child of the i-th sample."""
+        return make_pose(matrix_from_quaternion_xyzw(self.quaternions[i]), self.translations[i])
 
     def _sort(self) -> None:
         if not self._sorted:

@@ -8,7 +8,6 @@ dropped and why, so a user can tell a short recording from a broken folder.
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -16,12 +15,11 @@ import numpy as np
 
 import ndfa
 from ndfa.core.errors import IngestError, NdfaError
-from ndfa.io.ingest.tum_folder import GROUNDTRUTH, Intrinsics, TumFolder, no_poses_message
-from ndfa.io.ingest import PoseEstimator
-from ndfa.io.recording import Frame, RecordingWriter
-
-ProgressCallback = Callable[[int, int], None]  # (frames written, frames to write)
-
+from ndfa.core.progress import Progress
+from ndfa.io.ingest.tum_folder import TumFolder, no_poses_message
+from ndfa.io.ingest.tum_layout import DEPTH_SCALE, GROUNDTRUTH, Intrinsics
+from ndfa.io.ingest import MAX_DT_S, PoseEstimator
+from ndfa.io.recording import RecordingWriter
 
 class TumWarning(UserWarning):
     """Something in a TUM folder was off but could be worked around (see the message)."""
@@ -55,12 +53,12 @@ def ingest_tum(
     out: str | Path,
     *,
     intrinsics: Intrinsics = None,
-    depth_scale: float = 5000.0,
+    depth_scale: float = DEPTH_SCALE,
     masks: str | Path | None = None,
-    max_dt: float = 0.02,
+    max_dt: float = MAX_DT_S,
     session: str | None = None,
     estimate_poses: PoseEstimator | None = None,
-    on_progress: ProgressCallback | None = None,
+    on_progress: Progress | None = None,  # (frames written, frames to write)
 ) -> TumSummary:
     """Write the TUM RGB-D folder `folder` into the recording `out` (.mcap).
 

@@ -7,14 +7,16 @@ frame in the world, i.e. pose_world_camera with OpenCV axes), and the PNGs they 
 
 `TumFolder` only reads the three text files when it opens, so every problem with the folder's
 index (missing depth.txt, unreadable lines, poses that cannot be placed) shows before any image is
-decoded; `frames()` then decodes one frame at a time. Writing a recording is `ndfa.io.ingest.tum`'s job.
+decoded; `frames()` then decodes one frame at a time. The text files are parsed in tum_lists.py,
+the PNGs decoded in tum_images.py, the file names are tum_layout.py's; writing a recording is
+`ndfa.io.ingest.tum`'s job.
 
 Decisions, each counted or noted so the summary says what happened:
 - each depth frame takes the rgb frame nearest in time within `max_dt`, one-to-one and closest
   pairs first (as TUM's associate.py); a depth frame with no rgb partner is *kept* with rgb None
   (ndfa's method needs depth, colour is for looking at), and counted in `depth_without_rgb`;
 - poses are interpolated to the depth stamps (linear translation, slerp rotation); a frame outside
-  the groundtruth's time span, or inside a gap longer than `MAX_POSE_GAP_S`, is dropped;
+  the groundtruth's time span, or inside a gap longer than `tum_lists.MAX_POSE_GAP_S`, is dropped;
 - timestamps that are not strictly increasing in file order (or negative) make the folder fall
   back to file order: line i of depth.txt pairs with line i of rgb.txt, frames get synthetic stamps
   i / `FALLBACK_RATE_HZ`, and groundtruth.txt pairs by line when it has one line per depth frame;
@@ -38,38 +40,17 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from PIL import Image
-from scipy.spatial.transform import Rotation, Slerp
 
 from ndfa.core.errors import IngestError
-from ndfa.core.geometry import make_pose, matrix_from_quaternion_xyzw
+from ndfa.io.ingest import MAX_DT_S
+from ndfa.io.ingest.tum_images import check_size, read_depth, read_mask, read_rgb
+from ndfa.io.ingest.tum_layout import (
+    CALIBRATION, DEFAULT_INTRINSICS, DEPTH_LIST, DEPTH_SCALE, GROUND_TRUTH_JSON, GROUNDTRUTH, INTRINSICS_PRESETS, MASKS_DIR, RGB_LIST,
+    TRUE_POSES, Intrinsics, read_calibration)
+from ndfa.io.ingest.tum_lists import StampedList, associate, poses_at, read_list
 from ndfa.io.recording import Frame
+from ndfa.trajectory.tum_format import pose_from_fields
 
-RGB_LIST = "rgb.txt"
-DEPTH_LIST = "depth.txt"
-GROUNDTRUTH = "groundtruth.txt"
-CALIBRATION = "calibration.txt"
-GROUND_TRUTH_JSON = "ndfa_ground_truth.json"
-TRUE_POSES = "ndfa_true_poses.txt"
-MASKS_DIR = "masks"  # used when no masks folder is given and the TUM folder has one
-
-# Published TUM calibrations (fx, fy, cx, cy) of the colour camera, per Freiburg sensor. fr1 and fr2
-# images are distorted; ndfa's pinhole model ignores the distortion coefficients.
-INTRINSICS_PRESETS: dict[str, tuple[float, float, float, float]] = {
-    "fr1": (517.3, 516.5, 318.6, 255.3),
-    "fr2": (520.9, 521.0, 325.1, 249.7),
-    "fr3": (535.4, 539.2, 320.1, 247.6),
-}
-# TUM's "ROS default" calibration, which the dataset recommends when the sensor is unknown.
-DEFAULT_INTRINSICS = (525.0, 525.0, 319.5, 239.5)
-
-Intrinsics = str | tuple[float, float, float, float] | None
-
-# A depth frame between two groundtruth poses further apart than this is dropped: the motion
-# capture lost the camera there, and interpolating across the gap would invent a pose.
-MAX_POSE_GAP_S = 0.1
-# Two stamps closer than this are the same moment (TUM files print 4 to 6 decimals).
-SAME_STAMP_S = 1e-6
 # Frame rate of the synthetic stamps when the folder's own stamps cannot be used (TUM's Kinect rate).
 FALLBACK_RATE_HZ = 30.0
 
@@ -88,30 +69,6 @@ class TumEntry:
 
 
 @dataclass
-class _StampedList:
-    """A parsed TUM list file: stamps and the rest of each data line."""
-
-    path: Path
-    stamps: np.ndarray  # (N,) float64 seconds
-    fields: list[list[str]]
-    line_numbers: list[int]  # 1-based line numbers in the file, for messages
-
-    @property
-    def increasing(self) -> bool:
-        return bool(np.all(np.diff(self.stamps) > 0))
-
-    def disorder(self, negative_ok: bool) -> str:
-        """Where the stamps first go wrong, for messages."""
-        for k, stamp in enumerate(self.stamps):
-            if stamp < 0 and not negative_ok:
-                return f"line {self.line_numbers[k]} has the negative timestamp {stamp}"
-            if k > 0 and stamp <= self.stamps[k - 1]:
-                return (f"line {self.line_numbers[k]} ({stamp}) is not after line "
-                        f"{self.line_numbers[k - 1]} ({self.stamps[k - 1]})")
-        return "none"
-
-
-@dataclass
 class TumFolder:
     """A TUM RGB-D folder, indexed: which frames it has, their files and poses. See the module docstring.
 
@@ -123,9 +80,9 @@ class TumFolder:
 
     folder: Path
     intrinsics: Intrinsics = None
-    depth_scale: float = 5000.0
+    depth_scale: float = DEPTH_SCALE
     masks: Path | None = None
-    max_dt: float = 0.02
+    max_dt: float = MAX_DT_S
     entries: list[TumEntry] = field(init=False)
     K: np.ndarray = field(init=False)
     has_groundtruth: bool = field(init=False)
@@ -194,15 +151,15 @@ class TumFolder:
     # -- index: text files --------------------------------------------------------------------
 
     def _index(self) -> list[TumEntry]:
-        depth_list = self._read_list(DEPTH_LIST, required=True)
-        rgb_list = self._read_list(RGB_LIST, required=False)
-        groundtruth = self._read_list(GROUNDTRUTH, required=False)
+        depth_list = read_list(self.folder, DEPTH_LIST, required=True)
+        rgb_list = read_list(self.folder, RGB_LIST, required=False)
+        groundtruth = read_list(self.folder, GROUNDTRUTH, required=False)
         self.has_groundtruth = groundtruth is not None
         depth_usable = depth_list.increasing and bool(np.all(depth_list.stamps >= 0))
         in_time_order = depth_usable and (rgb_list is None or rgb_list.increasing)
 
         if in_time_order:
-            rgb_of = _associate(depth_list.stamps, rgb_list.stamps, self.max_dt) if rgb_list else {}
+            rgb_of = associate(depth_list.stamps, rgb_list.stamps, self.max_dt) if rgb_list else {}
             stamps = depth_list.stamps
         else:
             bad = depth_list if not depth_usable else rgb_list
@@ -224,7 +181,7 @@ class TumFolder:
         if groundtruth is not None:
             entries = self._place_poses(entries, groundtruth, depth_list, in_time_order, "pose")
             self.info["poses"] = f"given ({GROUNDTRUTH})"
-            true_poses = self._read_list(TRUE_POSES, required=False)
+            true_poses = read_list(self.folder, TRUE_POSES, required=False)
             if true_poses is not None:
                 entries = self._place_poses(entries, true_poses, depth_list, in_time_order, "true_pose")
         entries = [entry for entry in entries if self._files_exist(entry)]
@@ -240,39 +197,6 @@ class TumFolder:
                 return False
         return True
 
-    def _read_list(self, name: str, required: bool) -> _StampedList | None:
-        """Parse a TUM list file: '#' comments and blank lines skipped, a number first on every other line."""
-        path = self.folder / name
-        if not path.is_file():
-            if required:
-                raise IngestError(f"{path}: no such file; a TUM RGB-D folder needs {name} "
-                                  f"(lines 'timestamp depth/NAME.png')")
-            return None
-        columns = 8 if name in (GROUNDTRUTH, TRUE_POSES) else 2
-        stamps, rows, numbers = [], [], []
-        try:
-            lines = path.read_text().splitlines()
-        except (OSError, UnicodeDecodeError) as error:
-            raise IngestError(f"{path} cannot be read: {error}") from error
-        for number, line in enumerate(lines, start=1):
-            text = line.strip()
-            if not text or text.startswith("#"):
-                continue
-            parts = text.split()
-            try:
-                if len(parts) < columns:
-                    raise ValueError(f"expected {columns} fields, got {len(parts)}")
-                stamp = float(parts[0])
-                values = [float(v) for v in parts[1:columns]] if columns == 8 else None
-                if not np.isfinite(stamp) or (values is not None and not np.all(np.isfinite(values))):
-                    raise ValueError("not a finite number")
-            except ValueError as error:
-                raise IngestError(f"{path}, line {number}: cannot read {text!r}: {error}") from None
-            stamps.append(stamp)
-            rows.append(parts[1:columns])
-            numbers.append(number)
-        return _StampedList(path, np.array(stamps, dtype=np.float64), rows, numbers)
-
     def _data_path(self, relative: str) -> Path:
         """The image a list line names; 'depth/x.png' is also found as 'depths/x.png' and vice versa."""
         path = self.folder / relative
@@ -282,20 +206,19 @@ class TumFolder:
             return self.folder / alias / rest
         return path
 
-    def _place_poses(self, entries: list[TumEntry], poses: _StampedList, depth_list: _StampedList,
+    def _place_poses(self, entries: list[TumEntry], poses: StampedList, depth_list: StampedList,
                      in_time_order: bool, attribute: str) -> list[TumEntry]:
         """Set entry.<attribute> from a groundtruth-format file; drop and count frames it cannot place."""
-        matrices = np.array([make_pose(matrix_from_quaternion_xyzw(np.array(row[3:7], dtype=float)),
-                                       np.array(row[0:3], dtype=float)) for row in poses.fields]).reshape(-1, 4, 4)
+        matrices = np.array([pose_from_fields(row) for row in poses.fields]).reshape(-1, 4, 4)
         if len(matrices) == 0:
             raise IngestError(f"{poses.path} holds no poses")
         if in_time_order and poses.increasing:
-            placed = _interpolate(poses.stamps, matrices, depth_list.stamps[[e.line for e in entries]])
+            placed = poses_at(poses.stamps, matrices, depth_list.stamps[[e.line for e in entries]])
         elif len(matrices) == len(depth_list.stamps):
             self._warn(f"{poses.path}: pairing poses with {DEPTH_LIST} line by line (timestamps not usable)")
             placed = [(matrices[e.line], None) for e in entries]
         elif poses.increasing:
-            placed = _interpolate(poses.stamps, matrices, depth_list.stamps[[e.line for e in entries]])
+            placed = poses_at(poses.stamps, matrices, depth_list.stamps[[e.line for e in entries]])
         else:
             raise IngestError(f"{poses.path}: timestamps are not increasing and it has {len(matrices)} poses for "
                               f"{len(depth_list.stamps)} depth frames, so its poses cannot be placed")
@@ -337,14 +260,14 @@ class TumFolder:
 
     def _load(self, entry: TumEntry, index: int, images: bool) -> Frame:
         """Decode one entry into a Frame."""
-        depth = _read_depth(entry.depth_path, self.depth_scale)
+        depth = read_depth(entry.depth_path, self.depth_scale)
         rgb = instances = None
         if images and entry.rgb_path is not None:
-            rgb = _read_rgb(entry.rgb_path)
-            _check_size(entry.rgb_path, rgb.shape[:2], entry.depth_path, depth.shape)
+            rgb = read_rgb(entry.rgb_path)
+            check_size(entry.rgb_path, rgb.shape[:2], entry.depth_path, depth.shape)
         if images and entry.mask_path is not None:
-            instances = _read_mask(entry.mask_path)
-            _check_size(entry.mask_path, instances.shape, entry.depth_path, depth.shape)
+            instances = read_mask(entry.mask_path)
+            check_size(entry.mask_path, instances.shape, entry.depth_path, depth.shape)
         pose, true_pose = (entry.pose, entry.true_pose) if images else (np.eye(4), None)
         try:
             return Frame(index=index, timestamp=entry.timestamp, rgb=rgb, depth=depth, K=self.K,
@@ -364,104 +287,3 @@ def read_tum_folder(folder: str | Path, **options: Any) -> Iterator[Frame]:
 def no_poses_message(folder: Path) -> str:
     return (f"{folder} has no {GROUNDTRUTH}, so the frames have no poses: estimate them with "
             "`--poses kiss-icp` (or pass estimate_poses=... to ingest_tum)")
-
-
-def read_calibration(path: Path) -> tuple[float, float, float, float]:
-    """fx fy cx cy from the first non-comment line of a calibration.txt."""
-    try:
-        lines = [line.split() for line in path.read_text().splitlines() if line.strip() and not line.lstrip().startswith("#")]
-        fx, fy, cx, cy = (float(v) for v in lines[0][:4])
-    except (OSError, UnicodeDecodeError, IndexError, ValueError):
-        raise IngestError(f"{path}: expected a line 'fx fy cx cy' (pixels)") from None
-    return fx, fy, cx, cy
-
-
-def _associate(depth_stamps: np.ndarray, rgb_stamps: np.ndarray, max_dt: float) -> dict[int, int]:
-    """depth index -> rgb index: closest pairs within max_dt first, each frame used once (TUM's associate.py)."""
-    candidates = []
-    for i, stamp in enumerate(depth_stamps):
-        lo, hi = np.searchsorted(rgb_stamps, [stamp - max_dt, stamp + max_dt], side="left")
-        for j in range(lo, min(hi + 1, len(rgb_stamps))):
-            dt = abs(rgb_stamps[j] - stamp)
-            if dt <= max_dt:
-                candidates.append((dt, i, j))
-    pairs, used_rgb = {}, set()
-    for _, i, j in sorted(candidates):
-        if i not in pairs and j not in used_rgb:
-            pairs[i] = j
-            used_rgb.add(j)
-    return pairs
-
-
-def _interpolate(pose_stamps: np.ndarray, poses: np.ndarray, stamps: np.ndarray
-                 ) -> list[tuple[np.ndarray | None, str | None]]:
-    """Pose at each stamp (linear translation, slerp rotation), or (None, why not)."""
-    rotations = Rotation.from_matrix(poses[:, :3, :3])
-    placed = []
-    for stamp in stamps:
-        k = int(np.searchsorted(pose_stamps, stamp))
-        for near in (k - 1, k):
-            if 0 <= near < len(pose_stamps) and abs(pose_stamps[near] - stamp) <= SAME_STAMP_S:
-                placed.append((poses[near], None))
-                break
-        else:
-            if k == 0 or k == len(pose_stamps):
-                placed.append((None, "outside the groundtruth time span"))
-            elif pose_stamps[k] - pose_stamps[k - 1] > MAX_POSE_GAP_S:
-                placed.append((None, f"in a groundtruth gap over {MAX_POSE_GAP_S:g} s"))
-            else:
-                t0, t1 = pose_stamps[k - 1], pose_stamps[k]
-                w = (stamp - t0) / (t1 - t0)
-                rotation = Slerp([t0, t1], rotations[k - 1:k + 1])([stamp]).as_matrix()[0]
-                translation = (1 - w) * poses[k - 1, :3, 3] + w * poses[k, :3, 3]
-                placed.append((make_pose(rotation, translation), None))
-    return placed
-
-
-def _read_png(path: Path) -> Image.Image:
-    try:
-        image = Image.open(path)
-        image.load()
-    except (OSError, SyntaxError, ValueError) as error:
-        raise IngestError(f"{path} is not a readable image: {error}") from error
-    return image
-
-
-def _read_16bit(path: Path, what: str) -> np.ndarray:
-    image = _read_png(path)
-    if image.mode not in ("I;16", "I;16B", "I;16L", "I"):
-        bits = {"1": "1-bit", "L": "8-bit", "P": "8-bit palette", "RGB": "8-bit RGB", "RGBA": "8-bit RGBA"}
-        raise IngestError(f"{path}: {what} must be a 16-bit single-channel PNG, but it is "
-                          f"{bits.get(image.mode, 'mode ' + image.mode)}")
-    pixels = np.array(image)
-    if pixels.dtype != np.uint16:
-        if pixels.min(initial=0) < 0 or pixels.max(initial=0) > np.iinfo(np.uint16).max:
-            raise IngestError(f"{path}: {what} values do not fit 16 bits")
-        pixels = pixels.astype(np.uint16)
-    return pixels
-
-
-def _read_depth(path: Path, depth_scale: float) -> np.ndarray:
-    """(H, W) float32 metres, 0 = invalid."""
-    return (_read_16bit(path, "a depth image").astype(np.float64) / depth_scale).astype(np.float32)
-
-
-def _read_mask(path: Path) -> np.ndarray:
-    """(H, W) uint16 instance ids; 8-bit masks are widened (ids < 256 fit)."""
-    image = _read_png(path)
-    if image.mode == "L":
-        return np.array(image).astype(np.uint16)
-    return _read_16bit(path, "an instance mask")
-
-
-def _read_rgb(path: Path) -> np.ndarray:
-    image = _read_png(path)
-    if image.mode not in ("RGB", "RGBA", "L", "P"):
-        raise IngestError(f"{path}: a colour image must be an 8-bit RGB PNG, but it has mode {image.mode}")
-    return np.array(image.convert("RGB"))
-
-
-def _check_size(path: Path, shape: tuple[int, ...], depth_path: Path, depth_shape: tuple[int, ...]) -> None:
-    if tuple(shape) != tuple(depth_shape):
-        raise IngestError(f"{path} is {shape[1]}x{shape[0]} pixels but its depth image {depth_path} is "
-                          f"{depth_shape[1]}x{depth_shape[0]}")

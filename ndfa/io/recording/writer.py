@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import secrets
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +27,7 @@ from mcap_protobuf.schema import build_file_descriptor_set
 
 from ndfa import __version__
 from ndfa.core.errors import RecordingError
+from ndfa.io.atomic import Staged
 from ndfa.core.geometry import quaternion_xyzw_from_matrix
 from ndfa.io.recording import channels
 from ndfa.core.frame import Frame
@@ -104,11 +104,10 @@ class RecordingWriter:
         self._image_size: tuple[int, int] | None = None  # (height, width) of the first frame
         self._closed = False
 
-        # A hidden name in the target directory, so that the final rename stays on one filesystem
-        # (os.replace is atomic only there). Opened with "x": never clobber anything.
-        self._temp_path = self.path.parent / f".{self.path.name}.tmp-{secrets.token_hex(4)}"
+        # Beside `path` (see `ndfa.io.atomic`); its folder must exist. Opened with "x": never clobber anything.
         try:
-            self._file = open(self._temp_path, "xb")
+            self._staged = Staged(self.path, make_parents=False)
+            self._file = open(self._staged.temporary, "xb")
         except OSError as error:
             raise RecordingError(f"cannot write recording {self.path}: {error.strerror}") from error
 
@@ -206,7 +205,7 @@ class RecordingWriter:
             self._file.flush()
             os.fsync(self._file.fileno())  # the data must be on disk before the rename makes it visible
             self._file.close()
-            os.replace(self._temp_path, self.path)
+            self._staged.commit()
         except OSError as error:
             self.abort()
             raise RecordingError(f"cannot finish recording {self.path}: {error}") from error
@@ -216,7 +215,7 @@ class RecordingWriter:
         """Discard everything written so far; the file at `path`, if any, is left as it was."""
         self._closed = True
         self._file.close()
-        self._temp_path.unlink(missing_ok=True)
+        self._staged.discard()
 
     def _check_open(self) -> None:
         if self._closed:
