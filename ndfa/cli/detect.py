@@ -226,7 +226,7 @@ def _eval_sweep(axis: str, values: Optional[str], seeds: str, preset: str, step:
 def poses_command(
     recording: Path = typer.Argument(..., help="An ndfa recording (.mcap)."),
     out: Path = typer.Option(..., "--out", "-o", help="The copy with estimated poses (.mcap)."),
-    method: str = typer.Option("kiss-icp", help="Pose estimation method: kiss-icp."),
+    method: str = typer.Option("estimate", help="estimate (rgbd with colour, else kiss-icp) | rgbd | kiss-icp."),
     tum_out: Optional[Path] = typer.Option(None, help="Also write the estimate as a TUM trajectory file (evo)."),
     voxel_size: Optional[float] = typer.Option(None, help=f"KISS-ICP map voxel, metres (default {_ODOMETRY.voxel_size_m})."),
     max_range: Optional[float] = typer.Option(None, help=f"Farthest point used, metres (default {_ODOMETRY.max_range_m})."),
@@ -234,13 +234,13 @@ def poses_command(
         None, help=f"Depth averaged over STRIDE x STRIDE pixel blocks (default {_ODOMETRY.pixel_stride})."),
     no_refine: bool = typer.Option(False, "--no-refine", help="KISS-ICP alone, without the point-to-plane refinement."),
 ) -> None:
-    """Estimate camera poses from depth, write a copy of the recording with them, and print ATE/RPE."""
+    """Estimate camera poses from colour and depth, write a copy of the recording with them, and print ATE/RPE."""
     from ndfa.trajectory import OdometryConfig, rewrite_poses, write_tum
 
     overrides = {"voxel_size_m": voxel_size, "max_range_m": max_range, "pixel_stride": stride}
     config = OdometryConfig(**{k: v for k, v in overrides.items() if v is not None}, refine=not no_refine)
     with progress_bar() as progress:
-        task = progress.add_task(method, total=None)
+        task = progress.add_task(method, total=None)  # rgbd counts its two passes
         report = rewrite_poses(recording, out, method, config,
                                on_progress=lambda done, total: progress.update(task, completed=done, total=total))
     if tum_out is not None:
@@ -257,7 +257,14 @@ def poses_command(
         table.add_row(f"RPE per {delta}: rotation RMSE", f"{rpe.rotation_rmse_deg:.3f} deg")
     table.add_row("odometry time", f"{report.ms_per_frame:.0f} ms / frame")
     table.add_row("frames with too little depth", str(report.starved_frames))
-    table.add_row("refinements rejected", str(report.refinements_rejected))
+    table.add_row("registrations rejected" if report.method == "rgbd" else "refinements rejected",
+                  str(report.refinements_rejected))
+    if report.method == "rgbd":
+        from collections import Counter
+
+        table.add_row("terms used", ", ".join(f"{term} {n}" for term, n in Counter(report.terms).most_common()))
+        table.add_row("degenerate depth frames", str(len(report.degenerate_frames)))
+        table.add_row("keyframes, loop closures", f"{report.keyframes}, {report.loop_closures}")
     console.print(table)
     for path in (out, tum_out):
         if path is not None:

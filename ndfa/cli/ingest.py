@@ -29,14 +29,15 @@ def _parse_range(text: str, what: str) -> tuple[int, int]:
 
 
 def _pose_estimator(poses: str):
-    """The importers' `--poses`: None for "given" (the input's own), KISS-ICP odometry for "kiss-icp"."""
+    """The importers' `--poses`: None for "given" (the input's own), else a per-frame odometry
+    (kiss-icp, rgbd, or estimate: rgbd when the input has colour)."""
     if poses == "given":
         return None
-    if poses != "kiss-icp":
-        raise NdfaError(f"--poses must be given or kiss-icp, got {poses!r}")
-    from ndfa.trajectory.kiss import DepthOdometry
+    if poses not in ("estimate", "rgbd", "kiss-icp"):
+        raise NdfaError(f"--poses must be given, estimate, rgbd or kiss-icp, got {poses!r}")
+    from ndfa.trajectory.rgbd import streaming_pose_estimator
 
-    return DepthOdometry().update
+    return streaming_pose_estimator(poses)
 
 
 @ingest_app.command("sim")
@@ -150,7 +151,7 @@ def ingest_tum_command(
     masks: Optional[Path] = typer.Option(None, help="Instance masks: 16-bit PNGs named as the depth PNGs, 0 = none "
                                                     "(default: the folder's masks/ if any)."),
     max_dt: float = typer.Option(MAX_DT_S, help="Largest rgb-depth timestamp difference to pair them, seconds."),
-    poses: str = typer.Option("given", help="given (groundtruth.txt) | kiss-icp (estimated from depth; "
+    poses: str = typer.Option("given", help="given (groundtruth.txt) | estimate | rgbd | kiss-icp (estimated; "
                                             "groundtruth.txt, if any, is kept as the true poses)."),
     session: Optional[str] = typer.Option(None, help="Session name (default: the folder's name)."),
 ) -> None:
@@ -203,7 +204,7 @@ def ingest_bag_command(
     world_frame: Optional[str] = typer.Option(None, help="tf frame of the world (default: map, odom or world)."),
     camera_frame: Optional[str] = typer.Option(None, help="tf frame of the camera (default: the depth images' frame_id)."),
     max_dt: float = typer.Option(MAX_DT_S, help="Largest depth-colour (and depth-mask) stamp difference, seconds."),
-    poses: str = typer.Option("given", help="given (from the bag) | kiss-icp (estimated from depth)."),
+    poses: str = typer.Option("given", help="given (from the bag) | estimate | rgbd | kiss-icp (estimated)."),
 ) -> None:
     """Import a ROS1 or ROS2 bag into one recording, and say what was skipped and why."""
     from ndfa.io.ingest.bag import ingest_bag, list_topics

@@ -1,11 +1,13 @@
 """Poses for a recording: KISS-ICP odometry on depth (kiss.py, refined point-to-plane in refine.py),
+RGB-D odometry on colour and depth with loop closure (rgbd.py, pose_graph.py),
 trajectory errors (metrics.py), TUM trajectory files (tum_format.py), `rewrite_poses`, which
 writes a copy of a recording with estimated poses (rewrite.py), and world up from the data with
 the rotation that levels a session's world (up.py)."""
 
 from ndfa.trajectory.kiss import DepthOdometry, OdometryConfig, depth_points, estimate_poses
 from ndfa.trajectory.metrics import AbsoluteError, RelativeError, absolute_trajectory_error, relative_pose_error
-from ndfa.trajectory.rewrite import PoseReport, rewrite_poses
+from ndfa.trajectory.rewrite import METHODS, PoseReport, rewrite_poses
+from ndfa.trajectory.rgbd import RgbdOdometry, RgbdOdometryConfig, estimate_rgbd_poses
 from ndfa.trajectory.tum_format import read_tum, write_tum
 from ndfa.trajectory.up import (
     UpConfig,
@@ -20,14 +22,18 @@ from ndfa.trajectory.up import (
 __all__ = [
     "AbsoluteError",
     "DepthOdometry",
+    "METHODS",
     "OdometryConfig",
     "PoseReport",
     "RelativeError",
+    "RgbdOdometry",
+    "RgbdOdometryConfig",
     "UpConfig",
     "UpEstimate",
     "absolute_trajectory_error",
     "depth_points",
     "estimate_poses",
+    "estimate_rgbd_poses",
     "estimate_up",
     "level_frame",
     "level_poses",

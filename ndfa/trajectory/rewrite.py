@@ -1,4 +1,7 @@
-"""`rewrite_poses`: a copy of a recording whose camera poses (/tf) are estimated from its depth.
+"""`rewrite_poses`: a copy of a recording whose camera poses (/tf) are estimated from its images.
+
+Methods: "kiss-icp" (depth alone, kiss.py), "rgbd" (colour and depth, with loop closure, rgbd.py),
+"estimate" (rgbd when the recording has colour, otherwise kiss-icp).
 
 The copy is the input frame for frame (images, calibration, instances, ground-truth JSON), except
 for the pose. The truth is never lost: a recording that already has true poses keeps them; one that
@@ -18,9 +21,10 @@ from ndfa.core.errors import TrajectoryError
 from ndfa.core.progress import Progress
 from ndfa.io.recording import RecordingReader, RecordingWriter
 from ndfa.trajectory.kiss import DepthOdometry, OdometryConfig
+from ndfa.trajectory.rgbd import RgbdOdometry, RgbdOdometryConfig
 from ndfa.trajectory.metrics import AbsoluteError, RelativeError, absolute_trajectory_error, relative_pose_error
 
-METHODS = ("kiss-icp",)
+METHODS = ("estimate", "rgbd", "kiss-icp")
 
 # The RPE distances reported: one frame (drift per step) and one metre travelled (drift per metre).
 RPE_DELTAS: tuple[tuple[float, str], ...] = ((1, "frames"), (1.0, "m"))
@@ -39,19 +43,28 @@ class PoseReport:
     ms_per_frame: mean odometry time per frame (back-projection and registration; not reading,
         decoding or writing the recording).
     starved_frames: frames with too little valid depth to register (their pose is predicted).
-    refinements_rejected: frames where the point-to-plane refinement was not trusted.
+    refinements_rejected: frames where the point-to-plane refinement (kiss-icp) or the registration
+        (rgbd) was not trusted.
+    terms: per frame, the residuals it was registered with (rgbd: hybrid, intensity, point-to-plane
+        or none; kiss-icp: point-to-plane throughout).
+    degenerate_frames: indices of the frames whose depth alone was ambiguous (rgbd).
+    keyframes, loop_closures: the rgbd odometry's keyframes and accepted loop edges.
     timestamps (N,) seconds and estimate (N, 4, 4): the estimated trajectory.
     """
 
     recording_in: Path
     recording_out: Path
     method: str
-    config: OdometryConfig
+    config: OdometryConfig | RgbdOdometryConfig
     frames: int
     truth: str
     ms_per_frame: float
     starved_frames: int
     refinements_rejected: int
+    terms: list[str] = field(default_factory=list)
+    degenerate_frames: list[int] = field(default_factory=list)
+    keyframes: int = 0
+    loop_closures: int = 0
     ate: AbsoluteError | None = None
     rpe: list[RelativeError] = field(default_factory=list)
     timestamps: np.ndarray = field(default_factory=lambda: np.zeros(0))
@@ -59,16 +72,22 @@ class PoseReport:
 
 
 def rewrite_poses(recording_in: str | Path, recording_out: str | Path, method: str = "kiss-icp",
-                  config: OdometryConfig = OdometryConfig(), on_progress: Progress | None = None) -> PoseReport:
+                  config: OdometryConfig = OdometryConfig(), on_progress: Progress | None = None,
+                  rgbd_config: RgbdOdometryConfig = RgbdOdometryConfig()) -> PoseReport:
     """Estimate the camera poses of `recording_in` with `method` and write `recording_out`: the same
-    recording with /tf replaced by the estimate (see the module docstring). One pass, one frame in
-    memory at a time; the output appears only when complete. Returns the `PoseReport`."""
+    recording with /tf replaced by the estimate (see the module docstring). kiss-icp: one pass, one
+    frame in memory at a time. rgbd: a pass to estimate (keeping the keyframes' subsampled images),
+    loop closure, and a pass to write. The output appears only when complete. Returns the `PoseReport`."""
     recording_in, recording_out = Path(recording_in), Path(recording_out)
     if method not in METHODS:
         raise TrajectoryError(f"unknown pose method {method!r}; expected one of {', '.join(METHODS)}")
     if recording_out.resolve() == recording_in.resolve():
         raise TrajectoryError(f"{recording_out}: the output must not replace the input recording")
     reader = RecordingReader(recording_in)
+    if method == "estimate":
+        method = choose_method(reader)
+    if method == "rgbd":
+        return _rewrite_rgbd(reader, recording_in, recording_out, rgbd_config, on_progress)
     meta = _output_meta(reader.meta, method, config)
 
     odometry = DepthOdometry(config)
@@ -93,7 +112,53 @@ def rewrite_poses(recording_in: str | Path, recording_out: str | Path, method: s
     report = PoseReport(recording_in, recording_out, method, config, frames=len(estimate),
                         truth=" and ".join(sorted(truth_kinds)) or "none", ms_per_frame=odometry.ms_per_frame,
                         starved_frames=odometry.starved_frames, refinements_rejected=odometry.refinements_rejected,
+                        terms=["point-to-plane"] * len(estimate), timestamps=np.array(timestamps), estimate=np.array(estimate).reshape(-1, 4, 4))
+    _add_errors(report, estimate, reference)
+    return report
+
+
+def choose_method(reader: RecordingReader) -> str:
+    """"rgbd" when the recording's first frame has colour, otherwise "kiss-icp"."""
+    first = next(iter(reader.frames(0, 1)), None)
+    return "rgbd" if first is not None and first.rgb is not None else "kiss-icp"
+
+
+def _rewrite_rgbd(reader: RecordingReader, recording_in: Path, recording_out: Path, config: RgbdOdometryConfig,
+                  on_progress: Progress | None) -> PoseReport:
+    """`rewrite_poses` with the RGB-D odometry: estimate over the whole session (loop closure needs
+    it), then write the copy."""
+    odometry = RgbdOdometry(config)
+    timestamps, reference = [], []
+    truth_kinds: set[str] = set()
+    total = 2 * len(reader)
+    for frame in reader.frames():
+        odometry.update(frame)
+        true_pose = frame.pose_world_camera_true
+        truth_kinds.add("true poses" if true_pose is not None else "given poses")
+        timestamps.append(frame.timestamp)
+        reference.append(true_pose if true_pose is not None else frame.pose_world_camera)
+        if on_progress is not None:
+            on_progress(len(timestamps), total)
+    estimate = odometry.finish()
+    with RecordingWriter(recording_out, _output_meta(reader.meta, "rgbd", config)) as writer:
+        if reader.ground_truth is not None:
+            writer.write_ground_truth(reader.ground_truth)
+        for written, (frame, pose, true_pose) in enumerate(zip(reader.frames(), estimate, reference), start=1):
+            writer.write_frame(dataclasses.replace(frame, pose_world_camera=pose, pose_world_camera_true=true_pose))
+            if on_progress is not None:
+                on_progress(len(timestamps) + written, total)
+    report = PoseReport(recording_in, recording_out, "rgbd", config, frames=len(estimate),
+                        truth=" and ".join(sorted(truth_kinds)) or "none", ms_per_frame=odometry.ms_per_frame,
+                        starved_frames=odometry.starved_frames, refinements_rejected=odometry.rejected_frames,
+                        terms=list(odometry.terms), degenerate_frames=odometry.degenerate_frames,
+                        keyframes=len(odometry.keyframes), loop_closures=odometry.loop_closures,
                         timestamps=np.array(timestamps), estimate=np.array(estimate).reshape(-1, 4, 4))
+    _add_errors(report, estimate, reference)
+    return report
+
+
+def _add_errors(report: PoseReport, estimate: list[np.ndarray], reference: list[np.ndarray]) -> None:
+    """ATE and RPE of the estimate against the reference poses, where there are enough frames."""
     if len(estimate) >= 3:
         report.ate = absolute_trajectory_error(estimate, reference)
         for delta, unit in RPE_DELTAS:
@@ -101,10 +166,9 @@ def rewrite_poses(recording_in: str | Path, recording_out: str | Path, method: s
                 report.rpe.append(relative_pose_error(estimate, reference, delta, unit))
             except TrajectoryError:
                 pass  # the trajectory is shorter than this distance
-    return report
 
 
-def _output_meta(meta: dict, method: str, config: OdometryConfig) -> dict:
+def _output_meta(meta: dict, method: str, config: OdometryConfig | RgbdOdometryConfig) -> dict:
     """The input's meta (less what the writer sets itself), with the poses' provenance."""
     from ndfa.io.recording.writer import _WRITER_META_KEYS
 

@@ -1,0 +1,437 @@
+"""Camera poses from colour and depth: frame-to-keyframe RGB-D odometry with loop closure.
+
+Why not depth alone (kiss.py): indoors a depth camera often sees only a wall and the floor, and
+two planes leave the slide along their intersection unconstrained; KISS-ICP lost the synthetic
+`paper` scene's target session that way. Colour pins that slide down wherever the surfaces carry
+texture. Dense RGB-D odometry (Open3D's tensor `rgbd_odometry_multi_scale`: projective
+association, a coarse-to-fine image pyramid, Huber losses on depth and intensity residuals) uses
+both terms at once.
+
+Per frame:
+1. Prediction: the last motion again (constant velocity).
+2. Degeneracy check: the 6x6 information matrix of the depth term (point-to-plane) between the
+   frame and its keyframe at the prediction. Rotations are rescaled to arc length at the median
+   depth so both halves are in metres; a smallest eigenvalue far below the largest means a
+   direction depth cannot see (`degenerate_ratio`). The image is textured when enough pixels have
+   an intensity gradient. Term used: degenerate and textured -> intensity alone (the depth term
+   would only pull the slide toward the prediction); untextured (dark, or no colour) -> point-to-
+   plane alone (the intensity term would fit noise); otherwise the hybrid of both.
+3. Registration to the keyframe (not the previous frame: errors then add up per keyframe, not per
+   frame), from the prediction. A result with too little overlap or too large a correction is
+   rejected and the prediction kept.
+4. A new keyframe when the motion since the keyframe, or its overlap with it, passes a threshold.
+   Each new keyframe is checked against old keyframes near it in the current estimate but far back
+   in time; a verified registration to one is a loop edge (pose_graph.py).
+
+`finish()` optimises the keyframe graph and returns every frame's pose: a non-keyframe keeps its
+pose relative to its keyframe, so it follows the keyframe's correction. Streaming callers that
+cannot wait for the end (the importers) use `update`'s poses, which are the odometry alone.
+
+World frame: as kiss.py, the estimate starts at the first frame's given pose (`anchor_to_first_pose`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ndfa.core.conventions import MAX_DEPTH_M, MIN_DEPTH_M
+from ndfa.core.errors import TrajectoryError
+from ndfa.core.frame import Frame
+from ndfa.trajectory.pose_graph import PoseEdge, PoseGraphConfig, optimize_pose_graph
+
+# The term a frame was registered with, as reported per frame. "none": the first frame, or a frame
+# with too little depth (its pose is the prediction).
+HYBRID, INTENSITY, POINT_TO_PLANE, NO_TERM = "hybrid", "intensity", "point-to-plane", "none"
+
+
+@dataclass(frozen=True)
+class RgbdOdometryConfig:
+    """RGB-D odometry settings (defaults for a 640x480, 60-90 degree camera at walking pace).
+
+    min_depth_m, max_depth_m: depth used (the method's range, ndfa.core.conventions).
+    max_width: images are subsampled by the smallest integer factor that brings them to at most
+        this many pixels wide (640 -> 320): 4x less work, and the coarse-to-fine pyramid starts
+        from there.
+    iterations: Gauss-Newton iterations per pyramid level, finest level first (Open3D's order).
+    depth_outlier_trunc_m: a depth pair farther apart than this is no correspondence.
+    depth_huber_delta_m, intensity_huber_delta: Huber scales of the depth (metres) and intensity
+        (0-1) residuals.
+    degenerate_ratio: the depth term is degenerate when the smallest eigenvalue of its information
+        matrix (rotations as arc length at the median depth) is below this fraction of the largest.
+    gradient_threshold, textured_fraction: the image is textured when at least `textured_fraction`
+        of its valid-depth pixels have an intensity gradient (0-1 per pixel) above the threshold.
+    min_valid_fraction: a frame with less valid depth (of its pixels) is not registered.
+    min_fitness: a registration whose inlier fraction is below this is rejected.
+    max_correction_m: a registration that moves the camera farther than this from the prediction
+        is rejected.
+    cross_check_m: when a registration moves the camera farther than this from the prediction, the
+        other term (hybrid <-> point-to-plane) is tried too and the result nearer the prediction kept.
+    keyframe_translation_m, keyframe_rotation_deg, keyframe_min_fitness: a frame becomes the new
+        keyframe when it has moved this far or turned this much from the keyframe, or its overlap
+        (fitness) with the keyframe falls below this.
+    loop_closure: look for loops among the keyframes and optimise the pose graph in `finish()`.
+    loop_radius_m, loop_angle_deg: a loop candidate's camera is at most this far and its optical
+        axis turned at most this much from the new keyframe's, in the current estimate.
+    loop_min_gap: and it is at least this many keyframes older.
+    loop_min_fitness, loop_max_correction_m: a loop registration is accepted with at least this
+        overlap and a correction of the estimate of at most this.
+    loop_candidates: at most this many candidates (the nearest) are registered per keyframe.
+    anchor_to_first_pose: start the estimate at the first frame's given pose (see kiss.py).
+    """
+
+    min_depth_m: float = MIN_DEPTH_M
+    max_depth_m: float = MAX_DEPTH_M
+    max_width: int = 320
+    iterations: tuple[int, ...] = (10, 10, 10)
+    depth_outlier_trunc_m: float = 0.07
+    depth_huber_delta_m: float = 0.05
+    intensity_huber_delta: float = 0.1
+    degenerate_ratio: float = 0.003
+    gradient_threshold: float = 0.02
+    textured_fraction: float = 0.003
+    min_valid_fraction: float = 0.05
+    min_fitness: float = 0.1
+    max_correction_m: float = 0.3
+    cross_check_m: float = 0.015
+    keyframe_translation_m: float = 0.3
+    keyframe_rotation_deg: float = 15.0
+    keyframe_min_fitness: float = 0.4
+    loop_closure: bool = True
+    loop_radius_m: float = 0.5
+    loop_angle_deg: float = 30.0
+    loop_min_gap: int = 8
+    loop_min_fitness: float = 0.3
+    loop_max_correction_m: float = 0.3
+    loop_candidates: int = 2
+    anchor_to_first_pose: bool = True
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.min_depth_m < self.max_depth_m:
+            raise TrajectoryError(f"rgbd odometry needs 0 <= min_depth_m < max_depth_m, got {self.min_depth_m}, {self.max_depth_m}")
+        if self.max_width < 16 or not self.iterations or min(self.iterations) < 1:
+            raise TrajectoryError(f"rgbd odometry needs max_width >= 16 and iterations >= 1, got {self.max_width}, {self.iterations}")
+        for name in ("depth_outlier_trunc_m", "depth_huber_delta_m", "intensity_huber_delta", "max_correction_m",
+                     "keyframe_translation_m", "keyframe_rotation_deg", "loop_radius_m"):
+            if not getattr(self, name) > 0.0:
+                raise TrajectoryError(f"rgbd odometry {name} must be > 0, got {getattr(self, name)}")
+
+    def to_dict(self) -> dict:
+        """Plain values, for provenance in a recording's meta."""
+        return dataclasses.asdict(self)
+
+
+@dataclass
+class _View:
+    """One frame prepared for registration: subsampled images as Open3D tensors."""
+
+    rgbd: object  # open3d.t.geometry.RGBDImage (colour uint8, depth float32 metres, 0 = invalid)
+    K: object  # open3d.core.Tensor (3, 3) float64, of the subsampled image
+    plane_information: np.ndarray  # (6, 6) of the frame's own point-to-plane term (`plane_information`)
+    median_depth_m: float
+    valid_fraction: float
+    textured: bool
+
+
+@dataclass
+class _Keyframe:
+    frame: int  # index of the frame in the session
+    pose: np.ndarray  # (4, 4) odometry pose, in the first camera's frame
+    view: _View
+
+
+@dataclass
+class RgbdOdometry:
+    """Frame-to-keyframe RGB-D odometry with loop closure; see the module docstring. One instance
+    per session, frames in time order: `update(frame)` per frame, then `finish()` once."""
+
+    config: RgbdOdometryConfig = field(default_factory=RgbdOdometryConfig)
+
+    def __post_init__(self) -> None:
+        self._anchor: np.ndarray | None = None
+        self._poses: list[np.ndarray] = []  # odometry pose of every frame (first camera's frame)
+        self._keyframe_of: list[int] = []  # per frame, the index of its keyframe in self.keyframes
+        self.keyframes: list[_Keyframe] = []
+        self.edges: list[PoseEdge] = []
+        self.terms: list[str] = []  # per frame, the term it was registered with
+        self.degenerate: list[bool] = []  # per frame, whether depth alone was ambiguous
+        self.starved_frames = 0  # too little valid depth: not registered
+        self.rejected_frames = 0  # registration rejected: the prediction kept
+        self.seconds = 0.0
+
+    @property
+    def frames(self) -> int:
+        return len(self._poses)
+
+    @property
+    def loop_closures(self) -> int:
+        return sum(edge.loop for edge in self.edges)
+
+    @property
+    def degenerate_frames(self) -> list[int]:
+        """Indices of the frames whose depth term was degenerate."""
+        return [index for index, flag in enumerate(self.degenerate) if flag]
+
+    @property
+    def ms_per_frame(self) -> float:
+        """Mean time per frame of `update` and `finish`, milliseconds (NaN before the first frame)."""
+        return 1000.0 * self.seconds / self.frames if self.frames else float("nan")
+
+    def update(self, frame: Frame) -> np.ndarray:
+        """Register `frame`; its (4, 4) camera-to-world pose by odometry alone (before loop closure)."""
+        started = time.perf_counter()
+        if self._anchor is None:
+            self._anchor = frame.pose_world_camera.copy() if self.config.anchor_to_first_pose else np.eye(4)
+        view = self._prepare(frame)
+        pose, term, degenerate = self._track(view)
+        self._poses.append(pose)
+        self.terms.append(term)
+        self.degenerate.append(degenerate)
+        self._keyframe_of.append(len(self.keyframes) - 1)
+        self.seconds += time.perf_counter() - started
+        return self._anchor @ pose
+
+    def finish(self) -> list[np.ndarray]:
+        """Every frame's (4, 4) camera-to-world pose after loop closure (the odometry's where there
+        was no loop)."""
+        started = time.perf_counter()
+        odometry = [keyframe.pose for keyframe in self.keyframes]
+        corrected = odometry
+        if self.config.loop_closure and self.loop_closures:
+            graph = PoseGraphConfig(max_correspondence_distance_m=self.config.loop_max_correction_m)
+            corrected = optimize_pose_graph(odometry, self.edges, graph)
+        poses = []
+        for pose, keyframe in zip(self._poses, self._keyframe_of):
+            if keyframe >= 0:
+                pose = corrected[keyframe] @ np.linalg.inv(odometry[keyframe]) @ pose
+            poses.append(self._anchor @ pose)
+        self.seconds += time.perf_counter() - started
+        return poses
+
+    # -- one frame --------------------------------------------------------------------------------
+
+    def _track(self, view: _View) -> tuple[np.ndarray, str, bool]:
+        """The odometry pose of the frame, the term used, and whether depth was degenerate."""
+        config = self.config
+        if not self._poses:
+            self._add_keyframe(view, np.eye(4), edge=None)
+            return np.eye(4), NO_TERM, False
+        last = self._poses[-1]
+        before = self._poses[-2] if len(self._poses) > 1 else last
+        prediction = last @ np.linalg.inv(before) @ last  # constant velocity
+        if view.valid_fraction < config.min_valid_fraction or not self.keyframes:
+            self.starved_frames += 1
+            return prediction, NO_TERM, False
+
+        keyframe = self.keyframes[-1]
+        initial = np.linalg.inv(keyframe.pose) @ prediction  # T_keyframe_frame
+        degenerate = depth_degeneracy(view.plane_information, view.median_depth_m) < config.degenerate_ratio
+        term = _choose_term(degenerate, view.textured and keyframe.view.textured)
+        keyframe_from_frame, fitness = self._register(view, keyframe.view, initial, term)
+        if term != INTENSITY and _jump(keyframe_from_frame, initial) > config.cross_check_m:
+            # Dense odometry on a few planes has false minima a few centimetres off; the camera
+            # moves smoothly, so of the two terms' results the one nearer the prediction wins.
+            other = POINT_TO_PLANE if term == HYBRID else HYBRID
+            if other == POINT_TO_PLANE or view.textured:
+                candidate, candidate_fitness = self._register(view, keyframe.view, initial, other)
+                if _jump(candidate, initial) < _jump(keyframe_from_frame, initial):
+                    keyframe_from_frame, fitness, term = candidate, candidate_fitness, other
+        if keyframe_from_frame is None or fitness < config.min_fitness or _jump(keyframe_from_frame, initial) > config.max_correction_m:
+            self.rejected_frames += 1
+            keyframe_from_frame = initial
+        pose = keyframe.pose @ keyframe_from_frame
+
+        moved = np.linalg.norm(keyframe_from_frame[:3, 3])
+        turned = _angle_deg(keyframe_from_frame[:3, :3])
+        if (moved > config.keyframe_translation_m or turned > config.keyframe_rotation_deg
+                or fitness < config.keyframe_min_fitness):
+            information = self._information(view, keyframe.view, keyframe_from_frame)
+            self._add_keyframe(view, pose, PoseEdge(len(self.keyframes), len(self.keyframes) - 1,
+                                                    keyframe_from_frame, information))
+        return pose, term, degenerate
+
+    def _add_keyframe(self, view: _View, pose: np.ndarray, edge: PoseEdge | None) -> None:
+        self.keyframes.append(_Keyframe(frame=len(self._poses), pose=pose, view=view))
+        if edge is not None:
+            self.edges.append(edge)
+        if self.config.loop_closure:
+            self._close_loops()
+
+    def _close_loops(self) -> None:
+        """Register the newest keyframe to the old keyframes near it; each verified match is a loop edge."""
+        config = self.config
+        new_index = len(self.keyframes) - 1
+        new = self.keyframes[new_index]
+        candidates = []
+        for index, old in enumerate(self.keyframes[:new_index - config.loop_min_gap + 1]):
+            relative = np.linalg.inv(old.pose) @ new.pose
+            distance = float(np.linalg.norm(relative[:3, 3]))
+            axis_angle = math.degrees(math.acos(np.clip(old.pose[:3, 2] @ new.pose[:3, 2], -1.0, 1.0)))
+            if distance <= config.loop_radius_m and axis_angle <= config.loop_angle_deg:
+                candidates.append((distance, index, relative))
+        for _, index, initial in sorted(candidates, key=lambda c: c[0])[:config.loop_candidates]:
+            old = self.keyframes[index]
+            term = HYBRID if new.view.textured and old.view.textured else POINT_TO_PLANE
+            measured, fitness = self._register(new.view, old.view, initial, term)
+            if measured is None or fitness < config.loop_min_fitness:
+                continue
+            if np.linalg.norm(measured[:3, 3] - initial[:3, 3]) > config.loop_max_correction_m:
+                continue
+            information = self._information(new.view, old.view, measured)
+            self.edges.append(PoseEdge(new_index, index, measured, information, loop=True))
+
+    # -- Open3D ------------------------------------------------------------------------------------
+
+    def _prepare(self, frame: Frame) -> _View:
+        """Subsample the frame to at most `max_width` pixels wide, drop depth out of range, and
+        wrap the images as Open3D tensors."""
+        import open3d as o3d
+
+        config = self.config
+        height, width = frame.image_size
+        step = max(1, math.ceil(width / config.max_width))
+        depth = frame.depth[::step, ::step].copy()
+        depth[~(np.isfinite(depth) & (depth >= config.min_depth_m) & (depth <= config.max_depth_m))] = np.nan
+        rows, cols = depth.shape
+        if frame.rgb is not None:
+            # Block mean, not every step-th pixel: intensity residuals need the aliasing-free image.
+            rgb = frame.rgb[:rows * step, :cols * step].reshape(rows, step, cols, step, 3).mean(axis=(1, 3))
+            rgb = rgb.astype(np.uint8)
+        else:
+            rgb = np.zeros((rows, cols, 3), np.uint8)
+        valid = np.isfinite(depth)
+        K = frame.K.copy()
+        K[:2] /= step  # pixel (step*i) becomes pixel i: centres at integer coordinates stay so
+        rgbd = o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(np.ascontiguousarray(rgb)),
+                                        o3d.t.geometry.Image(np.ascontiguousarray(depth[..., None])))
+        return _View(rgbd=rgbd, K=o3d.core.Tensor(K), plane_information=plane_information(depth, K),
+                     median_depth_m=float(np.median(depth[valid])) if valid.any() else 1.0,
+                     valid_fraction=float(valid.mean()),
+                     textured=frame.rgb is not None and _textured_fraction(rgb, valid, config.gradient_threshold) >= config.textured_fraction)
+
+    def _register(self, source: _View, target: _View, initial: np.ndarray, term: str) -> tuple[np.ndarray | None, float]:
+        """T_target_source by RGB-D odometry from `initial`, and its fitness (None, 0 when it failed)."""
+        import open3d as o3d
+
+        odometry = o3d.t.pipelines.odometry
+        config = self.config
+        method = {HYBRID: odometry.Method.Hybrid, INTENSITY: odometry.Method.Intensity,
+                  POINT_TO_PLANE: odometry.Method.PointToPlane}[term]
+        criteria = [odometry.OdometryConvergenceCriteria(iterations) for iterations in config.iterations]
+        params = odometry.OdometryLossParams(config.depth_outlier_trunc_m, config.depth_huber_delta_m,
+                                             config.intensity_huber_delta)
+        try:
+            result = odometry.rgbd_odometry_multi_scale(
+                source.rgbd, target.rgbd, source.K, o3d.core.Tensor(initial), 1.0, config.max_depth_m,
+                criteria, method, params)
+        except RuntimeError:  # Open3D raises when a pyramid level has no correspondences
+            return None, 0.0
+        transform = result.transformation.numpy()
+        if not np.all(np.isfinite(transform)):
+            return None, 0.0
+        return transform, float(result.fitness)
+
+    def _information(self, source: _View, target: _View, target_from_source: np.ndarray) -> np.ndarray:
+        """The depth term's 6x6 information matrix of T_target_source (Open3D's (rotation,
+        translation) order); zeros when there are no correspondences."""
+        import open3d as o3d
+
+        try:
+            information = o3d.t.pipelines.odometry.compute_odometry_information_matrix(
+                source.rgbd.depth, target.rgbd.depth, source.K, o3d.core.Tensor(target_from_source),
+                self.config.depth_outlier_trunc_m, 1.0, self.config.max_depth_m).numpy()
+        except RuntimeError:
+            return np.zeros((6, 6))
+        return information if np.all(np.isfinite(information)) else np.zeros((6, 6))
+
+
+
+def plane_information(depth: np.ndarray, K: np.ndarray, step: int = 2) -> np.ndarray:
+    """The 6x6 information matrix (rotation, translation) of point-to-plane registration of this
+    depth image to itself: sum over pixels of J^T J with J = (p x n, n), normals n from the
+    neighbouring pixels' points. Why not Open3D's `compute_odometry_information_matrix`: it is the
+    point-to-point matrix, which stays well conditioned on a wall and a floor (it counts the slide
+    along them as constrained); the plane term, which is what the depth residuals measure, does not."""
+    z = depth[::step, ::step].astype(np.float64)
+    rows, cols = np.mgrid[0:z.shape[0], 0:z.shape[1]] * step
+    points = np.stack([(cols - K[0, 2]) / K[0, 0] * z, (rows - K[1, 2]) / K[1, 1] * z, z], axis=-1)
+    right, down = points[:-1, 1:] - points[:-1, :-1], points[1:, :-1] - points[:-1, :-1]
+    normals = np.cross(right, down)
+    length = np.linalg.norm(normals, axis=-1)
+    p = points[:-1, :-1]
+    # Both neighbours valid and on the same surface (a depth jump is no plane).
+    same = (np.abs(right[..., 2]) < 0.05 * p[..., 2]) & (np.abs(down[..., 2]) < 0.05 * p[..., 2])
+    keep = np.isfinite(length) & (length > 0) & same & (p[..., 2] > 0)
+    if not keep.any():
+        return np.zeros((6, 6))
+    n = normals[keep] / length[keep, None]
+    jacobian = np.hstack([np.cross(p[keep], n), n])
+    return jacobian.T @ jacobian
+
+
+def depth_degeneracy(information: np.ndarray, depth_m: float) -> float:
+    """Smallest over largest eigenvalue of a depth term's 6x6 information matrix, with rotations
+    expressed as arc length at `depth_m` (so a direction is compared in metres either way): near 0
+    when some motion leaves the depth residuals unchanged (a single plane, two planes' slide along
+    their intersection), near 1 for a scene that constrains every direction alike."""
+    scale = np.diag([1.0 / depth_m] * 3 + [1.0] * 3)
+    eigenvalues = np.linalg.eigvalsh(scale @ information @ scale)
+    return float(eigenvalues[0] / eigenvalues[-1]) if eigenvalues[-1] > 0.0 else 0.0
+
+
+def _textured_fraction(rgb: np.ndarray, valid: np.ndarray, threshold: float) -> float:
+    """Fraction of the valid pixels whose intensity (0-1) changes by more than `threshold` to the
+    next pixel right or down."""
+    gray = rgb.astype(np.float32).mean(axis=2) / 255.0
+    gradient = np.zeros_like(gray)
+    gradient[:, :-1] = np.abs(np.diff(gray, axis=1))
+    gradient[:-1] = np.maximum(gradient[:-1], np.abs(np.diff(gray, axis=0)))
+    return float((gradient[valid] > threshold).mean()) if valid.any() else 0.0
+
+
+def _jump(transform: np.ndarray | None, initial: np.ndarray) -> float:
+    """How far (metres) a registration moved the camera from its initial pose (inf if it failed)."""
+    return float(np.linalg.norm(transform[:3, 3] - initial[:3, 3])) if transform is not None else math.inf
+
+
+def _choose_term(degenerate: bool, textured: bool) -> str:
+    """Which residuals to register with; see the module docstring."""
+    if not textured:
+        return POINT_TO_PLANE
+    return INTENSITY if degenerate else HYBRID
+
+
+def _angle_deg(rotation: np.ndarray) -> float:
+    return math.degrees(math.acos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))
+
+
+def estimate_rgbd_poses(frames, config: RgbdOdometryConfig = RgbdOdometryConfig()) -> list[np.ndarray]:
+    """Every frame's (4, 4) camera-to-world pose, loop-closed (frames: an iterable, in time order)."""
+    odometry = RgbdOdometry(config)
+    for frame in frames:
+        odometry.update(frame)
+    return odometry.finish()
+
+
+def streaming_pose_estimator(method: str) -> Callable[[Frame], np.ndarray]:
+    """A per-frame pose estimator for callers that write each frame as it comes (the importers'
+    `--poses`): "kiss-icp", "rgbd" (odometry alone: loop closure needs the whole session), or
+    "estimate" (rgbd when the first frame has colour, otherwise kiss-icp)."""
+    from ndfa.trajectory.kiss import DepthOdometry
+
+    if method not in ("estimate", "rgbd", "kiss-icp"):
+        raise TrajectoryError(f"unknown pose method {method!r}; expected estimate, rgbd or kiss-icp")
+    chosen: list = []
+
+    def estimate(frame: Frame) -> np.ndarray:
+        if not chosen:
+            use_rgbd = method == "rgbd" or (method == "estimate" and frame.rgb is not None)
+            chosen.append(RgbdOdometry(RgbdOdometryConfig(loop_closure=False)) if use_rgbd else DepthOdometry())
+        return chosen[0].update(frame)
+
+    return estimate

@@ -1,0 +1,167 @@
+"""RGB-D odometry (ndfa.trajectory.rgbd) and loop closure (pose_graph.py).
+
+The odometry tests render a small room analytically (a box with checkered walls, ray-cast per
+pixel), so the true poses are exact and the clip takes milliseconds to make.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ndfa.core.frame import Frame
+from ndfa.core.geometry import axis_angle_to_matrix, invert_pose, look_at, make_pose, matrix_from_quaternion_xyzw
+from ndfa.trajectory.metrics import absolute_trajectory_error
+from ndfa.trajectory.pose_graph import PoseEdge, optimize_pose_graph
+from ndfa.trajectory.rgbd import (HYBRID, POINT_TO_PLANE, RgbdOdometry, RgbdOdometryConfig, depth_degeneracy,
+                                  streaming_pose_estimator)
+
+K = np.array([[160.0, 0.0, 79.5], [0.0, 160.0, 59.5], [0.0, 0.0, 1.0]])
+SIZE = (120, 160)
+ROOM_MIN, ROOM_MAX = np.array([-2.0, -1.5, 0.0]), np.array([2.0, 1.5, 2.5])
+REDKITCHEN = Path(__file__).resolve().parents[2] / "shared" / "data" / "redkitchen_7scenes"
+
+
+def render(pose: np.ndarray, planes: tuple[int, ...] = (0, 1, 2, 3, 4, 5), colour: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    """Depth (z, metres) and a checkered colour image of the room's walls `planes` (0-5: x min,
+    x max, y min, ..., z max), seen from camera-to-world `pose`; pixels that see no plane are 0."""
+    rows, cols = np.mgrid[0:SIZE[0], 0:SIZE[1]]
+    rays_camera = np.stack([(cols - K[0, 2]) / K[0, 0], (rows - K[1, 2]) / K[1, 1], np.ones(SIZE)], axis=-1)
+    rays = rays_camera @ pose[:3, :3].T
+    origin = pose[:3, 3]
+    best = np.full(SIZE, np.inf)
+    rgb = np.zeros(SIZE + (3,), np.uint8)
+    for plane in planes:
+        axis, bound = plane // 2, (ROOM_MIN if plane % 2 == 0 else ROOM_MAX)[plane // 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (bound - origin[axis]) / rays[..., axis]
+        hit = (t > 0) & (t < best)
+        best = np.where(hit, t, best)
+        point = origin + t[..., None] * rays
+        u, v = point[..., (axis + 1) % 3], point[..., (axis + 2) % 3]
+        checker = ((np.floor(u / 0.25) + np.floor(v / 0.25)) % 2).astype(np.uint8)
+        shade = 60 + 140 * checker + 10 * plane
+        rgb[hit] = np.stack([shade, shade // 2 + 40 * (plane % 3), 255 - shade], axis=-1)[hit]
+    depth = np.where(np.isfinite(best), best, 0.0).astype(np.float32)  # rays_camera has z = 1: t is depth
+    return depth, (rgb if colour else None)
+
+
+def clip(frames: int, step_m: float = 0.03, turn_deg: float = 1.0, **kwargs) -> list[Frame]:
+    """A camera walking and turning slowly inside the room, looking at its walls."""
+    out = []
+    for index in range(frames):
+        yaw = np.radians(turn_deg * index)
+        eye = np.array([-0.5 + step_m * index, -0.3, 1.2])
+        target = eye + np.array([np.cos(yaw), np.sin(yaw), -0.2])
+        pose = look_at(eye, target)
+        depth, rgb = render(pose, **kwargs)
+        out.append(Frame(index=index, timestamp=index / 30.0, rgb=rgb, depth=depth, K=K, pose_world_camera=pose))
+    return out
+
+
+def test_rgbd_odometry_follows_a_textured_room():
+    frames = clip(12)
+    odometry = RgbdOdometry(RgbdOdometryConfig())
+    streamed = [odometry.update(frame) for frame in frames]
+    final = odometry.finish()
+    truth = [frame.pose_world_camera for frame in frames]
+    assert absolute_trajectory_error(final, truth).rmse_m < 0.03
+    assert np.linalg.norm(final[-1][:3, 3] - truth[-1][:3, 3]) < 0.04  # anchored at the first pose, no alignment
+    assert np.allclose(streamed[0], truth[0])
+    assert len(odometry.terms) == 12 and odometry.terms[0] == "none" and {HYBRID, "intensity"} & set(odometry.terms)
+    assert len(odometry.keyframes) < 12  # frame to keyframe, not frame to frame
+    assert 0 < odometry.ms_per_frame < 2000
+
+
+def test_no_colour_uses_the_depth_term_alone():
+    frames = clip(6, colour=False)
+    odometry = RgbdOdometry(RgbdOdometryConfig())
+    for frame in frames:
+        odometry.update(frame)
+    assert set(odometry.terms[1:]) == {POINT_TO_PLANE}
+
+
+def test_degeneracy_flags_a_wall_and_a_floor_but_not_a_corner():
+    pose = look_at(np.array([0.0, 0.0, 1.2]), np.array([2.0, 1.5, 0.6]))  # facing the corner of x max and y max
+    odometry = RgbdOdometry(RgbdOdometryConfig())
+
+    def ratio(planes):
+        depth, rgb = render(pose, planes=planes)
+        view = odometry._prepare(Frame(index=0, timestamp=0.0, rgb=rgb, depth=depth, K=K, pose_world_camera=pose))
+        return depth_degeneracy(view.plane_information, view.median_depth_m)
+
+    wall_and_floor, corner = ratio((1, 4)), ratio((1, 3, 4))
+    assert wall_and_floor < RgbdOdometryConfig().degenerate_ratio < corner
+
+
+def test_a_wall_and_floor_clip_is_reported_degenerate():
+    frames = clip(5, step_m=0.02, turn_deg=0.0, planes=(1, 4))
+    odometry = RgbdOdometry(RgbdOdometryConfig())
+    for frame in frames:
+        odometry.update(frame)
+    assert odometry.degenerate_frames == [1, 2, 3, 4]
+    assert set(odometry.terms[1:]) == {"intensity"}  # the checkered walls carry the slide
+
+
+def test_loop_closure_removes_injected_drift():
+    # A square loop of 16 keyframes; odometry edges carry a small yaw drift each; one loop edge
+    # from the last keyframe back to the first holds the true relative pose.
+    truth = []
+    for index in range(16):
+        side, along = divmod(index, 4)
+        position = np.array([[0, 0], [4, 0], [4, 4], [0, 4]][side], float) + along * np.array(
+            [[1, 0], [0, 1], [-1, 0], [0, -1]][side], float)
+        truth.append(make_pose(axis_angle_to_matrix(np.array([0, 0, np.pi / 2 * side])), np.r_[position, 0.0]))
+    drift = make_pose(axis_angle_to_matrix(np.array([0.0, 0.0, np.radians(1.5)])), np.array([0.02, 0.0, 0.0]))
+    information = np.eye(6) * 1000.0
+    edges, odometry = [], [truth[0]]
+    for index in range(1, 16):
+        measured = invert_pose(truth[index - 1]) @ truth[index] @ drift
+        edges.append(PoseEdge(index, index - 1, measured, information))
+        odometry.append(odometry[-1] @ measured)
+    edges.append(PoseEdge(15, 0, invert_pose(truth[0]) @ truth[15], information, loop=True))
+
+    optimized = optimize_pose_graph(odometry, edges)
+    before = absolute_trajectory_error(odometry, truth).rmse_m
+    after = absolute_trajectory_error(optimized, truth).rmse_m
+    assert before > 0.2 and after < before / 3
+    assert np.allclose(optimized[0], truth[0], atol=1e-6)  # the first keyframe holds still
+    unchanged = optimize_pose_graph(odometry, edges[:-1])  # no loop edge: nothing to correct
+    assert all(np.allclose(a, b) for a, b in zip(unchanged, odometry))
+
+
+def test_streaming_estimator_picks_by_colour():
+    with pytest.raises(Exception, match="unknown pose method"):
+        streaming_pose_estimator("orb-slam")
+    frames = clip(3, colour=False)
+    estimate = streaming_pose_estimator("estimate")
+    poses = [estimate(frame) for frame in frames]
+    assert len(poses) == 3 and np.allclose(poses[0], frames[0].pose_world_camera)
+
+
+@pytest.mark.skipif(not REDKITCHEN.is_dir(), reason=f"the real redkitchen sequence is not here ({REDKITCHEN})")
+def test_rgbd_odometry_on_a_slice_of_redkitchen():
+    from PIL import Image
+
+    root = REDKITCHEN
+    rgb_files = [line.split()[1] for line in (root / "rgb.txt").read_text().splitlines() if not line.startswith("#")]
+    depth_files = [line.split()[1] for line in (root / "depth.txt").read_text().splitlines() if not line.startswith("#")]
+    truth_rows = [line.split() for line in (root / "groundtruth.txt").read_text().splitlines() if not line.startswith("#")]
+    Kr = np.array([[585.0, 0.0, 320.0], [0.0, 585.0, 240.0], [0.0, 0.0, 1.0]])
+    frames, truth = [], []
+    for index in range(15):
+        raw = np.asarray(Image.open(root / depth_files[index])).astype(np.float32)
+        depth = np.where(raw == 65535, 0.0, raw / 1000.0).astype(np.float32)
+        row = [float(x) for x in truth_rows[index][1:]]
+        pose = make_pose(matrix_from_quaternion_xyzw(np.array(row[3:])), np.array(row[:3]))
+        rgb = np.asarray(Image.open(root / rgb_files[index]).convert("RGB"))
+        frames.append(Frame(index=index, timestamp=index / 15.0, rgb=rgb, depth=depth, K=Kr, pose_world_camera=pose))
+        truth.append(pose)
+    odometry = RgbdOdometry(RgbdOdometryConfig())
+    for frame in frames:
+        odometry.update(frame)
+    final = odometry.finish()
+    assert absolute_trajectory_error(final, truth).rmse_m < 0.03
+    assert odometry.rejected_frames == 0
