@@ -5,11 +5,14 @@ import pytest
 import torch
 
 from ndfa.core.errors import ModelError
-from ndfa.training.data import ViewConfig, generate_views
+from ndfa.training.dataset import generate_views
+from ndfa.training.views import ViewConfig
 from ndfa.ndf.encoder import DEFAULT_WEIGHTS, EncoderConfig, NDFEncoder
 from ndfa.training.losses import batch_hard_shape_loss
 from ndfa.training.metrics import pair_separation, retrieval_top1, roc_auc
-from ndfa.ndf.model import NDFConfig, NDFModel, save_checkpoint
+from ndfa.ndf.config import NDFConfig
+from ndfa.ndf.model import NDFModel
+from ndfa.training.checkpoint import save_checkpoint
 from ndfa.training.train import TrainConfig, train
 
 # The frame decoder with local points, max pooling, both direction cues and the gated center head:
@@ -172,8 +175,9 @@ def test_shipped_weights_load_and_encode():
 
 
 def test_proxies_of_a_trained_model_start_at_its_mean_codes():
-    from ndfa.ndf.model import load_model
-    from ndfa.training.train import TrainingHeads, encode_views
+    from ndfa.ndf.checkpoint import load_model
+    from ndfa.training.train import TrainingHeads
+    from ndfa.training.validate import encode_views
 
     model, _ = load_model(DEFAULT_WEIGHTS)
     views = generate_views("train", [0, 1, 2, 3], 3, 0, ViewConfig(), workers=1)
@@ -188,7 +192,7 @@ def test_proxies_of_a_trained_model_start_at_its_mean_codes():
 def test_refitting_one_part_keeps_the_rest(tiny_run, tmp_path, part):
     import dataclasses
 
-    from ndfa.ndf.model import load_model
+    from ndfa.ndf.checkpoint import load_model
 
     config, out, _ = tiny_run
     # The decoder refit may change the decoder's kind: the frame decoder's weights are not loaded.

@@ -24,7 +24,8 @@ import polars as pl
 import torch
 
 from ndfa.core.geometry import invert_pose, transform_points
-from ndfa.training.data import ViewConfig, generate_views
+from ndfa.training.dataset import generate_views
+from ndfa.training.views import ViewConfig
 from ndfa.ndf.encoder import CENTER_METHODS, EncoderConfig, NDFEncoder
 from ndfa.training.metrics import center_errors_mm, iou, nearest_other, pair_separation
 from ndfa.sim.mug import Mug
