@@ -9,16 +9,21 @@ import pytest
 
 from ndfa.core.errors import DataError
 from ndfa.core.geometry import invert_pose, transform_points
-from ndfa.training import dataset as dataset_module
-from ndfa.training import views
-from ndfa.training.batches import sample_batch
-from ndfa.training.dataset import DATASET_ARRAYS, generate_views, load_dataset, write_dataset
-from ndfa.training.mug_samples import mug_center
-from ndfa.training.shape_parameters import NUMERIC_PARAMS, shape_parameters
-from ndfa.training.views import View, ViewConfig, render_view
 from ndfa.sim.mug import MugParams, build_mug
 from ndfa.sim.noise import DepthNoise
 from ndfa.sim.splits import TRAIN_SEEDS, make_split_mug
+from ndfa.training import dataset as dataset_module
+from ndfa.training import views
+from ndfa.training.batches import sample_batch
+from ndfa.training.dataset import (
+    DATASET_ARRAYS,
+    generate_views,
+    load_dataset,
+    write_dataset,
+)
+from ndfa.training.mug_samples import mug_center
+from ndfa.training.shape_parameters import NUMERIC_PARAMS, shape_parameters
+from ndfa.training.views import View, ViewConfig, render_view
 
 # Near views (the mug 0.2-0.8 m beyond the table's edge): many points, little noise.
 NEAR = ViewConfig(distance_range_m=(0.2, 0.8))

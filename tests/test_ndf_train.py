@@ -5,15 +5,13 @@ import pytest
 import torch
 
 from ndfa.core.errors import ModelError
-from ndfa.training.dataset import generate_views
-from ndfa.training.views import ViewConfig
+from ndfa.ndf.config import NDFConfig
 from ndfa.ndf.encoder import DEFAULT_WEIGHTS, EncoderConfig, NDFEncoder
+from ndfa.training.dataset import generate_views
 from ndfa.training.losses import batch_hard_shape_loss
 from ndfa.training.metrics import pair_separation, retrieval_top1, roc_auc
-from ndfa.ndf.config import NDFConfig
-from ndfa.ndf.model import NDFModel
-from ndfa.training.checkpoint import save_checkpoint
 from ndfa.training.train import TrainConfig, train
+from ndfa.training.views import ViewConfig
 
 # The frame decoder with local points, max pooling, both direction cues and the gated center head:
 # the training path with every loss term and every input.

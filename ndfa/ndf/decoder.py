@@ -17,7 +17,6 @@ from ndfa.ndf.vn import EPS, VNLinear, vn_invariant
 DECODER_GAIN = 10.0
 
 
-
 class ResnetBlockFC(nn.Module):
     """Plain residual MLP block, out = x + Linear(ReLU(Linear(ReLU(x)))), the last layer zero-init."""
 

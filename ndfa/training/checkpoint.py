@@ -31,7 +31,6 @@ def save_checkpoint(path: str | Path, model: NDFModel, config: NDFConfig, extra:
         torch.save({"config": dataclasses.asdict(config), "state_dict": model.state_dict(), **extra}, temporary)
 
 
-
 def export_weights(checkpoint: Path, destination: Path) -> None:
     """The shippable part of a training checkpoint: model config and weights, the point count,
     the training config and its metrics; no optimizer or RNG state."""

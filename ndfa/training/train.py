@@ -36,8 +36,14 @@ from ndfa.ndf.model import NDFModel
 from ndfa.training.batches import batch_rows, sample_batch, sample_rows
 from ndfa.training.checkpoint import save_checkpoint
 from ndfa.training.dataset import generate_views, load_dataset, write_dataset
-from ndfa.training.losses import (batch_hard_shape_loss, center_loss, frame_loss, occupancy_loss, parameter_loss,
-                                  proxy_identity_loss)
+from ndfa.training.losses import (
+    batch_hard_shape_loss,
+    center_loss,
+    frame_loss,
+    occupancy_loss,
+    parameter_loss,
+    proxy_identity_loss,
+)
 from ndfa.training.shape_parameters import shape_parameters
 from ndfa.training.validate import encode_views, mean_codes, validate
 from ndfa.training.views import ViewConfig
@@ -64,7 +70,7 @@ class TrainConfig:
     frame_weight: float = 1.0        # weight of the frame loss (the "frame" decoder's axis and handle); 0: off
     proxy_weight: float = 0.0        # weight of the proxy (cosine-softmax) identity loss on the codes; 0: off
     proxy_scale: float = 16.0        # its logit scale: cosine similarities are multiplied by this
-    param_weight: float = 0.0        # weight of the shape-parameter regression from the code (`data.shape_parameters`); 0: off
+    param_weight: float = 0.0        # weight of the shape-parameter regression from the code (`shape_parameters`); 0: off
     up_tilt_deg: float = 3.0         # with the model's up cue: std. dev. of the random tilt of the true up per view (pose and table errors)
     shape_threshold: float = 0.9     # delta_s, for the validation figures
     seed: int = 0
