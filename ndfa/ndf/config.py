@@ -11,6 +11,7 @@ CENTER_HEADS = ("linear", "gated")
 POOLINGS = ("mean", "max")
 DECODERS = ("dots", "frame")
 
+
 @dataclass(frozen=True)
 class NDFConfig:
     """Model size and options. The defaults are sized for CPU training: on the project machine
