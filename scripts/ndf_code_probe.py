@@ -16,10 +16,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ndfa.training.data import NUMERIC_PARAMS, load_dataset, shape_parameters
+from ndfa.training.dataset import load_dataset
+from ndfa.training.shape_parameters import NUMERIC_PARAMS, shape_parameters
 from ndfa.ndf.encoder import DEFAULT_WEIGHTS
-from ndfa.ndf.model import load_model
-from ndfa.training.train import encode_views
+from ndfa.ndf.checkpoint import load_model
+from ndfa.training.validate import encode_views
 
 
 def main() -> None:

@@ -9,13 +9,15 @@ import torch
 from conftest import random_rotation, relative_error
 
 from ndfa.core.errors import ModelError
+from ndfa.ndf.checkpoint import load_model
+from ndfa.ndf.config import NDFConfig
+from ndfa.ndf.decoder import object_frame
+from ndfa.ndf.model import NDFModel
+from ndfa.training.checkpoint import save_checkpoint
 from ndfa.training.losses import frame_loss
-from ndfa.ndf.model import NDFConfig, NDFModel, load_model, object_frame, save_checkpoint
 
 SEEDS = [0, 1, 2]
 SMALL = NDFConfig(hidden=16, latent=16, knn=8, encoder_blocks=2, decoder_width=32, decoder_blocks=1, code_dim=8)
-
-
 
 
 def view(seed: int, batch: int = 2, n: int = 300) -> torch.Tensor:

@@ -1,4 +1,5 @@
-"""NDF training data (ndfa.training.data): partial views of procedural mugs with occupancy labels."""
+"""NDF training data (`ndfa.training.views`, `mug_samples`, `dataset`, `batches`, `shape_parameters`):
+partial views of procedural mugs with occupancy labels."""
 
 import dataclasses
 
@@ -8,13 +9,21 @@ import pytest
 
 from ndfa.core.errors import DataError
 from ndfa.core.geometry import invert_pose, transform_points
-from ndfa.training import data
-from ndfa.training.data import (
-    View, ViewConfig, generate_views, load_dataset, mug_center, render_view, sample_batch, write_dataset,
-)
 from ndfa.sim.mug import MugParams, build_mug
 from ndfa.sim.noise import DepthNoise
 from ndfa.sim.splits import TRAIN_SEEDS, make_split_mug
+from ndfa.training import dataset as dataset_module
+from ndfa.training import views
+from ndfa.training.batches import sample_batch
+from ndfa.training.dataset import (
+    DATASET_ARRAYS,
+    generate_views,
+    load_dataset,
+    write_dataset,
+)
+from ndfa.training.mug_samples import mug_center
+from ndfa.training.shape_parameters import NUMERIC_PARAMS, shape_parameters
+from ndfa.training.views import View, ViewConfig, render_view
 
 # Near views (the mug 0.2-0.8 m beyond the table's edge): many points, little noise.
 NEAR = ViewConfig(distance_range_m=(0.2, 0.8))
@@ -116,7 +125,7 @@ def test_cameras_stand_around_the_table_and_look_at_the_mug():
     target = np.array([0.3, -0.2, table.height + 0.05])
     distances = []
     for k in range(200):
-        pose_world_camera = data._camera_pose(table, target, np.random.default_rng([6, k]), config)
+        pose_world_camera = views._camera_pose(table, target, np.random.default_rng([6, k]), config)
         eye, axis = pose_world_camera[:3, 3], pose_world_camera[:3, 2]
         distances.append(table.distance_xy(eye[None, :2])[0])
         assert config.height_range_m[0] - 1e-9 <= eye[2] - table.height <= config.height_range_m[1] + 1e-9
@@ -131,7 +140,7 @@ def test_generation_is_deterministic_and_independent_of_workers_and_order():
     one = generate_views("train", [0, 1, 2], 2, seed=11, config=SMALL, workers=1)
     two = generate_views("train", [2, 0, 1], 2, seed=11, config=SMALL, workers=2)
     order = np.lexsort((two["view_id"], two["mug_index"]))
-    for name in data.DATASET_ARRAYS:
+    for name in DATASET_ARRAYS:
         assert np.array_equal(one[name], two[name][order]), name
     assert list(one["mug_index"]) == [0, 0, 1, 1, 2, 2] and list(one["view_id"]) == [0, 1] * 3
     other_seed = generate_views("train", [0], 2, seed=12, config=SMALL, workers=1)
@@ -140,13 +149,13 @@ def test_generation_is_deterministic_and_independent_of_workers_and_order():
 
 def test_only_mugs_of_the_asked_split_are_used(monkeypatch):
     seeds = []
-    real_render_view = data.render_view
+    real_render_view = dataset_module.render_view
 
     def spy(mug, others, rng, config, **kwargs):
         seeds.extend(m.seed for m in [mug, *others])
         return real_render_view(mug, others, rng, config, **kwargs)
 
-    monkeypatch.setattr(data, "render_view", spy)
+    monkeypatch.setattr(dataset_module, "render_view", spy)
     dataset = generate_views("train", [5, 6, 7], 2, seed=0, config=SMALL, workers=1)
     assert str(dataset["split"]) == "train"
     assert len(seeds) > 6 and all(seed in TRAIN_SEEDS for seed in seeds)
@@ -208,14 +217,14 @@ def test_bad_config_and_arguments_raise_data_error():
 
 
 def test_shape_parameters_describe_each_mug():
-    table = data.shape_parameters("train", list(range(60)))
-    numeric = len(data.NUMERIC_PARAMS)
+    table = shape_parameters("train", list(range(60)))
+    numeric = len(NUMERIC_PARAMS)
     assert table.shape == (60, numeric + 4 + 3 + 5) and np.isfinite(table).all()
     tags = table[:, numeric:]
     for start, stop in ((0, 4), (4, 7), (7, 12)):  # profile, base style, handle shape: one of each
         assert (tags[:, start:stop].sum(axis=1) == 1).all()
-    height = data.NUMERIC_PARAMS.index("height")
+    height = NUMERIC_PARAMS.index("height")
     assert np.allclose(table[:, height], [make_split_mug("train", i).params.height for i in range(60)])
-    handle_fields = [i for i, name in enumerate(data.NUMERIC_PARAMS) if name.startswith("handle_")]
+    handle_fields = [i for i, name in enumerate(NUMERIC_PARAMS) if name.startswith("handle_")]
     without_handle = tags[:, 11] == 1
     assert (table[without_handle][:, handle_fields] == 0).all() and (table[~without_handle][:, handle_fields] > 0).any(axis=1).all()

@@ -5,12 +5,13 @@ import pytest
 import torch
 
 from ndfa.core.errors import ModelError
-from ndfa.training.data import ViewConfig, generate_views
+from ndfa.ndf.config import NDFConfig
 from ndfa.ndf.encoder import DEFAULT_WEIGHTS, EncoderConfig, NDFEncoder
+from ndfa.training.dataset import generate_views
 from ndfa.training.losses import batch_hard_shape_loss
 from ndfa.training.metrics import pair_separation, retrieval_top1, roc_auc
-from ndfa.ndf.model import NDFConfig, NDFModel, save_checkpoint
 from ndfa.training.train import TrainConfig, train
+from ndfa.training.views import ViewConfig
 
 # The frame decoder with local points, max pooling, both direction cues and the gated center head:
 # the training path with every loss term and every input.
@@ -172,8 +173,9 @@ def test_shipped_weights_load_and_encode():
 
 
 def test_proxies_of_a_trained_model_start_at_its_mean_codes():
-    from ndfa.ndf.model import load_model
-    from ndfa.training.train import TrainingHeads, encode_views
+    from ndfa.ndf.checkpoint import load_model
+    from ndfa.training.train import TrainingHeads
+    from ndfa.training.validate import encode_views
 
     model, _ = load_model(DEFAULT_WEIGHTS)
     views = generate_views("train", [0, 1, 2, 3], 3, 0, ViewConfig(), workers=1)
@@ -188,7 +190,7 @@ def test_proxies_of_a_trained_model_start_at_its_mean_codes():
 def test_refitting_one_part_keeps_the_rest(tiny_run, tmp_path, part):
     import dataclasses
 
-    from ndfa.ndf.model import load_model
+    from ndfa.ndf.checkpoint import load_model
 
     config, out, _ = tiny_run
     # The decoder refit may change the decoder's kind: the frame decoder's weights are not loaded.

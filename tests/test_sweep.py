@@ -9,6 +9,7 @@ from typer.testing import CliRunner
 
 import ndfa.eval.sweep as sweep
 from ndfa.cli import app
+from ndfa.eval.plots import plot_sweep
 from ndfa.eval.sweep import SweepError, SweepSpec, cell_config, load_results, parse_seeds, run_sweep
 
 TINY = dict(preset="sample", step_m=0.6)  # the sample scene with half its frames
@@ -63,7 +64,7 @@ def test_sweep_runs_resumes_and_plots(tmp_path: Path, monkeypatch):
     assert again.computed == 0 and again.skipped == 2
     assert again.table.sort(["cell_id", "method"]).equals(run.table.sort(["cell_id", "method"]))
 
-    png = sweep.plot_sweep(again.table, tmp_path / "sweep_drift.png")
+    png = plot_sweep(again.table, tmp_path / "sweep_drift.png")
     assert Image.open(png).size[0] > 500
 
     # The CLI on the finished sweep: prints the table, writes the PNG, computes nothing.

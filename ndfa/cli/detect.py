@@ -187,7 +187,8 @@ def eval_command(
 def _eval_sweep(axis: str, values: Optional[str], seeds: str, preset: str, step: Optional[float],
                 workers: Optional[int], address: Optional[str], use_ray: Optional[bool], out: Path) -> None:
     """`ndfa eval --sweep`: run (or resume) the sweep, print the aggregated table, write parquet and PNG."""
-    from ndfa.eval.sweep import aggregate, plot_sweep, run_sweep, spec_from_text
+    from ndfa.eval.plots import plot_sweep
+    from ndfa.eval.sweep import aggregate, run_sweep, spec_from_text
 
     if values is None:
         raise typer.BadParameter("--sweep needs --values, e.g. --values 0,0.001,0.002")

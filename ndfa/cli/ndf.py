@@ -44,7 +44,7 @@ def train_command(
     log: Optional[Path] = typer.Option(None, help="Also log the metrics to this Rerun file (.rrd)."),
 ) -> None:
     """Train the NDF on rendered partial views of train-split procedural mugs (CPU)."""
-    from ndfa.ndf.model import NDFConfig
+    from ndfa.ndf.config import NDFConfig
     from ndfa.training.train import TrainConfig, train
 
     config = TrainConfig(
@@ -97,7 +97,7 @@ def ndf_export_command(
 ) -> None:
     """Strip a training checkpoint to the weights the package ships and loads by default."""
     from ndfa.ndf.encoder import DEFAULT_WEIGHTS
-    from ndfa.training.train import export_weights
+    from ndfa.training.checkpoint import export_weights
 
     destination = to or DEFAULT_WEIGHTS
     export_weights(checkpoint, destination)
@@ -117,7 +117,8 @@ def ndf_eval_command(
 ) -> None:
     """Model quality on unseen test-split mugs: center error, shape-code retrieval, IoU."""
     from ndfa.io.atomic import write_parquet
-    from ndfa.training.data import ViewConfig, generate_views
+    from ndfa.training.dataset import generate_views
+    from ndfa.training.views import ViewConfig
     from ndfa.training.ndf_eval import evaluate_ndf
 
     import polars as pl

@@ -9,7 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ndfa.perception.segmentation import SegmentationConfig, segment_frame, valid_depth
+from ndfa.core.conventions import depth_in_range
+from ndfa.perception.segmentation import SegmentationConfig, segment_frame
 
 
 def relabel_to_truth(segments: np.ndarray, truth: np.ndarray, valid: np.ndarray | None = None,
@@ -83,7 +84,7 @@ def segmentation_recall(frames, config: SegmentationConfig = SegmentationConfig(
         labels = segment_frame(frame, config)
         seconds += time.perf_counter() - started
         cpu_seconds += time.process_time() - cpu_started
-        valid = valid_depth(frame.depth, config)
+        valid = depth_in_range(frame.depth, config.min_depth_m, config.max_depth_m)
         truth = frame.instances
         ious = _iou_matrix(labels[valid], truth[valid])          # (segments + 1, instances + 1)
         sizes = np.bincount(truth[valid].astype(np.int64), minlength=ious.shape[1])

@@ -1,1 +1,4 @@
-"""Neural Descriptor Fields: SO(3)-equivariant vector-neuron layers (`vn`) and the NDF model (`model`)."""
+"""Neural Descriptor Fields, model and inference only: vector-neuron layers (`vn`), the model's
+options (`config`), its encoder network (`encoder_net`), occupancy decoder (`decoder`), code and
+center heads (`heads`), the assembled model (`model`), reading checkpoints (`checkpoint`) and
+inference on observations (`encoder`)."""

@@ -18,7 +18,7 @@ from scipy.ndimage import binary_dilation
 from ndfa.core.conventions import world_up
 from ndfa.core.errors import ModelError
 from ndfa.core.geometry import transform_points
-from ndfa.ndf.model import load_model
+from ndfa.ndf.checkpoint import load_model
 
 WEIGHTS_DIR = Path(__file__).parent / "weights"
 DEFAULT_WEIGHTS = WEIGHTS_DIR / "ndf_mugs.pt"

@@ -4,13 +4,13 @@ The paper's real-world pipeline segments objects by removing the support plane a
 rest with DBSCAN; this is that, for one frame at a time:
 
 1. Back-project every `stride`-th pixel (in both directions) with valid depth, into the world
-   frame with the frame's pose (`pose_world_camera`; the world's up is `config.up`).
-2. Find the horizontal planes: with the up direction known, a horizontal plane has one free
-   parameter, its height, so the consensus search is exhaustive rather than random: the height
-   window of `plane_distance_m` holding the most points wins, its inliers are refitted by least
+   frame with the frame's pose (`pose_world_camera`; the world is z-up, `ndfa.core.conventions`).
+2. Find the horizontal planes (`ndfa.perception.planes`): with the up direction known, a
+   horizontal plane has one free parameter, its height, so the consensus search is exhaustive
+   rather than random: the height window of `plane_distance_m` holding the most points wins, its inliers are refitted by least
    squares (which absorbs a tilt of the pose up to `plane_max_tilt_deg`), and the search repeats
    away from the accepted planes while a level holds enough points. Floor and table tops are
-   both found; at the end all planes take the normal of the widest one (`_parallel`).
+   both found; at the end all planes take the normal of the widest one.
 3. Candidates: points above a support plane by more than `min_height_m` and at most
    `band_height_m`, whose horizontal position lies over (or within `footprint_margin_m` of) that
    plane's own inliers, and whose grid cell (`footprint_cell_m`) holds no point higher than
@@ -49,9 +49,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ndfa.core import conventions
+from ndfa.core.frame import Frame
 from ndfa.core.geometry import backproject
 from ndfa.perception.dbscan import dbscan
-from ndfa.core.frame import Frame
+from ndfa.perception.planes import Plane, find_horizontal_planes, plane_axes
 
 
 @dataclass(frozen=True)
@@ -62,8 +64,7 @@ class SegmentationConfig:
     stride: every `stride`-th pixel along each image axis is sampled (2: a quarter of the pixels).
         At 3 m a 640-px, 60 degree camera then samples a surface every ~11 mm, still under
         `dbscan_eps_m`. None: width // 320 (2 at 640x480, 1 at the sample's 320x240).
-    min_depth_m, max_depth_m: depth range used (as `ObservationConfig`'s).
-    up: the world's up direction (unit vector); the synthetic world is z-up.
+    min_depth_m, max_depth_m: depth range used (`ndfa.core.conventions`, as `ObservationConfig`'s).
     plane_distance_m: half-width of the height window of a plane's inliers (sensor noise is
         ~6 mm at 2 m); also the spacing of the height search.
     plane_max_tilt_deg: a refitted plane tilted further than this from horizontal is rejected.
@@ -100,9 +101,8 @@ class SegmentationConfig:
     """
 
     stride: int | None = None
-    min_depth_m: float = 0.1
-    max_depth_m: float = 4.0
-    up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    min_depth_m: float = conventions.MIN_DEPTH_M
+    max_depth_m: float = conventions.MAX_DEPTH_M
     plane_distance_m: float = 0.01
     plane_max_tilt_deg: float = 10.0
     min_plane_points: int = 300
@@ -135,29 +135,16 @@ class SegmentationConfig:
             raise ValueError("need min_height_m < max_object_height_m < band_height_m")
 
 
-@dataclass(frozen=True)
-class Plane:
-    """A support plane: points p with normal . p = offset; normal points up."""
-
-    normal: np.ndarray
-    offset: float
-    inliers: np.ndarray  # (N,) bool over the sampled points the plane was found in
-
-    def height(self, points: np.ndarray) -> np.ndarray:
-        return points @ self.normal - self.offset
-
-
 def segment_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig()) -> np.ndarray:
     """The frame's object instances as a (H, W) uint16 image: labels 1..N, 0 = no object."""
     height, width = frame.depth.shape
     labels = np.zeros((height, width), dtype=np.uint16)
-    up = np.asarray(config.up, dtype=np.float64)
-    up /= np.linalg.norm(up)
+    up = conventions.world_up()
 
     stride = config.stride or max(1, width // 320)
     rows, cols = np.mgrid[0:height:stride, 0:width:stride]
     rows, cols = rows.ravel(), cols.ravel()
-    keep = valid_depth(frame.depth[rows, cols], config)
+    keep = conventions.depth_in_range(frame.depth[rows, cols], config.min_depth_m, config.max_depth_m)
     rows, cols = rows[keep], cols[keep]
     if len(rows) < config.min_plane_points:
         return labels
@@ -195,81 +182,6 @@ def segment_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig(
     return labels
 
 
-def find_horizontal_planes(points: np.ndarray, up: np.ndarray, config: SegmentationConfig,
-                           camera: np.ndarray | None = None) -> list[Plane]:
-    """Horizontal planes, most populated first (see the module docstring, step 2).
-
-    The search and the refits use every 4th point (`_THIN`); only an accepted plane's inliers are
-    counted over all points. The first (largest) plane's refitted normal becomes the up direction
-    for the others: a pose tilted by a few degrees (the `paper` target's are, by up to 3)
-    otherwise smears a far table top over several height windows. Once a plane is accepted, the
-    levels within `band_height_m` of it are not searched: what lies there stands on it (mug bodies
-    at one height) or belongs to it (a table's rim). A level is also rejected when it lies above
-    the `camera` position (world; None: no such test), or its inliers form a strip.
-    """
-    camera = np.full(3, np.inf) if camera is None else camera
-    planes: list[Plane] = []
-    max_tilt_cos = np.cos(np.radians(config.plane_max_tilt_deg))
-    sample = points[::_THIN]
-    min_sample_points = config.min_plane_points / _THIN
-    searchable = np.ones(len(sample), dtype=bool)
-    search_up = up
-    heights = sample @ search_up
-    for _ in range(2 * config.max_planes):
-        if len(planes) == config.max_planes or searchable.sum() < min_sample_points:
-            break
-        sorted_heights = np.sort(heights[searchable])
-        grid = np.arange(sorted_heights[0], sorted_heights[-1] + config.plane_distance_m, config.plane_distance_m / 2)
-        counts = (np.searchsorted(sorted_heights, grid + config.plane_distance_m, side="right")
-                  - np.searchsorted(sorted_heights, grid - config.plane_distance_m, side="left"))
-        if counts.max() < min_sample_points:
-            break
-        level = grid[counts.argmax()]
-        window = searchable & (np.abs(heights - level) <= config.plane_distance_m)
-        normal, offset, inliers = search_up, level, window
-        # Least squares on the inliers, then the inliers of the refitted plane; the wider second
-        # window takes in the parts of a plane that a tilted pose lifted out of the first.
-        for width in _REFIT_WINDOWS:
-            fitted = _fit_plane(sample[inliers], search_up)
-            if fitted is None or fitted[0] @ up < max_tilt_cos:
-                break
-            normal, offset = fitted
-            inliers = searchable & (np.abs(sample @ normal - offset) <= width * config.plane_distance_m)
-        if (inliers.sum() < min_sample_points
-                or camera @ normal - offset <= 0.0           # seen from below: nothing on it can be seen
-                or _narrow_spread(sample[inliers], normal) < config.min_plane_spread_m):
-            searchable &= ~(window | inliers)
-            continue
-        planes.append(Plane(normal, float(offset), np.abs(points @ normal - offset) <= config.plane_distance_m))
-        if len(planes) == 1:
-            search_up = normal
-            heights = sample @ search_up
-        searchable &= np.abs(sample @ normal - offset) > config.band_height_m
-    return _parallel(planes, points, config) if len(planes) > 1 else planes
-
-
-def _parallel(planes: list[Plane], points: np.ndarray, config: SegmentationConfig) -> list[Plane]:
-    """The planes made parallel, with the normal of the widest one (its narrower horizontal spread
-    largest; usually the floor): a plane's tilt is known to about noise / extent, and a table top
-    fitted alone was off by 1-2 degrees on the `paper` target (the floor's by 0.1 against the
-    true pose), which lifted the far side of the table into the objects and merged its mugs."""
-    spreads = [_narrow_spread(points[p.inliers][::_THIN], p.normal) for p in planes]
-    normal = planes[int(np.argmax(spreads))].normal
-    out = []
-    for plane in planes:
-        offset = float(points[plane.inliers].mean(axis=0) @ normal)
-        out.append(Plane(normal, offset, np.abs(points @ normal - offset) <= config.plane_distance_m))
-    return out
-
-
-
-
-
-def valid_depth(depth: np.ndarray, config: SegmentationConfig) -> np.ndarray:
-    with np.errstate(invalid="ignore"):
-        return np.isfinite(depth) & (depth >= config.min_depth_m) & (depth <= config.max_depth_m)
-
-
 def _min_heights(depth: np.ndarray, config: SegmentationConfig) -> np.ndarray:
     """How far above its plane a point at this depth must be to count as an object (step 3)."""
     sigma = _noise_sigma(depth, config)
@@ -290,38 +202,13 @@ def _world_points(frame: Frame, rows: np.ndarray, cols: np.ndarray) -> np.ndarra
             + pose[:3, 3])
 
 
-def _narrow_spread(points: np.ndarray, normal: np.ndarray) -> float:
-    """Standard deviation of the points along their narrower axis within the plane."""
-    flat = points @ _plane_axes(normal).T
-    flat = flat - flat.mean(axis=0)
-    return float(np.sqrt(np.linalg.eigvalsh(flat.T @ flat / len(flat))[0]))
-
-
-def _fit_plane(points: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, float] | None:
-    """Least-squares plane (unit normal pointing along `up`, offset), or None for < 3 points."""
-    if len(points) < 3:
-        return None
-    center = points.mean(axis=0)
-    _, _, vt = np.linalg.svd(points - center, full_matrices=False)
-    normal = vt[-1] if vt[-1] @ up >= 0 else -vt[-1]
-    return normal, float(normal @ center)
-
-
-def _plane_axes(up: np.ndarray) -> np.ndarray:
-    """Two unit vectors spanning the plane orthogonal to `up`, as the rows of a (2, 3) array."""
-    helper = np.array([1.0, 0.0, 0.0]) if abs(up[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    first = np.cross(up, helper)
-    first /= np.linalg.norm(first)
-    return np.stack([first, np.cross(up, first)])
-
-
 def _candidates(points: np.ndarray, min_heights: np.ndarray, planes: list[Plane], up: np.ndarray,
                 config: SegmentationConfig
                 ) -> tuple[np.ndarray, np.ndarray]:
     """Which points may belong to objects, and the index of the plane each stands on (step 3)."""
     candidate = np.zeros(len(points), dtype=bool)
     plane_of_point = np.full(len(points), -1, dtype=np.int64)
-    axes = _plane_axes(up)
+    axes = plane_axes(up)
     margin = int(np.ceil(config.footprint_margin_m / config.footprint_cell_m))
     steps = np.arange(-margin, margin + 1)
     neighbours = (steps[:, None] * _KEY_SPAN + steps[None, :]).ravel()  # key offsets of the cells within the margin
@@ -342,9 +229,6 @@ def _candidates(points: np.ndarray, min_heights: np.ndarray, planes: list[Plane]
     return candidate, plane_of_point
 
 
-_REFIT_WINDOWS = (2.5, 1.5, 1.0, 1.0)  # inlier windows of the successive refits, in plane_distance_m
-_THIN = 4  # the plane search uses every 4th sampled point: its counts only rank levels
-
 _KEY_SPAN = 1 << 24  # cells per axis in a cell key: 5 cm cells cover +-400 km
 
 
@@ -359,7 +243,7 @@ def _kept_clusters(points: np.ndarray, depths: np.ndarray, cluster_of_point: np.
     """Clusters that pass the size filters of step 5, largest first. A cluster's top is its 95th
     percentile of height (one noisy point does not make a blob tall)."""
     clusters, sizes = np.unique(cluster_of_point[cluster_of_point >= 0], return_counts=True)
-    axes = _plane_axes(up)
+    axes = plane_axes(up)
     kept = []
     for cluster, size in sorted(zip(clusters.tolist(), sizes.tolist()), key=lambda c: -c[1]):
         if size < config.min_cluster_points:
@@ -417,7 +301,7 @@ def _fill(frame: Frame, labels: np.ndarray, points: np.ndarray, point_labels: np
     rows, cols = rows[inside], cols[inside]
     unlabelled = labels[rows, cols] == 0
     rows, cols = rows[unlabelled], cols[unlabelled]
-    valid = valid_depth(frame.depth[rows, cols], config)
+    valid = conventions.depth_in_range(frame.depth[rows, cols], config.min_depth_m, config.max_depth_m)
     rows, cols = rows[valid], cols[valid]
     if len(rows) == 0:
         return

@@ -13,8 +13,9 @@ import dataclasses
 from pathlib import Path
 
 from ndfa.core.errors import RecordingError
+from ndfa.core.conventions import depth_in_range
 from ndfa.core.progress import Progress
-from ndfa.perception.segmentation import SegmentationConfig, segment_frame, valid_depth
+from ndfa.perception.segmentation import SegmentationConfig, segment_frame
 from ndfa.eval.segmentation import relabel_to_truth
 from ndfa.io.recording import RecordingReader, RecordingWriter
 
@@ -41,7 +42,8 @@ def segment_recording(source: Path, out: Path, config: SegmentationConfig = Segm
         for frame in reader.frames():
             labels = segment_frame(frame, config)
             if relabel and frame.instances is not None:
-                labels = relabel_to_truth(labels, frame.instances, valid_depth(frame.depth, config), fresh_id=FRESH_ID)
+                valid = depth_in_range(frame.depth, config.min_depth_m, config.max_depth_m)
+                labels = relabel_to_truth(labels, frame.instances, valid, fresh_id=FRESH_ID)
             writer.write_frame(dataclasses.replace(frame, instances=labels))
             count += 1
             if on_frame is not None:

@@ -19,7 +19,7 @@ import numpy as np
 
 from ndfa.core.geometry import make_pose, rotation_z
 from ndfa.sim.mesh import Mesh, box_mesh
-from ndfa.sim.mug import revolve_profile
+from ndfa.sim.mug_body import revolve_profile
 from ndfa.sim.scene import Table
 
 CLUTTER_KINDS = ("box", "books", "bowl", "bottle")

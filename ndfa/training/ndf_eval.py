@@ -24,11 +24,12 @@ import polars as pl
 import torch
 
 from ndfa.core.geometry import invert_pose, transform_points
-from ndfa.training.data import ViewConfig, generate_views
 from ndfa.ndf.encoder import CENTER_METHODS, EncoderConfig, NDFEncoder
-from ndfa.training.metrics import center_errors_mm, iou, nearest_other, pair_separation
 from ndfa.sim.mug import Mug
 from ndfa.sim.splits import make_split_mug
+from ndfa.training.dataset import generate_views
+from ndfa.training.metrics import center_errors_mm, iou, nearest_other, pair_separation
+from ndfa.training.views import ViewConfig
 
 NEAR_M = 2.0  # views with the mug this close to the camera get their own center figures
 IOU_THRESHOLDS = (0.3, 0.4, 0.5, 0.6)  # occupancy thresholds of the IoU sweep

@@ -28,14 +28,25 @@ import numpy as np
 import polars as pl
 import torch
 
-from ndfa.io.atomic import write_parquet
 from ndfa.core.errors import ModelError
-from ndfa.training.data import (ViewConfig, batch_rows, generate_views, load_dataset, sample_batch, sample_rows,
-                           shape_parameters, write_dataset)
-from ndfa.training.losses import (batch_hard_shape_loss, center_loss, frame_loss, occupancy_loss, parameter_loss,
-                             proxy_identity_loss)
-from ndfa.training.metrics import center_errors_mm, pair_separation, retrieval_top1
-from ndfa.ndf.model import NDFConfig, NDFModel, load_model, save_checkpoint
+from ndfa.io.atomic import write_parquet
+from ndfa.ndf.checkpoint import load_model
+from ndfa.ndf.config import NDFConfig
+from ndfa.ndf.model import NDFModel
+from ndfa.training.batches import batch_rows, sample_batch, sample_rows
+from ndfa.training.checkpoint import save_checkpoint
+from ndfa.training.dataset import generate_views, load_dataset, write_dataset
+from ndfa.training.losses import (
+    batch_hard_shape_loss,
+    center_loss,
+    frame_loss,
+    occupancy_loss,
+    parameter_loss,
+    proxy_identity_loss,
+)
+from ndfa.training.shape_parameters import shape_parameters
+from ndfa.training.validate import encode_views, mean_codes, validate
+from ndfa.training.views import ViewConfig
 
 
 @dataclass(frozen=True)
@@ -59,7 +70,7 @@ class TrainConfig:
     frame_weight: float = 1.0        # weight of the frame loss (the "frame" decoder's axis and handle); 0: off
     proxy_weight: float = 0.0        # weight of the proxy (cosine-softmax) identity loss on the codes; 0: off
     proxy_scale: float = 16.0        # its logit scale: cosine similarities are multiplied by this
-    param_weight: float = 0.0        # weight of the shape-parameter regression from the code (`data.shape_parameters`); 0: off
+    param_weight: float = 0.0        # weight of the shape-parameter regression from the code (`shape_parameters`); 0: off
     up_tilt_deg: float = 3.0         # with the model's up cue: std. dev. of the random tilt of the true up per view (pose and table errors)
     shape_threshold: float = 0.9     # delta_s, for the validation figures
     seed: int = 0
@@ -200,19 +211,6 @@ class TrainingHeads(torch.nn.Module):
         return terms
 
 
-@torch.inference_mode()
-def mean_codes(model: NDFModel, dataset: dict[str, np.ndarray], n_mugs: int, views: int = 4) -> torch.Tensor:
-    """The mean unit shape code of each mug `[n_mugs, D]` over its first `views` views."""
-    rows = np.flatnonzero(dataset["view_id"] < views)
-    codes = torch.nn.functional.normalize(model.shape_code(encode_views(model, _subset(dataset, rows))), dim=1)
-    labels = torch.from_numpy(dataset["mug_index"][rows].astype(np.int64))
-    return torch.zeros(n_mugs, codes.shape[1]).index_add_(0, labels, codes) / torch.bincount(labels, minlength=n_mugs).clamp_min(1)[:, None]
-
-
-def _subset(dataset: dict[str, np.ndarray], rows: np.ndarray) -> dict[str, np.ndarray]:
-    return {name: values[rows] if values.ndim else values for name, values in dataset.items()}
-
-
 def _loss_terms(model: NDFModel, batch: dict[str, torch.Tensor], config: TrainConfig,
                 heads: TrainingHeads) -> dict[str, torch.Tensor]:
     # The model sees each view centred on its points' mean (the translation part of SE(3)
@@ -235,12 +233,6 @@ def tilted(up: torch.Tensor, std_deg: float) -> torch.Tensor:
     the up the detector derives from a camera pose is off by the pose's error and the table's slope."""
     noisy = up + torch.randn_like(up) * np.radians(std_deg)
     return torch.nn.functional.normalize(noisy, dim=-1)
-
-
-def view_cues(dataset: dict[str, np.ndarray], rows: slice | np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
-    """The true up (the mug's axis: it stands on a level table) and the view ray `[V, 3]` of views `rows`."""
-    up = torch.from_numpy(dataset["pose_camera_object"][rows, :3, 2].astype(np.float32))
-    return up, torch.from_numpy(dataset["points"][rows].mean(axis=1).astype(np.float32))
 
 
 def _decoder_terms(model: NDFModel, z: torch.Tensor, batch: dict[str, torch.Tensor], config: TrainConfig) -> dict[str, torch.Tensor]:
@@ -285,50 +277,6 @@ def _initial_model(config: TrainConfig) -> NDFModel:
     return model
 
 
-@torch.inference_mode()
-def encode_views(model: NDFModel, dataset: dict[str, np.ndarray], batch_size: int = 256) -> torch.Tensor:
-    """z `[V, k, 3]` of every view of `dataset`, each centred on its points' mean."""
-    model.eval()
-    out = []
-    for start in range(0, len(dataset["points"]), batch_size):
-        points = torch.from_numpy(dataset["points"][start:start + batch_size])
-        up, view_ray = view_cues(dataset, slice(start, start + batch_size))
-        out.append(model.encode(points - points.mean(dim=1, keepdim=True), up, view_ray))
-    return torch.cat(out).clone()  # a normal tensor: inference tensors cannot enter autograd
-
-
-@torch.inference_mode()
-def validate(model: NDFModel, dataset: dict[str, np.ndarray], shape_threshold: float, batch_size: int = 64) -> dict[str, float]:
-    """Occupancy accuracy on the views' query points, center error and shape-code retrieval."""
-    model.eval()
-    codes, centers, correct, axis_cosines = [], [], [], []
-    for start in range(0, len(dataset["points"]), batch_size):
-        points = torch.from_numpy(dataset["points"][start:start + batch_size])
-        queries = torch.from_numpy(dataset["queries"][start:start + batch_size])
-        centroid = points.mean(dim=1, keepdim=True)
-        out = model(points - centroid, queries - centroid, *view_cues(dataset, slice(start, start + batch_size)))
-        codes.append(out["shape_code"].numpy())
-        centers.append((centroid[:, 0] + out["center_offset"]).numpy())
-        labels = dataset["occupancy"][start:start + batch_size]
-        correct.append(((out["occupancy_logits"] > 0).numpy() == labels).mean(axis=1))
-        if "frame_vectors" in out:
-            true_axis = torch.from_numpy(dataset["pose_camera_object"][start:start + batch_size, :3, 2])
-            axis_cosines.append(torch.cosine_similarity(out["frame_vectors"][..., 0], true_axis, dim=-1).numpy())
-    codes = np.concatenate(codes)
-    # How far the decoder's frame axis is from the mug's true axis, median degrees.
-    axis = {"axis_error_deg": float(np.degrees(np.median(np.arccos(np.clip(np.concatenate(axis_cosines), -1, 1)))))} if axis_cosines else {}
-    labels = dataset["mug_index"]
-    separation = pair_separation(codes, labels, shape_threshold)
-    return {
-        "occ_accuracy": float(np.concatenate(correct).mean()),
-        **center_errors_mm(np.concatenate(centers), dataset["center"]),
-        "retrieval_top1": retrieval_top1(codes, labels),
-        "auc": separation["auc"],
-        "same_above": separation["same_above"],
-        "different_above": separation["different_above"],
-    } | axis
-
-
 def _datasets(config: TrainConfig, data_dir: Path) -> tuple[dict, dict]:
     train_indices = list(range(config.train_mugs))
     val_indices = list(range(config.train_mugs, config.train_mugs + config.val_mugs))
@@ -358,11 +306,3 @@ def _without(config: dict, keys: tuple[str, ...]) -> dict:
 def _jsonable(value):
     """Dataclasses (nested) as JSON-compatible data, for configs stored beside results."""
     return json.loads(json.dumps(dataclasses.asdict(value), default=str))
-
-
-def export_weights(checkpoint: Path, destination: Path) -> None:
-    """The shippable part of a training checkpoint: model config and weights, the point count,
-    the training config and its metrics; no optimizer or RNG state."""
-    model, extra = load_model(checkpoint)
-    keep = {key: extra[key] for key in ("n_points", "train_config", "metrics", "step", "elapsed_s") if key in extra}
-    save_checkpoint(destination, model, model.config, keep)
