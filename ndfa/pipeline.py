@@ -17,11 +17,11 @@ from pathlib import Path
 from ndfa.change.associate import Measurement
 from ndfa.change.detector import ChangeDetector, DetectorConfig
 from ndfa.core.events import Event, FrameEvent, ObservationEvent, Session, TimingEvent
+from ndfa.core.frame import Frame
 from ndfa.core.geometry import transform_points
 from ndfa.ndf.encoder import EncoderConfig, NDFEncoder
 from ndfa.perception.observations import ObservationConfig, extract_observations
 from ndfa.perception.segmentation import SegmentationConfig, segment_frame
-from ndfa.core.frame import Frame
 
 SESSIONS = ("source", "target")
 

@@ -17,11 +17,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ndfa.ndf.config import NDFConfig
+from ndfa.ndf.model import NDFModel
 from ndfa.training.batches import sample_batch
 from ndfa.training.dataset import load_dataset
 from ndfa.training.losses import center_loss, frame_loss
-from ndfa.ndf.config import NDFConfig
-from ndfa.ndf.model import NDFModel
 
 
 def main() -> None:

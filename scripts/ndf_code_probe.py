@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ndfa.ndf.checkpoint import load_model
+from ndfa.ndf.encoder import DEFAULT_WEIGHTS
 from ndfa.training.dataset import load_dataset
 from ndfa.training.shape_parameters import NUMERIC_PARAMS, shape_parameters
-from ndfa.ndf.encoder import DEFAULT_WEIGHTS
-from ndfa.ndf.checkpoint import load_model
 from ndfa.training.validate import encode_views
 
 

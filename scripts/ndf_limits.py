@@ -19,8 +19,8 @@ import sys
 import numpy as np
 import polars as pl
 
-from ndfa.training.metrics import iou
 from ndfa.sim.splits import make_split_mug
+from ndfa.training.metrics import iou
 
 MUGS, GRID = 20, 32
 

@@ -9,8 +9,8 @@ from typer.testing import CliRunner
 
 from ndfa.cli import app
 from ndfa.core.errors import ExportError, IngestError
-from ndfa.io.export.bag import LINK_FROM_OPTICAL, _BagWriter, export_bag
 from ndfa.core.geometry import invert_pose, look_at
+from ndfa.io.export.bag import LINK_FROM_OPTICAL, _BagWriter, export_bag
 from ndfa.io.ingest import ros_images
 from ndfa.io.ingest.bag import ingest_bag, list_topics
 from ndfa.io.recording import RecordingReader, RecordingWriter

@@ -8,12 +8,12 @@ import polars as pl
 import pytest
 from typer.testing import CliRunner
 
-from ndfa.eval.baselines import BaselineError, run_baseline
-from ndfa.eval.baselines.nn import NNBaseline, NNConfig, voxel_downsample
-from ndfa.eval.table import open_for_baselines
-from ndfa.eval.baselines.tsdf import Submap, TSDFBaseline, TSDFConfig
 from ndfa.cli import app
 from ndfa.core.geometry import look_at, make_pose
+from ndfa.eval.baselines import BaselineError, run_baseline
+from ndfa.eval.baselines.nn import NNBaseline, NNConfig, voxel_downsample
+from ndfa.eval.baselines.tsdf import Submap, TSDFBaseline, TSDFConfig
+from ndfa.eval.table import open_for_baselines
 from ndfa.io.recording import Frame, RecordingWriter
 from ndfa.sim.camera import PinholeCamera
 from ndfa.sim.mesh import box_mesh

@@ -14,7 +14,6 @@ from ndfa.change.register import apply, ransac_registration, rigid_transform
 from ndfa.change.tree import IntervalTree, ObjectTree
 from ndfa.core.geometry import axis_angle_to_matrix, make_pose, rotation_z
 
-
 # -- tree ---------------------------------------------------------------------------------------
 
 def test_interval_nodes_are_created_at_the_first_coordinate_and_never_overlap():
@@ -75,7 +74,7 @@ def test_association_merges_near_similar_measurements_and_keeps_the_most_confide
     d = session.update(Measurement(3, 8, _code(2), np.array([1.01, 1.0, 0.8]), 0.9))          # other shape: new
     e = session.update(Measurement(4, 9, _code(1), np.array([1.2, 1.0, 0.8]), 0.9))           # too far: new
     assert a.created and not b.created and b.replaced and not c.replaced
-    assert not d.created is False and d.object_id != a.object_id and e.created
+    assert d.created is not False and d.object_id != a.object_id and e.created
     obj = session.objects[a.object_id]
     assert obj.n_measurements == 3 and obj.mean_occupancy == 0.9
     np.testing.assert_allclose(obj.center_world, [1.02, 1.0, 0.8])

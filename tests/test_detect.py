@@ -10,11 +10,11 @@ import pytest
 from typer.testing import CliRunner
 
 from ndfa.cli import app
-from ndfa.run.detect import run_detection
 from ndfa.core.errors import RecordingError
+from ndfa.io.recording import Frame, RecordingWriter
 from ndfa.log.table_sink import TABLES, TableSink
 from ndfa.pipeline import PipelineConfig
-from ndfa.io.recording import Frame, RecordingWriter
+from ndfa.run.detect import run_detection
 
 SAMPLE = Path(__file__).parents[1] / "recordings" / "sample"
 SUMMARY_KEYS = {"tp", "fp", "fn", "precision", "recall", "frames", "objects_source", "objects_target", "fps",

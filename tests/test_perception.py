@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from ndfa.perception.observations import ObservationConfig, extract_observations, largest_cluster
 from ndfa.io.recording import Frame
+from ndfa.perception.observations import ObservationConfig, extract_observations, largest_cluster
 from ndfa.sim.camera import PinholeCamera
 
 

@@ -9,10 +9,10 @@ import pytest
 from typer.testing import CliRunner
 
 from ndfa.cli import app
-from ndfa.run.detect import run_detection
-from ndfa.perception.segmentation import SegmentationConfig, segment_frame
 from ndfa.eval.segmentation import match_segments, relabel_to_truth, segmentation_recall
 from ndfa.io.recording import RecordingReader, RecordingWriter
+from ndfa.perception.segmentation import segment_frame
+from ndfa.run.detect import run_detection
 
 SAMPLE = Path(__file__).parents[1] / "recordings" / "sample"
 

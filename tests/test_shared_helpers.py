@@ -10,8 +10,7 @@ import polars as pl
 import pytest
 
 from ndfa.core import conventions
-from ndfa.core.geometry import (axis_angle_to_matrix, backproject, interpolate_pose, make_pose, project,
-                                rotation_z)
+from ndfa.core.geometry import axis_angle_to_matrix, backproject, interpolate_pose, make_pose, project, rotation_z
 from ndfa.eval.baselines.nn import NNConfig
 from ndfa.eval.baselines.tsdf import TSDFConfig
 from ndfa.eval.scoring import is_visible

@@ -24,6 +24,7 @@ from ndfa.trajectory import (
     write_tum,
 )
 
+
 def circle_trajectory(n: int = 40) -> np.ndarray:
     """Camera poses on a 2 m circle at 1 m height, looking at the centre: (n, 4, 4)."""
     angles = np.linspace(0.0, np.pi, n)

@@ -15,8 +15,14 @@ from ndfa.core.frame import Frame
 from ndfa.core.geometry import axis_angle_to_matrix, invert_pose, look_at, make_pose, matrix_from_quaternion_xyzw
 from ndfa.trajectory.metrics import absolute_trajectory_error
 from ndfa.trajectory.pose_graph import PoseEdge, optimize_pose_graph
-from ndfa.trajectory.rgbd import (HYBRID, POINT_TO_PLANE, RgbdOdometry, RgbdOdometryConfig, depth_degeneracy,
-                                  streaming_pose_estimator)
+from ndfa.trajectory.rgbd import (
+    HYBRID,
+    POINT_TO_PLANE,
+    RgbdOdometry,
+    RgbdOdometryConfig,
+    depth_degeneracy,
+    streaming_pose_estimator,
+)
 
 K = np.array([[160.0, 0.0, 79.5], [0.0, 160.0, 59.5], [0.0, 0.0, 1.0]])
 SIZE = (120, 160)

@@ -9,8 +9,8 @@ from typer.testing import CliRunner
 
 from ndfa.cli import app
 from ndfa.core.errors import ExportError, IngestError
-from ndfa.io.export.tum import export_tum
 from ndfa.core.geometry import make_pose, quaternion_xyzw_from_matrix, rotation_z
+from ndfa.io.export.tum import export_tum
 from ndfa.io.ingest.tum import TumWarning, ingest_tum
 from ndfa.io.ingest.tum_folder import DEFAULT_INTRINSICS, INTRINSICS_PRESETS, read_tum_folder
 from ndfa.io.recording import RecordingReader

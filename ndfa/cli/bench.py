@@ -26,9 +26,9 @@ def bench_command(
     from ndfa.eval.bench import bench_detect, bench_detection_scaling, bench_ndf, bench_sim
 
     if what == "segment":
-        from ndfa.perception.segmentation import SegmentationConfig
         from ndfa.eval.segmentation import segmentation_recall
         from ndfa.io.recording import RecordingReader
+        from ndfa.perception.segmentation import SegmentationConfig
 
         reader = RecordingReader(recording)
         r = segmentation_recall(reader.frames(step=step), SegmentationConfig())

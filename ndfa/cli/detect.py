@@ -51,10 +51,10 @@ def detect_command(
             raise typer.BadParameter(f"--threads must be >= 1, got {threads}")
         torch.set_num_threads(threads)
 
-    from ndfa.run.detect import run_detection
     from ndfa.eval.scoring import changed_instances
-    from ndfa.pipeline import PipelineConfig
     from ndfa.io.recording import RecordingReader
+    from ndfa.pipeline import PipelineConfig
+    from ndfa.run.detect import run_detection
 
     association = {"distance_m": association_distance, "shape_similarity": shape_similarity, "tree_length_m": tree_length}
     defaults = DetectorConfig()
@@ -155,8 +155,8 @@ def eval_command(
     if source is None or target is None:
         raise typer.BadParameter("give SOURCE and TARGET recordings, or --sweep AXIS --values ...")
     from ndfa.eval.baselines.nn import NNConfig
-    from ndfa.eval.table import evaluate_methods, write_table
     from ndfa.eval.baselines.tsdf import TSDFConfig
+    from ndfa.eval.table import evaluate_methods, write_table
 
     if frame_step < 1:
         raise typer.BadParameter(f"--frame-step must be >= 1, got {frame_step}")

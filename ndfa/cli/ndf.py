@@ -116,12 +116,12 @@ def ndf_eval_command(
     first_mug: int = typer.Option(0, help="Index of the first mug in the split (e.g. 1000: the validation mugs after 1,000 training ones)."),
 ) -> None:
     """Model quality on unseen test-split mugs: center error, shape-code retrieval, IoU."""
+    import polars as pl
+
     from ndfa.io.atomic import write_parquet
     from ndfa.training.dataset import generate_views
-    from ndfa.training.views import ViewConfig
     from ndfa.training.ndf_eval import evaluate_ndf
-
-    import polars as pl
+    from ndfa.training.views import ViewConfig
 
     if split not in ("test", "train"):
         raise typer.BadParameter(f"--split must be test or train, got {split!r}")

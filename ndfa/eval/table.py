@@ -18,15 +18,16 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from ndfa.io.atomic import atomic_path, write_parquet
+from ndfa.core.conventions import depth_in_range
+from ndfa.core.progress import LabelledProgress
 from ndfa.eval.baselines.common import BaselineError, run_baseline
 from ndfa.eval.baselines.nn import NNBaseline, NNConfig
 from ndfa.eval.baselines.tsdf import TSDFBaseline, TSDFConfig
-from ndfa.core.conventions import depth_in_range
-from ndfa.core.progress import LabelledProgress
 from ndfa.eval.scoring import is_visible, score
-from ndfa.perception.observations import ObservationConfig
+from ndfa.io.atomic import atomic_path, write_parquet
 from ndfa.io.recording import Frame, RecordingReader
+from ndfa.perception.observations import ObservationConfig
+
 
 @dataclass(frozen=True)
 class MethodRow:
@@ -102,8 +103,8 @@ def evaluate_methods(source: Path, target: Path, nn: NNConfig = NNConfig(), tsdf
                      frame_step: int = 1, on_frame: LabelledProgress | None = None) -> EvalResult:
     """Run ndfa, NN and PMT on the pair and score them alike. `on_frame(label, done, total)` follows
     each method's pass over each session, labelled "METHOD SESSION" (e.g. "NN source")."""
-    from ndfa.run.detect import run_detection
     from ndfa.pipeline import PipelineConfig
+    from ndfa.run.detect import run_detection
 
     source_reader, target_reader, truth = open_for_baselines(Path(source), Path(target))
     visible: dict[str, set[int]] = {"source": set(), "target": set()}

@@ -28,8 +28,17 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from ndfa.core.events import (AssociationEvent, DecisionEvent, Event, FrameEvent, GraphEvent, ObservationEvent,
-                              RegistrationEvent, TimingEvent, TreeEvent)
+from ndfa.core.events import (
+    AssociationEvent,
+    DecisionEvent,
+    Event,
+    FrameEvent,
+    GraphEvent,
+    ObservationEvent,
+    RegistrationEvent,
+    TimingEvent,
+    TreeEvent,
+)
 from ndfa.io.atomic import Staged
 
 KIND_COLORS = {"added": (230, 60, 60), "removed": (240, 160, 30), "moved": (170, 80, 230), "unchanged": (90, 200, 90)}

@@ -23,9 +23,18 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
+from ndfa.core.events import (
+    AssociationEvent,
+    DecisionEvent,
+    Event,
+    FrameEvent,
+    GraphEvent,
+    ObservationEvent,
+    RegistrationEvent,
+    TimingEvent,
+    TreeEvent,
+)
 from ndfa.io.atomic import write_parquet
-from ndfa.core.events import (AssociationEvent, DecisionEvent, Event, FrameEvent, GraphEvent, ObservationEvent,
-                              RegistrationEvent, TimingEvent, TreeEvent)
 
 TABLES = ("observations", "associations", "objects", "tree_nodes", "registration", "graphs", "decisions", "timings")
 

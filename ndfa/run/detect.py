@@ -16,11 +16,11 @@ import numpy as np
 
 from ndfa.change.detector import reported_changes
 from ndfa.core.errors import RecordingError
+from ndfa.core.events import DecisionEvent, Event, ObservationEvent, TimingEvent
 from ndfa.core.progress import LabelledProgress
 from ndfa.eval.scoring import Score, is_visible, score
-from ndfa.core.events import DecisionEvent, Event, ObservationEvent, TimingEvent
-from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
 from ndfa.io.recording import INSTANCES, RecordingReader
+from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
 
 
 class Sink(Protocol):

@@ -23,8 +23,8 @@ import polars as pl
 
 from ndfa.change.associate import Measurement
 from ndfa.change.detector import ChangeDetector, DetectorConfig, reported_changes
-from ndfa.eval.scoring import Score, is_visible, score
 from ndfa.core.events import DecisionEvent
+from ndfa.eval.scoring import Score, is_visible, score
 
 
 @dataclass

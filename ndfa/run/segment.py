@@ -12,12 +12,12 @@ from __future__ import annotations
 import dataclasses
 from pathlib import Path
 
-from ndfa.core.errors import RecordingError
 from ndfa.core.conventions import depth_in_range
+from ndfa.core.errors import RecordingError
 from ndfa.core.progress import Progress
-from ndfa.perception.segmentation import SegmentationConfig, segment_frame
 from ndfa.eval.segmentation import relabel_to_truth
 from ndfa.io.recording import RecordingReader, RecordingWriter
+from ndfa.perception.segmentation import SegmentationConfig, segment_frame
 
 FRESH_ID = 60000  # segments matching no ground-truth instance get FRESH_ID + label (no mug has such an id)
 

@@ -108,10 +108,10 @@ class TextureAtlas:
         column = np.remainder(u0.astype(np.intp), stride - 1)
         row = np.remainder(v0.astype(np.intp), self._height[texture_index])
         k = self._offset[texture_index] + row * stride + column
-        texel = lambda index: np.take(self._texels, index, axis=0)
-        low, high = texel(k), texel(k + stride)
-        low += (texel(k + 1) - low) * fu
-        high += (texel(k + stride + 1) - high) * fu
+        texels = self._texels
+        low, high = np.take(texels, k, axis=0), np.take(texels, k + stride, axis=0)
+        low += (np.take(texels, k + 1, axis=0) - low) * fu
+        high += (np.take(texels, k + stride + 1, axis=0) - high) * fu
         return low + (high - low) * fv
 
 
@@ -260,20 +260,24 @@ class RoomTextures:
     tables: list[SurfaceTexture]
 
 
+def _corner(x: float, y: float) -> np.ndarray:
+    """The pose of a texture whose origin is the world point (x, y, 0), axes aligned."""
+    return make_pose(np.eye(3), np.array([x, y, 0.0]))
+
+
 def room_textures(room: Room, tables: list[Table], rng: np.random.Generator) -> RoomTextures:
     """Textures for the floor, the four walls and every table top, each image covering its
     surface once (origin at the surface's corner)."""
     lx, ly = room.size_xy
     t, h = room.wall_thickness, room.wall_height
-    corner = lambda x, y: make_pose(np.eye(3), np.array([x, y, 0.0]))
-    floor = SurfaceTexture(floor_image(lx + 2 * t, ly + 2 * t, rng), pose_world_texture=corner(-lx / 2 - t, -ly / 2 - t))
+    floor = SurfaceTexture(floor_image(lx + 2 * t, ly + 2 * t, rng), pose_world_texture=_corner(-lx / 2 - t, -ly / 2 - t))
     # Room.meshes(): floor, wall at y-, wall at y+, wall at x-, wall at x+; each wall's image
     # spans its length (x or y) and its height (z).
     walls = [
-        SurfaceTexture(wall_image(lx + 2 * t, h, rng), pose_world_texture=corner(-lx / 2 - t, 0.0)),
-        SurfaceTexture(wall_image(lx + 2 * t, h, rng), pose_world_texture=corner(-lx / 2 - t, 0.0)),
-        SurfaceTexture(wall_image(ly, h, rng), pose_world_texture=corner(0.0, -ly / 2)),
-        SurfaceTexture(wall_image(ly, h, rng), pose_world_texture=corner(0.0, -ly / 2)),
+        SurfaceTexture(wall_image(lx + 2 * t, h, rng), pose_world_texture=_corner(-lx / 2 - t, 0.0)),
+        SurfaceTexture(wall_image(lx + 2 * t, h, rng), pose_world_texture=_corner(-lx / 2 - t, 0.0)),
+        SurfaceTexture(wall_image(ly, h, rng), pose_world_texture=_corner(0.0, -ly / 2)),
+        SurfaceTexture(wall_image(ly, h, rng), pose_world_texture=_corner(0.0, -ly / 2)),
     ]
     table_textures = []
     for table in tables:

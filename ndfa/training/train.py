@@ -150,7 +150,7 @@ def train(
             on_step(step, config.steps, losses[-1])
         if step % config.steps_per_epoch == 0 or step == config.steps:
             row = {"epoch": len(rows) + 1, "step": step, "elapsed_s": time.perf_counter() - started}
-            row |= {f"train_{k}": float(np.mean([l[k] for l in losses])) for k in losses[0]}
+            row |= {f"train_{k}": float(np.mean([step_losses[k] for step_losses in losses])) for k in losses[0]}
             row |= {f"val_{k}": v for k, v in validate(model, val_set, config.shape_threshold).items()}
             rows.append(row)
             losses = []

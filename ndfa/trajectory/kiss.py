@@ -27,8 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ndfa.core.errors import TrajectoryError
-from ndfa.core.geometry import backproject, project
 from ndfa.core.frame import Frame
+from ndfa.core.geometry import backproject, project
 
 # Below this many valid depth points a frame is not registered: its pose is the constant-velocity
 # prediction (the camera keeps its last motion), and the frame is counted as starved.

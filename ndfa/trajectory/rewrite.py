@@ -21,8 +21,8 @@ from ndfa.core.errors import TrajectoryError
 from ndfa.core.progress import Progress
 from ndfa.io.recording import RecordingReader, RecordingWriter
 from ndfa.trajectory.kiss import DepthOdometry, OdometryConfig
-from ndfa.trajectory.rgbd import RgbdOdometry, RgbdOdometryConfig
 from ndfa.trajectory.metrics import AbsoluteError, RelativeError, absolute_trajectory_error, relative_pose_error
+from ndfa.trajectory.rgbd import RgbdOdometry, RgbdOdometryConfig
 
 METHODS = ("estimate", "rgbd", "kiss-icp")
 

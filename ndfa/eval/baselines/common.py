@@ -12,8 +12,8 @@ from typing import Protocol
 
 import numpy as np
 
-from ndfa.core.errors import NdfaError
 from ndfa.core.conventions import MIN_DEPTH_M
+from ndfa.core.errors import NdfaError
 from ndfa.core.geometry import invert_pose, project
 from ndfa.io.recording import Frame
 

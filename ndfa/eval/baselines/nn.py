@@ -31,10 +31,10 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from ndfa.core.conventions import MAX_DEPTH_M
-from ndfa.eval.baselines.common import BaselineDecision, BaselineError, free_fraction, require_masks, true_pose
 from ndfa.core.geometry import transform_points
-from ndfa.perception.observations import ObservationConfig, extract_observations
+from ndfa.eval.baselines.common import BaselineDecision, BaselineError, free_fraction, require_masks, true_pose
 from ndfa.io.recording import Frame
+from ndfa.perception.observations import ObservationConfig, extract_observations
 
 
 @dataclass(frozen=True)

@@ -36,9 +36,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import open3d as o3d
 
-from ndfa.eval.baselines.common import BaselineDecision, BaselineError, require_masks, true_pose
 from ndfa.core.conventions import MAX_DEPTH_M, VISIBLE_PIXELS
 from ndfa.core.geometry import backproject, invert_pose, project
+from ndfa.eval.baselines.common import BaselineDecision, BaselineError, require_masks, true_pose
 from ndfa.io.recording import Frame
 
 _NO_COLOR = o3d.pipelines.integration.TSDFVolumeColorType.NoColor

@@ -37,8 +37,8 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosbags.typesys.store import Typestore
 
 from ndfa.core.errors import ExportError
-from ndfa.io.atomic import atomic_path
 from ndfa.core.geometry import invert_pose, make_pose, quaternion_xyzw_from_matrix
+from ndfa.io.atomic import atomic_path
 from ndfa.io.ingest import ros_images
 from ndfa.io.ingest.bag_topics import GROUND_TRUTH_POSE_TOPIC, GROUND_TRUTH_TOPIC  # what `ndfa ingest bag` reads back
 from ndfa.io.recording import Frame, RecordingReader

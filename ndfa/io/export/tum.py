@@ -26,7 +26,15 @@ import ndfa
 from ndfa.core.errors import ExportError
 from ndfa.core.progress import Progress
 from ndfa.io.atomic import atomic_dir
-from ndfa.io.ingest.tum_layout import CALIBRATION, DEPTH_LIST, DEPTH_SCALE, GROUND_TRUTH_JSON, GROUNDTRUTH, RGB_LIST, TRUE_POSES
+from ndfa.io.ingest.tum_layout import (
+    CALIBRATION,
+    DEPTH_LIST,
+    DEPTH_SCALE,
+    GROUND_TRUTH_JSON,
+    GROUNDTRUTH,
+    RGB_LIST,
+    TRUE_POSES,
+)
 from ndfa.io.recording import RecordingReader
 from ndfa.trajectory.tum_format import POSE_FIELDS, pose_line
 

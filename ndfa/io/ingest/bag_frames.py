@@ -24,6 +24,7 @@ from ndfa.io.ingest.bag_topics import COMPRESSED_IMAGE, IMAGE
 from ndfa.io.ingest.ros_images import ImageDecodeError, UnknownEncodingError
 from ndfa.io.recording import Frame, RecordingWriter
 
+
 @dataclass
 class FramePlan:
     """One frame to write: which message of each role it is made of, its intrinsics and pose."""

@@ -16,10 +16,11 @@ import numpy as np
 import ndfa
 from ndfa.core.errors import IngestError, NdfaError
 from ndfa.core.progress import Progress
+from ndfa.io.ingest import MAX_DT_S, PoseEstimator
 from ndfa.io.ingest.tum_folder import TumFolder, no_poses_message
 from ndfa.io.ingest.tum_layout import DEPTH_SCALE, GROUNDTRUTH, Intrinsics
-from ndfa.io.ingest import MAX_DT_S, PoseEstimator
 from ndfa.io.recording import RecordingWriter
+
 
 class TumWarning(UserWarning):
     """Something in a TUM folder was off but could be worked around (see the message)."""

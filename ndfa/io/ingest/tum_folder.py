@@ -45,8 +45,19 @@ from ndfa.core.errors import IngestError
 from ndfa.io.ingest import MAX_DT_S
 from ndfa.io.ingest.tum_images import check_size, read_depth, read_mask, read_rgb
 from ndfa.io.ingest.tum_layout import (
-    CALIBRATION, DEFAULT_INTRINSICS, DEPTH_LIST, DEPTH_SCALE, GROUND_TRUTH_JSON, GROUNDTRUTH, INTRINSICS_PRESETS, MASKS_DIR, RGB_LIST,
-    TRUE_POSES, Intrinsics, read_calibration)
+    CALIBRATION,
+    DEFAULT_INTRINSICS,
+    DEPTH_LIST,
+    DEPTH_SCALE,
+    GROUND_TRUTH_JSON,
+    GROUNDTRUTH,
+    INTRINSICS_PRESETS,
+    MASKS_DIR,
+    RGB_LIST,
+    TRUE_POSES,
+    Intrinsics,
+    read_calibration,
+)
 from ndfa.io.ingest.tum_lists import StampedList, associate, poses_at, read_list
 from ndfa.io.recording import Frame
 from ndfa.trajectory.tum_format import pose_from_fields

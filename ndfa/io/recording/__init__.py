@@ -3,6 +3,7 @@
 See channels.py for what the file holds, frame.py for the in-memory frame, writer.py and reader.py.
 """
 
+from ndfa.core.frame import Frame
 from ndfa.io.recording.channels import (
     CALIBRATION,
     COLOR,
@@ -13,7 +14,6 @@ from ndfa.io.recording.channels import (
     META,
     TF,
 )
-from ndfa.core.frame import Frame
 from ndfa.io.recording.reader import RecordingReader
 from ndfa.io.recording.writer import RecordingWriter
 

@@ -29,9 +29,9 @@ from mcap.records import Channel, Message
 from mcap.summary import Summary
 
 from ndfa.core.errors import RecordingError
+from ndfa.core.frame import Frame
 from ndfa.core.geometry import make_pose, matrix_from_quaternion_xyzw
 from ndfa.io.recording import channels
-from ndfa.core.frame import Frame
 
 # The 8 bytes every MCAP file starts and ends with, and the footer record just before the end:
 # opcode (1 byte), record length (8), summary start (8), summary offset start (8), summary CRC (4).

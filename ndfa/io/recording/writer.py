@@ -27,10 +27,10 @@ from mcap_protobuf.schema import build_file_descriptor_set
 
 from ndfa import __version__
 from ndfa.core.errors import RecordingError
-from ndfa.io.atomic import Staged
-from ndfa.core.geometry import quaternion_xyzw_from_matrix
-from ndfa.io.recording import channels
 from ndfa.core.frame import Frame
+from ndfa.core.geometry import quaternion_xyzw_from_matrix
+from ndfa.io.atomic import Staged
+from ndfa.io.recording import channels
 
 # Uncompressed bytes buffered before a chunk is compressed and written. It bounds the writer's
 # memory and is what a reader decompresses at a time; 4 MiB holds about two 640x480 frames
