@@ -309,7 +309,7 @@ def _complete_meta(path: Path, meta: dict[str, Any]) -> dict[str, Any]:
     if clashes:
         raise RecordingError(f"{path}: meta must not set {clashes}: the writer sets them")
     return {
-        "format": "ndfa.io.recording",
+        "format": "ndfa.recording",
         "format_version": 1,
         **meta,
         "depth_scale": channels.DEPTH_SCALE_M,
