@@ -36,6 +36,11 @@ def detect_command(
     edge_distance: Optional[float] = typer.Option(None, help=f"delta_e, metres (default {_DETECTOR.decision.edge_m}, the paper's)."),
     tree_length: Optional[float] = typer.Option(
         None, help=f"Interval length l of the object trees, metres (default {_DETECTOR.association.tree_length_m})."),
+    up: str = typer.Option("auto", help="World up: auto (a synthetic recording's z, otherwise estimated from the "
+                                        "support planes and levelled if tilted) | estimate (always) | z (trust "
+                                        "the recording: its world is z-up)."),
+    poses: str = typer.Option("auto", help="Camera poses: auto (the recording's; estimated by odometry when it has "
+                                           "none) | given (never estimate) | estimate (always)."),
     threads: Optional[int] = typer.Option(None, help="Torch CPU threads for the NDF (default: torch's, one per core). "
                                                      "1 when other jobs share the cores: oversubscribed, 2 threads "
                                                      "ran ~10x slower than 1."),
@@ -64,6 +69,12 @@ def detect_command(
     config = PipelineConfig(detector=detector, weights=weights)
     if frame_step < 1:
         raise typer.BadParameter(f"--frame-step must be >= 1, got {frame_step}")
+    from ndfa.run.world import POSE_MODES, UP_MODES
+
+    if up not in UP_MODES:
+        raise typer.BadParameter(f"--up must be one of {', '.join(UP_MODES)}, got {up!r}")
+    if poses not in POSE_MODES:
+        raise typer.BadParameter(f"--poses must be one of {', '.join(POSE_MODES)}, got {poses!r}")
     sinks = []
     if log is not None:
         from ndfa.log.rerun_sink import RerunSink
@@ -75,7 +86,9 @@ def detect_command(
         truth = RecordingReader(target).ground_truth
         sinks.append(TableSink(tables, changed_instances(truth) if truth and "objects" in truth else None))
     with progress_bar() as progress:
-        result = run_detection(source, target, config, sinks, frame_step=frame_step, on_frame=bar_per_label(progress))
+        result = run_detection(source, target, config, sinks, frame_step=frame_step, on_frame=bar_per_label(progress),
+                               up=up, poses=poses,
+                               on_world=lambda world: err_console.print(f"world {world.describe()}", highlight=False))
 
     table = Table(title="changes")
     for column in ("kind", "session", "object", "frame", "position (source world)", "masks"):

@@ -292,10 +292,18 @@ def export_bag_command(
 
 
 @app.command("info")
-def info_command(recording: Path = typer.Argument(..., help="An ndfa recording (.mcap).")) -> None:
-    """Summarise a recording: source, frames, image size, poses and ground-truth changes."""
+def info_command(
+    recording: Path = typer.Argument(..., help="An ndfa recording (.mcap)."),
+    up: str = typer.Option("auto", help="World up: auto (a synthetic recording's z, otherwise estimated) | "
+                                        "estimate | z (not checked)."),
+) -> None:
+    """Summarise a recording: source, frames, poses, world up, masks and ground-truth changes."""
+    from ndfa.core.errors import RecordingError
     from ndfa.io.recording import RecordingReader
+    from ndfa.run.world import UP_MODES, prepare_session
 
+    if up not in UP_MODES:
+        raise typer.BadParameter(f"--up must be one of {', '.join(UP_MODES)}, got {up!r}")
     reader = RecordingReader(recording)
     meta = reader.meta
     table = Table(title=str(recording), show_header=False)
@@ -305,6 +313,12 @@ def info_command(recording: Path = typer.Argument(..., help="An ndfa recording (
         if key in meta:
             table.add_row(key, str(meta[key]))
     table.add_row("frames", str(len(reader)))
+    if reader.has_poses:  # without poses, up is found by `ndfa detect` after estimating them
+        try:
+            table.add_row("world up", prepare_session(reader, meta.get("session", ""), up=up, poses="given")
+                          .describe().split("; up ", 1)[1])
+        except RecordingError as error:
+            table.add_row("world up", f"not found: {error}")
     table.add_row("instance masks", "yes" if reader.has_instances else "no")
     truth = reader.ground_truth
     if truth:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol
+from typing import Callable, Protocol
 
 import numpy as np
 
@@ -21,6 +21,7 @@ from ndfa.core.progress import LabelledProgress
 from ndfa.eval.scoring import Score, is_visible, score
 from ndfa.io.recording import INSTANCES, RecordingReader
 from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
+from ndfa.run.world import PoseMode, SessionWorld, UpMode, prepare_session
 
 
 class Sink(Protocol):
@@ -37,6 +38,7 @@ class DetectionResult:
     stage_ms: dict[str, float]                   # mean ms per target frame, per stage
     score: Score | None = None
     notes: list[str] = field(default_factory=list)
+    worlds: dict[str, SessionWorld] = field(default_factory=dict)  # poses and up each session ran on
 
     @property
     def target_fps(self) -> float:
@@ -58,6 +60,7 @@ class DetectionResult:
                                                                    else c.center_world)],
                          "instance_ids": list(c.instance_ids)} for c in self.changes],
             "notes": self.notes,
+            "world": {session: world.as_dict() for session, world in self.worlds.items()},
         }
         return out
 
@@ -94,9 +97,21 @@ def run_detection(
     frame_step: int = 1,
     on_frame: LabelledProgress | None = None,  # (session, frames done, frames in session)
     pipeline: ChangeDetectionPipeline | None = None,
+    up: UpMode = "auto",
+    poses: PoseMode = "auto",
+    on_world: Callable[[SessionWorld], None] | None = None,
 ) -> DetectionResult:
-    """Source pass, target pass, finish. Sinks are closed at the end, also when interrupted."""
+    """Source pass, target pass, finish. Sinks are closed at the end, also when interrupted.
+
+    Before its pass, each session gets what it lacks (`ndfa.run.world`): poses when it has none,
+    world up when its world is not known to be z-up (`up`, `poses`: the modes there);
+    `on_world` hears what was used, as soon as it is known."""
     source_reader, target_reader, notes = open_pair(Path(source), Path(target), segment=config.segmentation is not None)
+    worlds = {}
+    for session, reader in (("source", source_reader), ("target", target_reader)):
+        worlds[session] = prepare_session(reader, session, up=up, poses=poses)
+        if on_world is not None:
+            on_world(worlds[session])
     pipeline = pipeline or ChangeDetectionPipeline(config)
     frames, seconds, stage_totals, decisions, changes = {}, {}, {}, [], []
     visible: dict[str, set[int]] = {"source": set(), "target": set()}  # for scoring (`ndfa.eval.scoring`)
@@ -105,7 +120,7 @@ def run_detection(
             total = len(range(0, len(reader), frame_step))
             started, count = time.perf_counter(), 0
             for frame in reader.frames(step=frame_step):
-                for event in pipeline.process(session, frame):
+                for event in pipeline.process(session, worlds[session].apply(frame)):
                     _emit(event, sinks)
                     if isinstance(event, DecisionEvent):
                         decisions.append(event)
@@ -139,6 +154,7 @@ def run_detection(
         seconds=seconds,
         stage_ms={stage: total / max(frames["target"], 1) for stage, total in stage_totals.items()},
         notes=notes,
+        worlds=worlds,
     )
     truth = target_reader.ground_truth
     segmented = not (source_reader.has_instances and target_reader.has_instances)

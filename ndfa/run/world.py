@@ -1,0 +1,128 @@
+"""What a recording lacks and `ndfa detect` estimates before the pipeline sees it: poses and world up.
+
+The core works on frames with camera poses in a z-up world (`ndfa.core.conventions`). Per session:
+
+- **poses**: the recording's own; or, for one without any (a raw sensor recording, meta
+  `"poses": "none"`), estimated over the whole session by RGB-D odometry with loop closure
+  (`ndfa.trajectory.rgbd`; depth-only KISS-ICP when it has no colour).
+- **up**: a synthetic recording says its world is z-up and is taken at its word. Any other is
+  checked: gravity is estimated from its support planes (`ndfa.trajectory.up`) on frames spread
+  over the session; a world tilted by more than `LEVEL_ABOVE_DEG` is levelled (every pose rotated
+  about the world origin), one within it is left exactly as it is. When no up can be found the
+  run stops with the reason, unless the user says the world is z-up (`up="z"`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Literal
+
+import numpy as np
+
+from ndfa.core.errors import RecordingError
+from ndfa.core.frame import Frame
+from ndfa.io.recording import RecordingReader
+from ndfa.trajectory.up import UpEstimate, estimate_up, level_frame
+
+UpMode = Literal["auto", "z", "estimate"]
+PoseMode = Literal["auto", "given", "estimate"]
+UP_MODES: tuple[str, ...] = ("auto", "z", "estimate")
+POSE_MODES: tuple[str, ...] = ("auto", "given", "estimate")
+
+# Below this tilt the estimate cannot tell the world from z-up (0.6 deg on a noisy synthetic scene,
+# 1-2 deg on a Kinect sequence: docs/world_up.md), so the recording is used as it is.
+LEVEL_ABOVE_DEG = 2.0
+UP_FRAMES = 60  # frames the up estimate looks at, spread over the session
+
+
+@dataclass
+class SessionWorld:
+    """How one session's frames are made ready for the core: which poses, which up."""
+
+    session: str
+    pose_source: str                        # "given" or the odometry method that estimated them
+    up_source: str                          # "z (synthetic)", "z (user)", "estimated"
+    up: UpEstimate | None = None            # the estimate, when one was made
+    levelling: np.ndarray | None = None     # (3, 3) rotation applied to every pose, or None
+    poses: dict[int, np.ndarray] | None = None  # estimated camera-to-world poses by frame index
+    notes: list[str] = field(default_factory=list)
+
+    def apply(self, frame: Frame) -> Frame:
+        """`frame` with the estimated pose (if any), levelled (if needed)."""
+        if self.poses is not None:
+            frame = replace(frame, pose_world_camera=self.poses[frame.index])
+        return frame if self.levelling is None else level_frame(frame, self.levelling)
+
+    def describe(self) -> str:
+        """One line: which poses and which up this session runs on, and how they were found."""
+        text = f"{self.session}: poses {self.pose_source}; up "
+        if self.up is None:
+            return text + self.up_source
+        tilt = self.up.tilt_deg
+        action = f"levelled by {tilt:.1f} deg" if self.levelling is not None else \
+            f"the recording's z (estimate within {tilt:.1f} deg of it)"
+        return text + (f"{action}; estimated from {self.up.frames_agreeing}/{self.up.frames_used} agreeing frames, "
+                       f"spread {self.up.spread_deg:.1f} deg")
+
+    def as_dict(self) -> dict:
+        return {"poses": self.pose_source, "up": self.up_source,
+                "up_estimate": None if self.up is None else self.up.to_dict(),
+                "levelled": self.levelling is not None}
+
+
+def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
+                    poses: PoseMode = "auto") -> SessionWorld:
+    """Estimate what `reader`'s recording lacks (see the module docstring)."""
+    if up not in UP_MODES:
+        raise ValueError(f"up must be one of {UP_MODES}, got {up!r}")
+    if poses not in POSE_MODES:
+        raise ValueError(f"poses must be one of {POSE_MODES}, got {poses!r}")
+    world = SessionWorld(session, pose_source="given", up_source="")
+    if poses == "estimate" or (poses == "auto" and not reader.has_poses):
+        world.poses, world.pose_source = _estimate_poses(reader)
+    elif not reader.has_poses:
+        raise RecordingError(f"{reader.path}: has no camera poses and pose estimation is off (--poses given)")
+
+    if up == "z":
+        world.up_source = "z (as given: --up z)"
+        return world
+    if up == "auto" and _known_z_up(reader.meta):
+        world.up_source = "z (a synthetic recording's world is z-up)"
+        return world
+    step = max(1, len(reader) // UP_FRAMES)
+    world.up = estimate_up(world.apply(f) for f in reader.frames(step=step))
+    world.up_source = "estimated"
+    if not world.up.ok:
+        raise RecordingError(f"{reader.path}: no world up found ({world.up.reason}); "
+                             "if its world is z-up, say so with --up z")
+    if world.up.tilt_deg > LEVEL_ABOVE_DEG:
+        world.levelling = world.up.levelling()
+    return world
+
+
+def _known_z_up(meta: dict) -> bool:
+    """A recording of ndfa's simulator whose world was not tilted on purpose."""
+    config = meta.get("config") if isinstance(meta.get("config"), dict) else {}
+    return meta.get("source") == "sim" and not config.get("world_tilt_deg")
+
+
+def _estimate_poses(reader: RecordingReader) -> tuple[dict[int, np.ndarray], str]:
+    from ndfa.trajectory.rewrite import choose_method
+
+    indices: list[int] = []
+
+    def frames():
+        for frame in reader.frames():
+            indices.append(frame.index)
+            yield frame
+
+    if choose_method(reader) == "rgbd":
+        from ndfa.trajectory.rgbd import estimate_rgbd_poses
+
+        poses, how = estimate_rgbd_poses(frames()), "estimated (rgbd odometry, loop-closed)"
+    else:
+        from ndfa.trajectory.kiss import DepthOdometry, OdometryConfig
+
+        odometry = DepthOdometry(OdometryConfig())
+        poses, how = [odometry.update(frame) for frame in frames()], "estimated (kiss-icp, depth only)"
+    return dict(zip(indices, poses, strict=True)), how

@@ -1,0 +1,84 @@
+"""`ndfa detect` on recordings whose world is not z-up: up is estimated and the world levelled, so the
+result matches the z-up recording's; a world without a findable up stops with one line."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ndfa.core.errors import RecordingError
+from ndfa.core.geometry import axis_angle_to_matrix, make_pose
+from ndfa.io.recording import RecordingReader, RecordingWriter
+from ndfa.run.detect import run_detection
+from ndfa.run.world import prepare_session
+
+SAMPLE = Path(__file__).resolve().parents[1] / "recordings" / "sample"
+WRITER_KEYS = ("format", "format_version", "depth_scale", "units")
+
+
+def _rewritten(source: Path, out: Path, pose_world_world: np.ndarray, meta_update: dict, stop: int | None = None) -> Path:
+    """A copy of `source` whose world is turned by `pose_world_world` (every pose, given and true)."""
+    reader = RecordingReader(source)
+    meta = {k: v for k, v in reader.meta.items() if k not in WRITER_KEYS} | meta_update
+    with RecordingWriter(out, meta) as writer:
+        if reader.ground_truth is not None:
+            writer.write_ground_truth(reader.ground_truth)
+        for frame in reader.frames(stop=stop):
+            true = frame.pose_world_camera_true
+            writer.write_frame(dataclasses.replace(
+                frame, pose_world_camera=pose_world_world @ frame.pose_world_camera,
+                pose_world_camera_true=None if true is None else pose_world_world @ true))
+    return out
+
+
+def _tilt(degrees: float) -> np.ndarray:
+    axis = np.array([0.6, -0.8, 0.0])
+    return make_pose(axis_angle_to_matrix(np.radians(degrees) * axis), np.array([0.3, -0.2, 0.1]))
+
+
+def test_a_synthetic_recording_is_taken_as_z_up_and_a_tilted_one_is_levelled(tmp_path):
+    world = prepare_session(RecordingReader(SAMPLE / "source.mcap"), "source")
+    assert world.up is None and world.levelling is None and "synthetic" in world.up_source
+
+    tilted = _rewritten(SAMPLE / "source.mcap", tmp_path / "tilted.mcap", _tilt(25.0), {"source": "tum"}, stop=12)
+    world = prepare_session(RecordingReader(tilted), "source")
+    assert world.up is not None and world.up.ok
+    assert world.up.tilt_deg == pytest.approx(25.0, abs=1.5)
+    frame = world.apply(next(RecordingReader(tilted).frames(stop=1)))
+    original = next(RecordingReader(SAMPLE / "source.mcap").frames(stop=1))
+    # Levelled: the camera's view of "up" is the original one again (yaw about up stays free).
+    up_in_camera = frame.pose_world_camera[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+    up_in_camera_original = original.pose_world_camera[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+    assert np.degrees(np.arccos(np.clip(up_in_camera @ up_in_camera_original, -1, 1))) < 1.5
+
+
+@pytest.mark.slow
+def test_detection_on_a_tilted_world_matches_the_z_up_one(tmp_path):
+    reference = run_detection(SAMPLE / "source.mcap", SAMPLE / "target.mcap")
+    tilt = _tilt(30.0)
+    pair = [_rewritten(SAMPLE / f"{s}.mcap", tmp_path / f"{s}.mcap", tilt, {"source": "tum"}) for s in ("source", "target")]
+    tilted = run_detection(*pair)
+    assert all(w.levelling is not None for w in tilted.worlds.values())
+    assert tilted.score is not None and reference.score is not None
+    assert abs(tilted.score.tp - reference.score.tp) <= 1
+    assert abs(tilted.score.fp - reference.score.fp) <= 1
+    # Without levelling (the user insists on z) the tilted world loses objects or changes.
+    assert run_detection(*pair, up="z").summary() != tilted.summary()
+
+
+def test_no_up_stops_with_the_reason(tmp_path):
+    # Every pose turned by its own large tilt: the frames cannot agree on one up.
+    reader = RecordingReader(SAMPLE / "source.mcap")
+    meta = {k: v for k, v in reader.meta.items() if k not in WRITER_KEYS} | {"source": "tum"}
+    rng = np.random.default_rng(0)
+    with RecordingWriter(tmp_path / "wobbly.mcap", meta) as writer:
+        for frame in reader.frames(stop=12):
+            turn = axis_angle_to_matrix(rng.normal(size=3) * 0.6)
+            writer.write_frame(dataclasses.replace(frame, pose_world_camera=make_pose(turn, np.zeros(3))
+                                                   @ frame.pose_world_camera))
+    with pytest.raises(RecordingError, match="no world up found.*--up z"):
+        prepare_session(RecordingReader(tmp_path / "wobbly.mcap"), "source")
+    assert prepare_session(RecordingReader(tmp_path / "wobbly.mcap"), "source", up="z").levelling is None
