@@ -82,3 +82,22 @@ def test_no_up_stops_with_the_reason(tmp_path):
     with pytest.raises(RecordingError, match="no world up found.*--up z"):
         prepare_session(RecordingReader(tmp_path / "wobbly.mcap"), "source")
     assert prepare_session(RecordingReader(tmp_path / "wobbly.mcap"), "source", up="z").levelling is None
+
+
+def test_a_session_without_objects_says_why():
+    from ndfa.core.events import FrameEvent, ObservationEvent
+    from ndfa.run.detect import SessionCounts
+
+    frame = next(RecordingReader(SAMPLE / "source.mcap").frames(stop=1))
+    counts = SessionCounts()
+    counts.count(FrameEvent(session="source", frame=dataclasses.replace(frame, instances=None)))
+    assert "none of its 1 frames has an object mask or segment" in counts.why_none()
+
+    counts = SessionCounts()
+    counts.count(FrameEvent(session="source", frame=frame))
+    for n in (120, 80):
+        counts.count(ObservationEvent(session="source", frame_index=0, instance_id=n, n_pixels=n,
+                                      skipped=f"{n} pixels < min_pixels 300"))
+    counts.count(ObservationEvent(session="source", frame_index=0, instance_id=9, n_pixels=900,
+                                  skipped="fragmented: largest cluster holds 10 of 90 points"))
+    assert counts.why_none() == "every view of an object was skipped (2 pixels < min_pixels, 1 fragmented)"

@@ -16,7 +16,7 @@ import numpy as np
 
 from ndfa.change.detector import reported_changes
 from ndfa.core.errors import RecordingError
-from ndfa.core.events import DecisionEvent, Event, ObservationEvent, TimingEvent
+from ndfa.core.events import DecisionEvent, Event, FrameEvent, ObservationEvent, TimingEvent
 from ndfa.core.progress import LabelledProgress
 from ndfa.eval.scoring import Score, is_visible, score
 from ndfa.io.recording import INSTANCES, RecordingReader
@@ -115,6 +115,7 @@ def run_detection(
     pipeline = pipeline or ChangeDetectionPipeline(config)
     frames, seconds, stage_totals, decisions, changes = {}, {}, {}, [], []
     visible: dict[str, set[int]] = {"source": set(), "target": set()}  # for scoring (`ndfa.eval.scoring`)
+    seen = {"source": SessionCounts(), "target": SessionCounts()}     # to explain a session without objects
     try:
         for session, reader in (("source", source_reader), ("target", target_reader)):
             total = len(range(0, len(reader), frame_step))
@@ -122,6 +123,7 @@ def run_detection(
             for frame in reader.frames(step=frame_step):
                 for event in pipeline.process(session, worlds[session].apply(frame)):
                     _emit(event, sinks)
+                    seen[session].count(event)
                     if isinstance(event, DecisionEvent):
                         decisions.append(event)
                     if isinstance(event, ObservationEvent) and is_visible(event.n_pixels):
@@ -142,8 +144,9 @@ def run_detection(
             sink.close()
 
     detector = pipeline.detector
-    if not detector.target.objects:
-        notes.append("the target has no objects: nothing to compare")
+    for session, session_map in (("source", detector.source), ("target", detector.target)):
+        if not session_map.objects:
+            notes.append(f"the {session} has no objects: {seen[session].why_none()}")
     if detector.registration is None and detector.target.objects:
         notes.append("no registration between the sessions was found: no target object was tested, "
                      "so only the source's observed objects could be reported")
@@ -164,6 +167,39 @@ def run_detection(
     elif truth is not None and "objects" in truth:
         result.score = score([i for c in changes for i in c.reported_instances], truth, visible)
     return result
+
+
+@dataclass
+class SessionCounts:
+    """What one session's pass saw, to say why it found no objects."""
+
+    frames: int = 0
+    frames_with_instances: int = 0
+    encoded: int = 0
+    skipped: dict[str, int] = field(default_factory=dict)  # reason (numbers stripped) -> views
+
+    def count(self, event: Event) -> None:
+        if isinstance(event, FrameEvent):
+            self.frames += 1
+            instances = event.frame.instances
+            self.frames_with_instances += int(instances is not None and bool(instances.any()))
+        elif isinstance(event, ObservationEvent) and event.skipped is None:
+            self.encoded += 1
+        elif isinstance(event, ObservationEvent):
+            reason = " ".join(w for w in event.skipped.split(":")[0].split() if not w[0].isdigit())
+            self.skipped[reason] = self.skipped.get(reason, 0) + 1
+
+    def why_none(self) -> str:
+        """One line: the first stage that came up empty."""
+        if self.frames == 0:
+            return "no frames were read"
+        if self.frames_with_instances == 0:
+            return (f"none of its {self.frames} frames has an object mask or segment (without masks: no support "
+                    "plane with object-sized clusters on it was found; is the world z-up? see `ndfa info`)")
+        if self.encoded == 0:
+            reasons = ", ".join(f"{n} {r}" for r, n in sorted(self.skipped.items(), key=lambda x: -x[1]))
+            return f"every view of an object was skipped ({reasons})"
+        return f"{self.encoded} views were encoded but none was kept (each object needs repeated views)"
 
 
 def _emit(event, sinks) -> None:
