@@ -360,3 +360,14 @@ def test_recording_opens_in_rerun(tmp_path: Path) -> None:
     assert {"Pinhole:image_from_camera", "Pinhole:resolution"} <= components["/camera/calibration"]
     assert {"Transform3D:translation", "Transform3D:quaternion", "Transform3D:parent_frame"} <= components["/tf"]
     assert all(rows[entity] == 3 for entity in ("/camera/depth", "/camera/color", "/camera/calibration", "/tf"))
+
+
+def test_a_recording_names_its_format_as_the_shipped_sample_does(tmp_path: Path) -> None:
+    # The format name is part of the file contract: recordings written today and the shipped
+    # sample (written before the package moved to ndfa.io) must say the same.
+    shipped = RecordingReader(Path(__file__).resolve().parents[1] / "recordings" / "sample" / "source.mcap").meta
+    frame = next(RecordingReader(Path(__file__).resolve().parents[1] / "recordings" / "sample" / "source.mcap").frames(stop=1))
+    with RecordingWriter(tmp_path / "x.mcap", {"source": "test", "session": "x"}) as writer:
+        writer.write_frame(frame)
+    written = RecordingReader(tmp_path / "x.mcap").meta
+    assert (written["format"], written["format_version"]) == (shipped["format"], shipped["format_version"]) == ("ndfa.recording", 1)
