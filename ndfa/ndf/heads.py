@@ -64,5 +64,6 @@ class GatedCenterHead(nn.Module):
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         invariants = vn_invariant(z, self.frame(z)).flatten(1)  # [B, k * frame]
-        offset: torch.Tensor = self.linear(z) + z @ self.weights(invariants).unsqueeze(-1)  # [B, 3, 1], as VNLinear(k, 1)
+        # [B, 3, 1], as VNLinear(k, 1)
+        offset: torch.Tensor = self.linear(z) + z @ self.weights(invariants).unsqueeze(-1)
         return offset

@@ -61,7 +61,8 @@ class NDFModel(nn.Module):
         its cue (`NDFConfig.up_cue`, `view_cue`) and ignored otherwise; both are normalised here.
         """
         cues = self.cue_vectors(up, view_ray)  # [B, 3, cues]
-        z = self.encoder(points * self.config.input_scale, cues[..., :1] if cues is not None and self.config.up_cue else None)
+        unit_up = cues[..., :1] if cues is not None and self.config.up_cue else None  # cues is set with up_cue
+        z = self.encoder(points * self.config.input_scale, unit_up)
         if cues is not None:
             # z ends with the cues as given (up, then the view ray): the decoder and the center
             # head read them there; the shape code leaves the view ray out (`shape_code`).
@@ -79,7 +80,8 @@ class NDFModel(nn.Module):
         if not wanted:
             return None
         # (`value is not None` always holds here: missing cues were refused above.)
-        return torch.stack([nn.functional.normalize(value, dim=-1) for _, value in wanted if value is not None], dim=-1)
+        unit_cues = [nn.functional.normalize(value, dim=-1) for _, value in wanted if value is not None]
+        return torch.stack(unit_cues, dim=-1)
 
     def shape_code(self, z: torch.Tensor) -> torch.Tensor:
         """z `[B, k, 3]` -> rotation-invariant shape code `[B, D]` (D = latent or code_dim).
