@@ -67,7 +67,8 @@ def cosine_similarity(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
     denominator = np.linalg.norm(a) * np.linalg.norm(b, axis=-1)
-    return (b @ a) / np.maximum(denominator, 1e-12)
+    similarity: np.ndarray = (b @ a) / np.maximum(denominator, 1e-12)
+    return similarity
 
 
 class SessionMap:
@@ -109,6 +110,7 @@ class SessionMap:
         if m.instance_id not in best.instance_ids:
             best.instance_ids += (m.instance_id,)
         if c.fusion == "mean":
+            assert best.code_sum is not None and best.centers is not None  # every object starts with both
             best.code_sum = best.code_sum + _unit(m.shape_code)
             best.centers.append(m.center_world)
             best.shape_code = best.code_sum / best.n_measurements

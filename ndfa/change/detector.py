@@ -132,6 +132,7 @@ class ChangeDetector:
         if not self.policy.testable(obj.n_measurements):
             self.policy.hold(object_id, final)
             return []
+        assert self.registration is not None  # objects are tested only once T_rel exists
         transform = self.registration.transform
         rotation = transform[:3, :3]
         center_source = apply(transform, obj.center_world[None])[0]
@@ -152,6 +153,7 @@ class ChangeDetector:
             graph_event(frame_index, c, center_source, self.source.objects[c.result.source_id].center_world, rotation)
             for c in verdict.comparisons]
         if verdict.kind == "unchanged":
+            assert verdict.partner_id is not None  # an "unchanged" verdict names its partner
             self.matched.setdefault(verdict.partner_id, object_id)
             return events + [self._decision(frame_index, object_id, "unchanged", verdict.reason, center_source,
                                             verdict.partner_id)]

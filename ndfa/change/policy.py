@@ -34,6 +34,7 @@ class DecisionPolicy:
     def settle(self, object_id: int, n_measurements: int, verdict: Verdict, final: bool) -> Verdict:
         """The verdict to act on now. "undecided" (the object waits, and is pending) or a decision."""
         if verdict.kind == "undecided" and final:
+            assert verdict.otherwise is not None  # every "undecided" verdict says what it would otherwise be
             verdict = verdict.otherwise
         if verdict.kind == "changed" and not final and n_measurements < self.config.confirm_measurements:
             verdict = Verdict("undecided", f"changed on {n_measurements} measurements, fewer than "

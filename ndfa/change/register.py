@@ -18,6 +18,7 @@ replaces the current T_rel, is `ndfa.change.registrar`'s business.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,7 +46,8 @@ def rigid_transform(target: np.ndarray, source: np.ndarray) -> np.ndarray:
 
 
 def apply(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
-    return points @ transform[:3, :3].T + transform[:3, 3]
+    moved: np.ndarray = points @ transform[:3, :3].T + transform[:3, 3]
+    return moved
 
 
 def ransac_registration(
@@ -101,7 +103,8 @@ def ransac_registration(
     return Registration(transform, inliers, _rms(transform, t[inliers], s[inliers]), len(pairs), tried)
 
 
-def _target_triples(target_ids: list[int], max_triples: int, rng: np.random.Generator):
+def _target_triples(target_ids: list[int], max_triples: int,
+                    rng: np.random.Generator) -> Iterator[tuple[int, ...]]:
     n = len(target_ids)
     if n * (n - 1) * (n - 2) // 6 <= max_triples:
         yield from itertools.combinations(target_ids, 3)
@@ -110,7 +113,8 @@ def _target_triples(target_ids: list[int], max_triples: int, rng: np.random.Gene
         yield tuple(rng.choice(target_ids, size=3, replace=False))
 
 
-def _agreeing_samples(triple, by_target, t, s, source_ids, tolerance):
+def _agreeing_samples(triple: tuple[int, ...], by_target: dict[int, np.ndarray], t: np.ndarray, s: np.ndarray,
+                      source_ids: np.ndarray, tolerance: float) -> Iterator[list[int]]:
     """Pair-index triples (one candidate pair per target object of `triple`) whose center
     distances agree between the sessions, and whose source objects are distinct."""
     a, b, c = (by_target[i] for i in triple)
@@ -126,7 +130,8 @@ def _agreeing_samples(triple, by_target, t, s, source_ids, tolerance):
                 yield sample
 
 
-def _unique_inliers(transform, t, s, target_ids, source_ids, inlier_m) -> np.ndarray:
+def _unique_inliers(transform: np.ndarray, t: np.ndarray, s: np.ndarray, target_ids: np.ndarray,
+                    source_ids: np.ndarray, inlier_m: float) -> np.ndarray:
     """Inlier pair indices, at most one per target object and per source object (the closest)."""
     error = np.linalg.norm(apply(transform, t) - s, axis=1)
     used_target, used_source, chosen = set(), set(), []

@@ -82,6 +82,7 @@ class Registrar:
 
     def registered_centers(self) -> np.ndarray:
         """(n, 3) the target objects' centers in the source world (row i: object i); needs T_rel."""
+        assert self.registration is not None
         return self.centers.get(self.registration.transform, self.target)
 
     def target_objects_in(self, cell: Cell) -> list[int]:

@@ -20,6 +20,7 @@ Thresholds that several stages must agree on:
 from __future__ import annotations
 
 import numpy as np
+import numpy.typing as npt
 
 WORLD_UP = (0.0, 0.0, 1.0)   # the world's up direction (z): see the module docstring
 HORIZONTAL_AXES = (0, 1)     # the world axes that span the ground plane (x, y)
@@ -40,6 +41,8 @@ def horizontal(points_world: np.ndarray) -> np.ndarray:
     return np.asarray(points_world)[..., list(HORIZONTAL_AXES)]
 
 
-def depth_in_range(depth: np.ndarray, min_depth_m: float = MIN_DEPTH_M, max_depth_m: float = MAX_DEPTH_M) -> np.ndarray:
+def depth_in_range(depth: np.ndarray, min_depth_m: float = MIN_DEPTH_M,
+                   max_depth_m: float = MAX_DEPTH_M) -> npt.NDArray[np.bool_]:
     """Mask of the depth pixels the method uses: finite and within [min_depth_m, max_depth_m]."""
-    return np.isfinite(depth) & (depth >= min_depth_m) & (depth <= max_depth_m)
+    in_range: npt.NDArray[np.bool_] = np.isfinite(depth) & (depth >= min_depth_m) & (depth <= max_depth_m)
+    return in_range

@@ -26,7 +26,8 @@ def invert_pose(pose: np.ndarray) -> np.ndarray:
 
 def transform_points(pose: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Apply a 4x4 pose to points of shape (N, 3)."""
-    return points @ pose[:3, :3].T + pose[:3, 3]
+    moved: np.ndarray = points @ pose[:3, :3].T + pose[:3, 3]
+    return moved
 
 
 def backproject(K: np.ndarray, rows: np.ndarray, cols: np.ndarray, z: np.ndarray) -> np.ndarray:
@@ -49,7 +50,8 @@ def axis_angle_to_matrix(rotvec: np.ndarray) -> np.ndarray:
         return np.eye(3)
     k = np.asarray(rotvec, dtype=float) / angle
     kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + np.sin(angle) * kx + (1.0 - np.cos(angle)) * (kx @ kx)
+    rotation: np.ndarray = np.eye(3) + np.sin(angle) * kx + (1.0 - np.cos(angle)) * (kx @ kx)
+    return rotation
 
 
 def look_at(eye: np.ndarray, target: np.ndarray, up: np.ndarray = np.array([0.0, 0.0, 1.0])) -> np.ndarray:
@@ -80,9 +82,9 @@ def quaternion_xyzw_from_matrix(rotation: np.ndarray) -> np.ndarray:
     else:
         s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
         q = [(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s, (m[1, 0] - m[0, 1]) / s]
-    q = np.asarray(q)
-    q /= np.linalg.norm(q)
-    return -q if q[3] < 0 else q
+    unit: np.ndarray = np.asarray(q)
+    unit /= np.linalg.norm(unit)
+    return -unit if unit[3] < 0 else unit
 
 
 def matrix_from_quaternion_xyzw(q: np.ndarray) -> np.ndarray:

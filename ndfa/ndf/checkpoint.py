@@ -6,6 +6,7 @@ Only reading happens here (the core writes no files); `ndfa.training.checkpoint`
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import torch
 
@@ -14,7 +15,7 @@ from ndfa.ndf.config import NDFConfig
 from ndfa.ndf.model import NDFModel
 
 
-def load_model(path: str | Path) -> tuple[NDFModel, dict]:
+def load_model(path: str | Path) -> tuple[NDFModel, dict[str, Any]]:
     """Load a checkpoint written by `save_checkpoint`: (model in eval mode, the extra entries).
 
     Raises ModelError naming the file if it is missing, unreadable or not an ndfa checkpoint.

@@ -27,7 +27,8 @@ class ResnetBlockFC(nn.Module):
         nn.init.zeros_(self.linear_1.weight)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return x + self.linear_1(torch.relu(self.linear_0(torch.relu(x))))
+        out: torch.Tensor = x + self.linear_1(torch.relu(self.linear_0(torch.relu(x))))
+        return out
 
 
 def object_frame(vectors: torch.Tensor) -> torch.Tensor:
@@ -74,6 +75,7 @@ class OccupancyDecoder(nn.Module):
             # Relative to the object's center rather than the visible points' centroid: then the
             # radius of a query from the mug's axis is a sum of squared frame coordinates, which
             # the MLP gets as inputs, instead of a product of query and shape it would have to learn.
+            assert center is not None  # NDFModel.occupancy_logits passes it to the "frame" decoder
             queries = queries - center.unsqueeze(1)
         query_features = [(queries * queries).sum(-1, keepdim=True), queries @ z]
         frame = self.frame(z)
@@ -86,8 +88,10 @@ class OccupancyDecoder(nn.Module):
         if self.local_in is not None:
             if points is None:
                 raise ModelError("this model's decoder needs the input points (local_points > 0)")
+            assert center is not None  # local points are offsets from the predicted center
             h = h + self.local_in(self._nearest_offsets(queries, points - center.unsqueeze(1), frame))
-        return self.out(torch.relu(self.blocks(h))).squeeze(-1)
+        logits: torch.Tensor = self.out(torch.relu(self.blocks(h))).squeeze(-1)
+        return logits
 
     def _nearest_offsets(self, queries: torch.Tensor, points: torch.Tensor, frame: torch.Tensor) -> torch.Tensor:
         """Per query, the offsets to its `local_points` nearest points in the object frame and their

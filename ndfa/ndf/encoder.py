@@ -89,19 +89,19 @@ class NDFEncoder:
         offsets = self.model.center_offset(z)
         queries = offsets[:, None, :] + torch.from_numpy(self._grid)[None]  # around each predicted center
         occupancy = self._grid_occupancy(z, queries, centred)
-        queries = queries.numpy()
+        query_points = queries.numpy()
 
         results = []
         for i, pose in enumerate(poses_world_camera):
             inside = occupancy[i] > self.config.v0
-            center_local = self._center(offsets[i].numpy(), queries[i], occupancy[i], inside)
+            center_local = self._center(offsets[i].numpy(), query_points[i], occupancy[i], inside)
             rotation = np.asarray(pose)[:3, :3]
             results.append(ObjectCode(
                 shape_code=codes[i],
                 center_world=transform_points(pose, (centroids[i, 0] + center_local)[None])[0],
                 z=z[i].numpy() @ rotation.T,
                 mean_occupancy=float(occupancy[i][inside].mean()) if inside.any() else 0.0,
-                reconstruction=transform_points(pose, queries[i][inside] + centroids[i, 0]),
+                reconstruction=transform_points(pose, query_points[i][inside] + centroids[i, 0]),
             ))
         return results
 
@@ -155,9 +155,11 @@ class NDFEncoder:
         if self.config.center == "head" or not inside.any():
             return head
         if self.config.center == "reconstruction":  # the paper: mean of the reconstructed points
-            return queries[inside].mean(axis=0)
+            mean: np.ndarray = queries[inside].mean(axis=0)
+            return mean
         weights = occupancy[inside]
-        return (queries[inside] * weights[:, None]).sum(axis=0) / weights.sum()
+        weighted_mean: np.ndarray = (queries[inside] * weights[:, None]).sum(axis=0) / weights.sum()
+        return weighted_mean
 
     def resample(self, cloud: np.ndarray) -> np.ndarray:
         """`cloud` [N, 3] resampled to the model's point count, the same way for the same N."""

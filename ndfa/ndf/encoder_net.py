@@ -80,4 +80,5 @@ class Encoder(nn.Module):
             context = context_linear(pool(x))  # [B, 3, h], the same for every point
             x = block(x + context.unsqueeze(1))
         # No norm before the last linear: the un-normalised residual stream carries the object's size.
-        return self.to_latent(self.final_pool(x))  # [B, 3, latent - cues]
+        z: torch.Tensor = self.to_latent(self.final_pool(x))  # [B, 3, latent - cues]
+        return z

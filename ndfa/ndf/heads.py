@@ -18,6 +18,8 @@ class GramCode(nn.Module):
     rotation, so it keeps everything about shape that a rotation-invariant code can keep.
     """
 
+    upper: torch.Tensor  # (2, m(m+1)/2) row and column indices of the Gram matrix's upper triangle
+
     def __init__(self, config: NDFConfig) -> None:
         super().__init__()
         m = config.gram_channels
@@ -40,7 +42,8 @@ class GramCode(nn.Module):
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         projected = self.project(z)
         gram = vn_invariant(projected, projected)  # [B, m, m]
-        return self.whiten(self.mlp(self.standardise(gram[:, self.upper[0], self.upper[1]])))
+        code: torch.Tensor = self.whiten(self.mlp(self.standardise(gram[:, self.upper[0], self.upper[1]])))
+        return code
 
 
 class GatedCenterHead(nn.Module):
@@ -54,9 +57,13 @@ class GatedCenterHead(nn.Module):
         self.linear = VNLinear(k, 1)
         self.frame = VNLinear(k, frame)
         self.weights = nn.Sequential(nn.Linear(k * frame, width), nn.ReLU(), nn.Linear(width, k))
-        nn.init.zeros_(self.weights[-1].weight)
-        nn.init.zeros_(self.weights[-1].bias)
+        last = self.weights[-1]
+        assert isinstance(last, nn.Linear)
+        nn.init.zeros_(last.weight)
+        nn.init.zeros_(last.bias)
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         invariants = vn_invariant(z, self.frame(z)).flatten(1)  # [B, k * frame]
-        return self.linear(z) + z @ self.weights(invariants).unsqueeze(-1)  # [B, 3, 1], as VNLinear(k, 1)
+        # [B, 3, 1], as VNLinear(k, 1)
+        offset: torch.Tensor = self.linear(z) + z @ self.weights(invariants).unsqueeze(-1)
+        return offset

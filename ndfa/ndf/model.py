@@ -61,12 +61,14 @@ class NDFModel(nn.Module):
         its cue (`NDFConfig.up_cue`, `view_cue`) and ignored otherwise; both are normalised here.
         """
         cues = self.cue_vectors(up, view_ray)  # [B, 3, cues]
-        z = self.encoder(points * self.config.input_scale, cues[..., :1] if self.config.up_cue else None)
+        unit_up = cues[..., :1] if cues is not None and self.config.up_cue else None  # cues is set with up_cue
+        z = self.encoder(points * self.config.input_scale, unit_up)
         if cues is not None:
             # z ends with the cues as given (up, then the view ray): the decoder and the center
             # head read them there; the shape code leaves the view ray out (`shape_code`).
             z = torch.cat([z, cues], dim=-1)
-        return z.transpose(-1, -2)
+        z_vectors: torch.Tensor = z.transpose(-1, -2)
+        return z_vectors
 
     def cue_vectors(self, up: torch.Tensor | None, view_ray: torch.Tensor | None) -> torch.Tensor | None:
         """The unit direction cues this model takes, `[B, 3, cues]` (up first), or None."""
@@ -77,7 +79,9 @@ class NDFModel(nn.Module):
             raise ModelError(f"this model's encoder needs the direction cue(s) {', '.join(missing)}")
         if not wanted:
             return None
-        return torch.stack([nn.functional.normalize(value, dim=-1) for _, value in wanted], dim=-1)
+        # (`value is not None` always holds here: missing cues were refused above.)
+        unit_cues = [nn.functional.normalize(value, dim=-1) for _, value in wanted if value is not None]
+        return torch.stack(unit_cues, dim=-1)
 
     def shape_code(self, z: torch.Tensor) -> torch.Tensor:
         """z `[B, k, 3]` -> rotation-invariant shape code `[B, D]` (D = latent or code_dim).
@@ -86,9 +90,12 @@ class NDFModel(nn.Module):
         of the shape."""
         if self.config.view_cue:
             z = z[:, :-1]
+        code: torch.Tensor
         if self.gram_code is None:
-            return z.norm(dim=-1)  # the paper's s_i = |z_i|
-        return self.gram_code(z.transpose(-1, -2))
+            code = z.norm(dim=-1)  # the paper's s_i = |z_i|
+        else:
+            code = self.gram_code(z.transpose(-1, -2))
+        return code
 
     def center_offset(self, z: torch.Tensor) -> torch.Tensor:
         """z `[B, k, 3]` -> predicted center of the full shape minus the input centroid `[B, 3]`, metres.
@@ -96,14 +103,17 @@ class NDFModel(nn.Module):
         A partial view's centroid sits on the visible side; this equivariant estimate moves it to
         the center of the whole object (the paper takes the mean of the reconstructed occupancy).
         """
-        return self.center_head(z.transpose(-1, -2)).squeeze(-1) / self.config.input_scale
+        offset: torch.Tensor = self.center_head(z.transpose(-1, -2)).squeeze(-1) / self.config.input_scale
+        return offset
 
     def occupancy_logits(self, z: torch.Tensor, queries: torch.Tensor, points: torch.Tensor | None = None) -> torch.Tensor:
         """z `[B, k, 3]`, zero-centred queries `[B, Q, 3]` (metres) -> occupancy logits `[B, Q]`.
         `points`: the zero-centred input `[B, N, 3]` z was encoded from; needed with `local_points`."""
         scale = self.config.input_scale
         center = self.center_offset(z) * scale if self.decoder.use_frame else None
-        return self.decoder(z.transpose(-1, -2), queries * scale, center, None if points is None else points * scale)
+        logits: torch.Tensor = self.decoder(z.transpose(-1, -2), queries * scale, center,
+                                            None if points is None else points * scale)
+        return logits
 
     def frame_vectors(self, z: torch.Tensor) -> torch.Tensor | None:
         """z `[B, k, 3]` -> the two vectors `[B, 3, 2]` the "frame" decoder builds its frame from

@@ -32,7 +32,8 @@ class VNLinear(nn.Module):
         self.linear = nn.Linear(in_c, out_c, bias=False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.linear(x)
+        mixed: torch.Tensor = self.linear(x)
+        return mixed
 
 
 class VNLeakyReLU(nn.Module):
@@ -102,7 +103,8 @@ class VNResnetBlock(nn.Module):
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         h = self.linear_0(self.act_0(self.norm(x)))
-        return self.shortcut(x) + self.linear_1(self.act_1(h))
+        out: torch.Tensor = self.shortcut(x) + self.linear_1(self.act_1(h))
+        return out
 
 
 class VNEdgeConv(nn.Module):
@@ -131,9 +133,10 @@ class VNEdgeConv(nn.Module):
         dot, k_norm_sq = (gram @ pair_weights.T).chunk(2, dim=-1)  # [..., K, out_c] each
         coef = self.act.k_coefficient(dot, k_norm_sq)  # [..., K, out_c]
         # sum over edges of coef_c e: [..., out_c, K] @ [..., K, 3 * in_c] -> [..., out_c, 3, in_c]
-        coef_e = (coef.transpose(-1, -2) @ e.flatten(-2)).unflatten(-1, e.shape[-2:])
+        coef_e = torch.unflatten(coef.transpose(-1, -2) @ e.flatten(-2), -1, e.shape[-2:])
         mean_coef_k = torch.einsum("...cda,ca->...dc", coef_e, v / e.shape[-3])  # [..., 3, out_c]
-        return self.linear(e.mean(-3)) + mean_coef_k
+        out: torch.Tensor = self.linear(e.mean(-3)) + mean_coef_k
+        return out
 
 
 def vn_mean_pool(x: torch.Tensor) -> torch.Tensor:

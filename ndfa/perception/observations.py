@@ -139,7 +139,11 @@ def largest_cluster(points: np.ndarray, voxel_m: float) -> np.ndarray:
     keys = np.floor(points / voxel_m).astype(np.int64)
     keys -= keys.min(axis=0) - 1                 # >= 1, so that every neighbour's key is >= 0
     span = keys.max(axis=0) + 2
-    encode = lambda k: (k[..., 0] * span[1] + k[..., 1]) * span[2] + k[..., 2]  # noqa: E731
+
+    def encode(k: np.ndarray) -> np.ndarray:
+        code: np.ndarray = (k[..., 0] * span[1] + k[..., 1]) * span[2] + k[..., 2]
+        return code
+
     cell_codes, cell_of_point = np.unique(encode(keys), return_inverse=True)
     cells = np.stack(np.unravel_index(cell_codes, tuple(span)), axis=1)
     # Half of the 26 neighbour offsets: the graph is undirected.

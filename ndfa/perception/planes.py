@@ -29,7 +29,8 @@ class Plane:
     inliers: np.ndarray  # (N,) bool over the sampled points the plane was found in
 
     def height(self, points: np.ndarray) -> np.ndarray:
-        return points @ self.normal - self.offset
+        height: np.ndarray = points @ self.normal - self.offset
+        return height
 
 
 def find_horizontal_planes(points: np.ndarray, up: np.ndarray, config: SegmentationConfig,

@@ -198,8 +198,9 @@ def _world_points(frame: Frame, rows: np.ndarray, cols: np.ndarray) -> np.ndarra
     # Column by column: a (N, 3) @ (3, 3) product went through threaded BLAS and took 30 ms on a
     # busy 2-core machine, 10x this.
     rotation = pose[:3, :3]
-    return (camera[:, :1] * rotation[:, 0] + camera[:, 1:2] * rotation[:, 1] + camera[:, 2:] * rotation[:, 2]
-            + pose[:3, 3])
+    world: np.ndarray = (camera[:, :1] * rotation[:, 0] + camera[:, 1:2] * rotation[:, 1]
+                         + camera[:, 2:] * rotation[:, 2] + pose[:3, 3])
+    return world
 
 
 def _candidates(points: np.ndarray, min_heights: np.ndarray, planes: list[Plane], up: np.ndarray,
