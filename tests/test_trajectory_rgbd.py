@@ -13,6 +13,7 @@ import pytest
 
 from ndfa.core.frame import Frame
 from ndfa.core.geometry import axis_angle_to_matrix, invert_pose, look_at, make_pose, matrix_from_quaternion_xyzw
+from ndfa.trajectory.degeneracy import depth_degeneracy
 from ndfa.trajectory.metrics import absolute_trajectory_error
 from ndfa.trajectory.pose_graph import PoseEdge, optimize_pose_graph
 from ndfa.trajectory.rgbd import (
@@ -20,7 +21,6 @@ from ndfa.trajectory.rgbd import (
     POINT_TO_PLANE,
     RgbdOdometry,
     RgbdOdometryConfig,
-    depth_degeneracy,
     streaming_pose_estimator,
 )
 

@@ -22,7 +22,8 @@ import numpy as np
 from ndfa.core.errors import RecordingError
 from ndfa.core.frame import Frame
 from ndfa.io.recording import RecordingReader
-from ndfa.trajectory.up import UpEstimate, estimate_up, level_frame
+from ndfa.trajectory.level import level_frame
+from ndfa.trajectory.up import UpEstimate, estimate_up
 
 UpMode = Literal["auto", "z", "estimate"]
 PoseMode = Literal["auto", "given", "estimate"]

@@ -2,22 +2,15 @@
 RGB-D odometry on colour and depth with loop closure (rgbd.py, pose_graph.py),
 trajectory errors (metrics.py), TUM trajectory files (tum_format.py), `rewrite_poses`, which
 writes a copy of a recording with estimated poses (rewrite.py), and world up from the data with
-the rotation that levels a session's world (up.py)."""
+the rotation that levels a session's world (level.py)."""
 
 from ndfa.trajectory.kiss import DepthOdometry, OdometryConfig, depth_points, estimate_poses
+from ndfa.trajectory.level import level_frame, level_poses, levelling_rotation
 from ndfa.trajectory.metrics import AbsoluteError, RelativeError, absolute_trajectory_error, relative_pose_error
 from ndfa.trajectory.rewrite import METHODS, PoseReport, rewrite_poses
 from ndfa.trajectory.rgbd import RgbdOdometry, RgbdOdometryConfig, estimate_rgbd_poses
 from ndfa.trajectory.tum_format import read_tum, write_tum
-from ndfa.trajectory.up import (
-    UpConfig,
-    UpEstimate,
-    estimate_up,
-    level_frame,
-    level_poses,
-    levelling_rotation,
-    up_from_accelerations,
-)
+from ndfa.trajectory.up import UpConfig, UpEstimate, estimate_up, up_from_accelerations
 
 __all__ = [
     "AbsoluteError",
