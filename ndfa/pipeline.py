@@ -28,16 +28,14 @@ SESSIONS = ("source", "target")
 
 @dataclass(frozen=True)
 class PipelineConfig:
-    """The stages' configs. The encoder decodes the reconstruction on a 12^3 grid (2 cm cells)
-    rather than the encoder's default 20^3: the detector uses only its mean occupancy (and the
-    sinks show it), and the grid is most of the encoding time (about 4.7x less at 12^3).
+    """The stages' configs.
 
     segmentation: a frame without instance masks is segmented geometrically with this (support
     planes removed, DBSCAN; `ndfa.perception.segmentation`) and the sinks see the segmented
     frame; None: such a frame gives no observations."""
 
     observation: ObservationConfig = field(default_factory=ObservationConfig)
-    encoder: EncoderConfig = field(default_factory=lambda: EncoderConfig(grid_resolution=12))
+    encoder: EncoderConfig = field(default_factory=EncoderConfig)
     detector: DetectorConfig = field(default_factory=DetectorConfig)
     weights: Path | None = None      # NDF checkpoint; None: the shipped one
     segmentation: SegmentationConfig | None = field(default_factory=SegmentationConfig)

@@ -78,10 +78,10 @@ def bench_ndf(weights: Path | None = None, repeats: int = 30, points: int = 1000
     with the reconstruction grid at the encoder's default resolution and at the detector's 12^3."""
     import torch
 
-    from ndfa.ndf.encoder import EncoderConfig, NDFEncoder
+    from ndfa.ndf.encoder import FINE_GRID_RESOLUTION, EncoderConfig, NDFEncoder
 
     torch.set_num_threads(threads)
-    encoders = {"": NDFEncoder(weights), "grid12_": NDFEncoder(weights, EncoderConfig(grid_resolution=12))}
+    encoders = {"": NDFEncoder(weights, EncoderConfig(grid_resolution=FINE_GRID_RESOLUTION)), "grid12_": NDFEncoder(weights)}
     model = encoders[""].model
     rng = np.random.default_rng(0)
     clouds = [rng.normal(scale=0.03, size=(points, 3)) + [0.0, 0.0, 1.0] for _ in range(8)]

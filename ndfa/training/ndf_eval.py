@@ -24,7 +24,7 @@ import polars as pl
 import torch
 
 from ndfa.core.geometry import invert_pose, transform_points
-from ndfa.ndf.encoder import CENTER_METHODS, EncoderConfig, NDFEncoder
+from ndfa.ndf.encoder import CENTER_METHODS, FINE_GRID_RESOLUTION, EncoderConfig, NDFEncoder
 from ndfa.sim.mug import Mug
 from ndfa.sim.splits import make_split_mug
 from ndfa.training.dataset import generate_views
@@ -57,7 +57,8 @@ def evaluate_ndf(
     # the up cue get it from these poses, as the detector's from its camera poses.
     poses = [invert_pose(pose.astype(np.float64)) for pose in views["pose_camera_object"]]
     true_centers = np.stack([transform_points(pose, center[None])[0] for pose, center in zip(poses, views["center"])])
-    encoders = {method: NDFEncoder(weights, EncoderConfig(center=method, v0=v0)) for method in CENTER_METHODS}
+    encoders = {method: NDFEncoder(weights, EncoderConfig(center=method, v0=v0, grid_resolution=FINE_GRID_RESOLUTION))
+                for method in CENTER_METHODS}
     codes = {method: encoder.encode_batch(clouds, poses) for method, encoder in encoders.items()}
     shape_codes = np.stack([c.shape_code for c in codes["head"]])
     labels = views["mug_index"]
