@@ -34,6 +34,8 @@ def detect_command(
     shape_similarity: Optional[float] = typer.Option(
         None, help=f"delta_s (default {_DETECTOR.association.shape_similarity}; the paper: 0.9)."),
     edge_distance: Optional[float] = typer.Option(None, help=f"delta_e, metres (default {_DETECTOR.decision.edge_m}, the paper's)."),
+    paper_parameters: bool = typer.Option(False, "--paper-parameters", help="Start from the paper's own detector "
+                                          "parameters (DetectorConfig.paper(); docs/detector.md) instead of ndfa's."),
     tree_length: Optional[float] = typer.Option(
         None, help=f"Interval length l of the object trees, metres (default {_DETECTOR.association.tree_length_m})."),
     up: str = typer.Option("auto", help="World up: auto (a synthetic recording's z, otherwise estimated from the "
@@ -62,7 +64,7 @@ def detect_command(
     from ndfa.run.detect import run_detection
 
     association = {"distance_m": association_distance, "shape_similarity": shape_similarity, "tree_length_m": tree_length}
-    defaults = DetectorConfig()
+    defaults = DetectorConfig.paper() if paper_parameters else DetectorConfig()
     detector = replace(defaults,
                        association=replace(defaults.association, **{k: v for k, v in association.items() if v is not None}),
                        decision=replace(defaults.decision, **({} if edge_distance is None else {"edge_m": edge_distance})))
