@@ -103,7 +103,8 @@ class SegmentationConfig:
     image_margin_px: a cluster with a sample within this many pixels of the image border is
         dropped: the image cuts it, so its shape (the gate's evidence) is unknown; on real data such
         cut-off pieces of counters and chairs were a large share of the spurious objects, and the
-        detector sees a mug again whole a few frames later. 0: off.
+        detector sees a mug again whole a few frames later. The border is that of the pixels with
+        depth (a Kinect v1 has none in its last 8 columns: a mug cut there looked whole). 0: off.
     objectness: the mug-likeness gate applied after the size filters (`ndfa.perception.objectness`):
         on real tables most clusters are clutter (magazines, counter edges, chair backs). None: off.
     split_max_length_m: a cluster the gate finds too long, with a footprint up to this long, is
@@ -207,7 +208,7 @@ def explain_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig(
         cluster_cols = cols[candidate][cluster_of_point == cluster]
         if verdict.rejected is None and _hidden_above(frame.depth, cluster_rows, cluster_cols, config):
             verdict = ClusterVerdict(verdict.shape, "hidden", split=verdict.split)
-        if verdict.rejected is None and _cut_by_border(cluster_rows, cluster_cols, (height, width), config):
+        if verdict.rejected is None and _cut_by_border(cluster_rows, cluster_cols, frame.depth, config):
             verdict = ClusterVerdict(verdict.shape, "cut", split=verdict.split)
         if verdict.rejected is None:
             kept.append(cluster)
@@ -369,14 +370,16 @@ def _hidden_above(depth: np.ndarray, rows: np.ndarray, cols: np.ndarray, config:
     return bool(hidden.mean() > 0.5)
 
 
-def _cut_by_border(rows: np.ndarray, cols: np.ndarray, image_size: tuple[int, int], config: SegmentationConfig) -> bool:
-    """Whether the cluster reaches within `image_margin_px` of the image border."""
+def _cut_by_border(rows: np.ndarray, cols: np.ndarray, depth: np.ndarray, config: SegmentationConfig) -> bool:
+    """Whether the cluster reaches within `image_margin_px` of the border of the pixels with depth
+    (the bounding box of the rows and columns holding any)."""
     margin = config.image_margin_px
     if margin <= 0:
         return False
-    height, width = image_size
-    return bool((rows < margin).any() or (rows >= height - margin).any()
-                or (cols < margin).any() or (cols >= width - margin).any())
+    valid = depth > 0
+    valid_rows, valid_cols = np.flatnonzero(valid.any(axis=1)), np.flatnonzero(valid.any(axis=0))
+    return bool((rows < valid_rows[0] + margin).any() or (rows > valid_rows[-1] - margin).any()
+                or (cols < valid_cols[0] + margin).any() or (cols > valid_cols[-1] - margin).any())
 
 
 def _fill(frame: Frame, labels: np.ndarray, points: np.ndarray, point_labels: np.ndarray,
