@@ -140,3 +140,39 @@ def test_on_redkitchen_the_segments_are_the_two_mugs():
         clutter_without_gate += int(ungated.max()) - int(labels.max())
     assert found == {0, 1}
     assert clutter_without_gate >= 3
+
+
+# -- the pipeline's occupancy test on segmented frames ------------------------------------------
+
+
+class _FixedOccupancyEncoder:
+    """Stands in for the NDF: every observation gets the same mean occupancy."""
+
+    def __init__(self, occupancy: float) -> None:
+        self.occupancy = occupancy
+
+    def encode_batch(self, clouds, poses):
+        from ndfa.ndf.encoder import ObjectCode
+
+        return [ObjectCode(shape_code=np.zeros(8), center_world=np.asarray(pose)[:3, 3], z=np.zeros((4, 3)),
+                           mean_occupancy=self.occupancy, reconstruction=np.zeros((0, 3))) for pose in poses]
+
+
+@pytest.mark.parametrize("occupancy, used", [(0.5, False), (0.7, True)])
+def test_segments_the_ndf_does_not_fit_are_not_measured_but_masks_are(occupancy, used):
+    from ndfa.core.events import ObservationEvent
+    from ndfa.io.recording import RecordingReader
+    from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
+
+    sample = Path(__file__).parents[1] / "recordings" / "sample" / "source.mcap"
+    frame = next(RecordingReader(sample).frames(4, 5))  # four mugs in view, all four segmented
+    for masked in (True, False):
+        pipeline = ChangeDetectionPipeline(PipelineConfig(), encoder=_FixedOccupancyEncoder(occupancy))
+        shown = frame if masked else dataclasses.replace(frame, instances=None)
+        observations = [e for e in pipeline.process("source", shown) if isinstance(e, ObservationEvent)
+                        and e.n_points > 0]
+        assert observations
+        if masked or used:
+            assert all(e.skipped is None for e in observations)
+        else:
+            assert all(e.skipped and "not mug-like" in e.skipped for e in observations)
