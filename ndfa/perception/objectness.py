@@ -52,8 +52,8 @@ class ObjectnessConfig:
 
     min_top_m: float = 0.05
     max_top_m: float = 0.15
-    max_bottom_m: float = 0.035
-    min_length_m: float = 0.05
+    max_bottom_m: float = 0.05
+    min_length_m: float = 0.045
     max_length_m: float = 0.13
     min_width_m: float = 0.02
     min_width_ratio: float = 0.2
