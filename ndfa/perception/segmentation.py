@@ -24,7 +24,11 @@ rest with DBSCAN; this is that, for one frame at a time:
    depth noise: far table tops' noise piles up into blobs) and `max_object_height_m`; a bottom
    near the plane (`max_bottom_m`: objects stand on it); a horizontal extent between
    `min_extent_m` and `max_extent_m`; and not hidden above by a nearer surface (`_hidden_above`:
-   the foot of a table leg seen under a nearer table top looks like a mug otherwise).
+   the foot of a table leg seen under a nearer table top looks like a mug otherwise). Then the
+   mug-likeness gate (`ndfa.perception.objectness`: a mug's height, footprint and build), and
+   not cut by the border of the depth image (`image_margin_px`). Without these, a real table
+   with magazines, a counter and chairs gave ~8 clusters per frame, nearly all clutter
+   (docs/segmentation.md).
 6. Painted back at full resolution: every pixel with valid depth within one sample block of a
    labelled sample joins the cluster of its nearest kept point in 3D if that point is closer than
    `fill_distance_m` and the pixel lies above the plane; others stay 0. The mask thus follows the
@@ -156,7 +160,7 @@ class SegmentationConfig:
 @dataclass(frozen=True)
 class ClusterVerdict:
     """What became of one DBSCAN cluster (`explain_frame`): its shape, and `rejected`, the test it
-    failed ("small", "floating", "low", "high", "extent", the gate's reasons of
+    failed ("floating", "low", "high", "extent", the gate's reasons of
     `ndfa.perception.objectness.rejection`, "hidden", "cut") or None when kept. `label`: its label in the
     segmentation (0 when rejected). `split`: the cluster was split in two and this is one half."""
 
