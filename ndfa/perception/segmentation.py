@@ -24,15 +24,20 @@ rest with DBSCAN; this is that, for one frame at a time:
    depth noise: far table tops' noise piles up into blobs) and `max_object_height_m`; a bottom
    near the plane (`max_bottom_m`: objects stand on it); a horizontal extent between
    `min_extent_m` and `max_extent_m`; and not hidden above by a nearer surface (`_hidden_above`:
-   the foot of a table leg seen under a nearer table top looks like a mug otherwise).
+   the foot of a table leg seen under a nearer table top looks like a mug otherwise). Then the
+   mug-likeness gate (`ndfa.perception.objectness`: a mug's height, footprint and build), and
+   not cut by the border of the depth image (`image_margin_px`). Without these, a real table
+   with magazines, a counter and chairs gave ~8 clusters per frame, nearly all clutter
+   (docs/segmentation.md).
 6. Painted back at full resolution: every pixel with valid depth within one sample block of a
    labelled sample joins the cluster of its nearest kept point in 3D if that point is closer than
    `fill_distance_m` and the pixel lies above the plane; others stay 0. The mask thus follows the
    object's silhouette at full resolution, not the sample grid's blocks.
 
-On the `paper` scene (640x480, stride 2) this recovers 93-94% of the mug views with >= 200 pixels
-of depth as one segment with IoU >= 0.5 (`segmentation_recall` in `segmentation_scoring`, `ndfa bench segment`); most of
-the misses are mugs 3+ m away, where the depth noise (~17 mm) is a fifth of a mug. Known limits:
+On the `paper` scene (640x480, stride 2) this recovers 90% of the mug views with >= 200 pixels
+of depth as one segment with IoU >= 0.5 (`segmentation_recall` in `segmentation_scoring`, `ndfa bench segment`); 94.7%
+without the gate and the border test. The other misses are mostly mugs 3+ m away, where the depth
+noise (~17 mm) is a fifth of a mug. Known limits:
 mugs closer than `dbscan_eps_m` merge; the inside of a mug, cut off from its body by the sensor's
 dropout at the rim, can become a segment of its own (small: the pipeline's `min_pixels` skips it).
 
@@ -44,7 +49,7 @@ Pure numpy/scipy; no I/O.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -53,7 +58,9 @@ from ndfa.core import conventions
 from ndfa.core.frame import Frame
 from ndfa.core.geometry import backproject
 from ndfa.perception.dbscan import dbscan
+from ndfa.perception.objectness import ClusterShape, ObjectnessConfig, cluster_shape, rejection
 from ndfa.perception.planes import Plane, find_horizontal_planes, plane_axes
+from ndfa.perception.split import split_in_two
 
 
 @dataclass(frozen=True)
@@ -98,6 +105,19 @@ class SegmentationConfig:
     occluder_look_px, occluder_gap_m: a cluster is dropped when, over most of its top edge, a
         surface `occluder_gap_m` closer lies within `occluder_look_px` pixels above (see `_hidden_above`).
     fill_distance_m: a full-resolution pixel joins a cluster whose nearest point is closer than this.
+    image_margin_px: a cluster with a sample within this many pixels of the image border is
+        dropped: the image cuts it, so its shape (the gate's evidence) is unknown; on real data such
+        cut-off pieces of counters and chairs were a large share of the spurious objects, and the
+        detector sees a mug again whole a few frames later. The border is that of the pixels with
+        depth (a Kinect v1 has none in its last 8 columns: a mug cut there looked whole). 0: off.
+    objectness: the mug-likeness gate applied after the size filters (`ndfa.perception.objectness`):
+        on real tables most clusters are clutter (magazines, counter edges, chair backs). None: off.
+    split_max_length_m: a cluster the gate finds too long, with a footprint up to this long, is
+        split in two by 2-means on its footprint (`ndfa.perception.split`: two mugs closer than
+        `dbscan_eps_m` form one cluster); the halves are kept if both pass the gate. 0 (default):
+        no splitting. Off because on redkitchen it cut rows of brochures on a shelf (12 cm tall,
+        20 cm long) into mug-sized pairs, and geometry alone does not tell them from two mugs;
+        try 0.30 where mugs stand close together (docs/segmentation.md).
     """
 
     stride: int | None = None
@@ -127,6 +147,9 @@ class SegmentationConfig:
     occluder_look_px: int = 6
     occluder_gap_m: float = 0.10
     fill_distance_m: float = 0.015
+    image_margin_px: int = 4
+    objectness: ObjectnessConfig | None = field(default_factory=ObjectnessConfig)
+    split_max_length_m: float = 0.0
 
     def __post_init__(self) -> None:
         if self.stride is not None and self.stride < 1:
@@ -135,8 +158,29 @@ class SegmentationConfig:
             raise ValueError("need min_height_m < max_object_height_m < band_height_m")
 
 
+@dataclass(frozen=True)
+class ClusterVerdict:
+    """What became of one DBSCAN cluster (`explain_frame`): its shape, and `rejected`, the test it
+    failed ("floating", "low", "high", "extent", the gate's reasons of
+    `ndfa.perception.objectness.rejection`, "hidden", "cut") or None when kept. `label`: its label in the
+    segmentation (0 when rejected). `split`: the cluster was split in two and this is one half."""
+
+    shape: ClusterShape
+    rejected: str | None
+    label: int = 0
+    split: bool = False
+
+
 def segment_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig()) -> np.ndarray:
     """The frame's object instances as a (H, W) uint16 image: labels 1..N, 0 = no object."""
+    return explain_frame(frame, config)[0]
+
+
+def explain_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig()
+                  ) -> tuple[np.ndarray, list[ClusterVerdict]]:
+    """`segment_frame`'s labels, and a verdict for every cluster of at least `min_cluster_points`
+    (why the others were not kept: for studies such as scripts/segmentation_study.py)."""
+    verdicts: list[ClusterVerdict] = []
     height, width = frame.depth.shape
     labels = np.zeros((height, width), dtype=np.uint16)
     up = conventions.world_up()
@@ -147,28 +191,39 @@ def segment_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig(
     keep = conventions.depth_in_range(frame.depth[rows, cols], config.min_depth_m, config.max_depth_m)
     rows, cols = rows[keep], cols[keep]
     if len(rows) < config.min_plane_points:
-        return labels
+        return labels, verdicts
     points = _world_points(frame, rows, cols)
 
     planes = find_horizontal_planes(points, up, config, camera=frame.pose_world_camera[:3, 3])
     if not planes:
-        return labels
+        return labels, verdicts
     up = planes[0].normal  # the planes' common normal: it corrects a slightly tilted pose
     min_heights = _min_heights(frame.depth[rows, cols], config)
     candidate, plane_of_point = _candidates(points, min_heights, planes, up, config)
     if not candidate.any():
-        return labels
+        return labels, verdicts
     cluster_points = points[candidate]
     cluster_planes = plane_of_point[candidate]
     cluster_of_point = dbscan(cluster_points, config.dbscan_eps_m, config.dbscan_min_points)
-    kept = _kept_clusters(cluster_points, frame.depth[rows[candidate], cols[candidate]], cluster_of_point,
-                          cluster_planes, planes, up, config)
-    kept = [c for c in kept if not _hidden_above(frame.depth, rows[candidate][cluster_of_point == c],
-                                                 cols[candidate][cluster_of_point == c], config)]
+    judged = _kept_clusters(cluster_points, frame.depth[rows[candidate], cols[candidate]], cluster_of_point,
+                            cluster_planes, planes, up, config)
+    kept = []
+    for cluster, verdict in judged:
+        cluster_rows = rows[candidate][cluster_of_point == cluster]
+        cluster_cols = cols[candidate][cluster_of_point == cluster]
+        if verdict.rejected is None and _hidden_above(frame.depth, cluster_rows, cluster_cols, config):
+            verdict = ClusterVerdict(verdict.shape, "hidden", split=verdict.split)
+        if verdict.rejected is None and _cut_by_border(cluster_rows, cluster_cols, frame.depth, config):
+            verdict = ClusterVerdict(verdict.shape, "cut", split=verdict.split)
+        if verdict.rejected is None:
+            kept.append(cluster)
+            verdict = ClusterVerdict(verdict.shape, None, label=len(kept), split=verdict.split)
+        verdicts.append(verdict)
     if not kept:
-        return labels
+        return labels, verdicts
 
-    # Sample points of kept clusters, relabelled 1..N in order of size (largest first).
+    # Sample points of kept clusters, relabelled 1..N in the order of `judged` (largest first, a
+    # split cluster's halves together).
     label_of_point = np.zeros(len(cluster_points), dtype=np.uint16)
     for label, cluster in enumerate(kept, start=1):
         label_of_point[cluster_of_point == cluster] = label
@@ -179,7 +234,7 @@ def segment_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig(
     if stride > 1:
         _fill(frame, labels, cluster_points[labelled], label_of_point[labelled],
               planes, cluster_planes[labelled], stride, config)
-    return labels
+    return labels, verdicts
 
 
 def _min_heights(depth: np.ndarray, config: SegmentationConfig) -> np.ndarray:
@@ -240,28 +295,66 @@ def _cell_keys(flat: np.ndarray, cell: float) -> np.ndarray:
 
 
 def _kept_clusters(points: np.ndarray, depths: np.ndarray, cluster_of_point: np.ndarray, plane_of_point: np.ndarray,
-                   planes: list[Plane], up: np.ndarray, config: SegmentationConfig) -> list[int]:
-    """Clusters that pass the size filters of step 5, largest first. A cluster's top is its 95th
-    percentile of height (one noisy point does not make a blob tall)."""
+                   planes: list[Plane], up: np.ndarray, config: SegmentationConfig
+                   ) -> list[tuple[int, ClusterVerdict]]:
+    """Step 5: every cluster of `min_cluster_points` with its verdict (kept: `rejected` is None),
+    largest first. A cluster's top is its 95th percentile of height (one noisy point does not make
+    a blob tall). A cluster split in two (`split_max_length_m`) is renumbered in `cluster_of_point`,
+    in place: its second half takes a new cluster index."""
     clusters, sizes = np.unique(cluster_of_point[cluster_of_point >= 0], return_counts=True)
     axes = plane_axes(up)
-    kept = []
+    next_cluster = int(clusters.max()) + 1 if len(clusters) else 0
+    judged = []
     for cluster, size in sorted(zip(clusters.tolist(), sizes.tolist()), key=lambda c: -c[1]):
         if size < config.min_cluster_points:
             continue
-        members = cluster_of_point == cluster
+        members = np.flatnonzero(cluster_of_point == cluster)
         plane = planes[np.bincount(plane_of_point[members]).argmax()]
-        bottom, top = np.percentile(plane.height(points[members]), [5, 95])
-        sigma = _noise_sigma(np.median(depths[members]), config)
-        if bottom > max(config.max_bottom_m, 3 * sigma):
-            continue  # floats above the plane: the lower part of something taller, hidden
-        noise_top = config.top_noise_sigmas * sigma
+        heights = plane.height(points[members])
         flat = points[members] @ axes.T
-        extent = float(np.linalg.norm(flat.max(axis=0) - flat.min(axis=0)))
-        if (max(config.min_object_height_m, noise_top) <= top <= config.max_object_height_m
-                and config.min_extent_m <= extent <= config.max_extent_m):
-            kept.append(cluster)
-    return kept
+        shape = cluster_shape(heights, flat, depths[members])
+        reason = _size_rejection(shape, flat, config)
+        if reason is None and config.objectness is not None:
+            reason = rejection(shape, config.objectness)
+            if reason == "long" and shape.length_m <= config.split_max_length_m:
+                halves = _split(heights, flat, depths[members], config)
+                if halves is not None:
+                    second, shapes = halves
+                    cluster_of_point[members[second]] = next_cluster
+                    judged += [(cluster, ClusterVerdict(shapes[0], None, split=True)),
+                               (next_cluster, ClusterVerdict(shapes[1], None, split=True))]
+                    next_cluster += 1
+                    continue
+        judged.append((cluster, ClusterVerdict(shape, reason)))
+    return judged
+
+
+def _size_rejection(shape: ClusterShape, flat: np.ndarray, config: SegmentationConfig) -> str | None:
+    """The coarse size tests of step 5 (before the objectness gate): why the cluster fails, or None."""
+    sigma = _noise_sigma(shape.depth_m, config)
+    if shape.bottom_m > max(config.max_bottom_m, 3 * sigma):
+        return "floating"  # floats above the plane: the lower part of something taller, hidden
+    if shape.top_m < max(config.min_object_height_m, config.top_noise_sigmas * sigma):
+        return "low"
+    if shape.top_m > config.max_object_height_m:
+        return "high"
+    extent = float(np.linalg.norm(flat.max(axis=0) - flat.min(axis=0)))
+    if not config.min_extent_m <= extent <= config.max_extent_m:
+        return "extent"
+    return None
+
+
+def _split(heights: np.ndarray, flat: np.ndarray, depths: np.ndarray, config: SegmentationConfig
+           ) -> tuple[np.ndarray, tuple[ClusterShape, ClusterShape]] | None:
+    """Two touching mugs: the cluster's 2-means halves (second-half mask and both shapes) if both
+    have `min_cluster_points` and pass the objectness gate, else None."""
+    second = split_in_two(flat)
+    if min(second.sum(), (~second).sum()) < config.min_cluster_points:
+        return None
+    shapes = tuple(cluster_shape(heights[half], flat[half], depths[half]) for half in (~second, second))
+    if any(rejection(shape, config.objectness) is not None for shape in shapes):
+        return None
+    return second, shapes
 
 
 def _hidden_above(depth: np.ndarray, rows: np.ndarray, cols: np.ndarray, config: SegmentationConfig) -> bool:
@@ -281,6 +374,18 @@ def _hidden_above(depth: np.ndarray, rows: np.ndarray, cols: np.ndarray, config:
         above = np.minimum(above, values)
     hidden = above < own - config.occluder_gap_m
     return bool(hidden.mean() > 0.5)
+
+
+def _cut_by_border(rows: np.ndarray, cols: np.ndarray, depth: np.ndarray, config: SegmentationConfig) -> bool:
+    """Whether the cluster reaches within `image_margin_px` of the border of the pixels with depth
+    (the bounding box of the rows and columns holding any)."""
+    margin = config.image_margin_px
+    if margin <= 0:
+        return False
+    valid = depth > 0
+    valid_rows, valid_cols = np.flatnonzero(valid.any(axis=1)), np.flatnonzero(valid.any(axis=0))
+    return bool((rows < valid_rows[0] + margin).any() or (rows > valid_rows[-1] - margin).any()
+                or (cols < valid_cols[0] + margin).any() or (cols > valid_cols[-1] - margin).any())
 
 
 def _fill(frame: Frame, labels: np.ndarray, points: np.ndarray, point_labels: np.ndarray,

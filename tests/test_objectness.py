@@ -1,0 +1,178 @@
+"""The mug-likeness gate (`ndfa.perception.objectness`) on synthetic point sets, the 2-means
+splitter of touching mugs (`ndfa.perception.split`), and the segmentation of a few frames of the
+real 7-Scenes redkitchen sequence (two mugs among magazines, papers and a kitchen counter)."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ndfa.core.frame import Frame
+from ndfa.core.geometry import make_pose, matrix_from_quaternion_xyzw
+from ndfa.perception.dbscan import dbscan
+from ndfa.perception.objectness import ObjectnessConfig, cluster_shape, rejection
+from ndfa.perception.segmentation import SegmentationConfig, _world_points, explain_frame
+from ndfa.perception.split import split_in_two
+
+REDKITCHEN = Path(__file__).resolve().parents[2] / "shared" / "data" / "redkitchen_7scenes"
+
+
+def _mug_front(center_xy, radius=0.04, height=0.09, spacing=0.004):
+    """The half of a mug's wall that a camera on the -y side sees, as points (x, y, z above the table)."""
+    angles = np.arange(-np.pi / 2, np.pi / 2, spacing / radius)  # facing -y: angle 0 points at the camera
+    heights = np.arange(0.012, height, spacing)
+    a, z = np.meshgrid(angles, heights)
+    x = center_xy[0] + radius * np.sin(a)
+    y = center_xy[1] - radius * np.cos(a)
+    return np.stack([x.ravel(), y.ravel(), z.ravel()], axis=1)
+
+
+def _box(size_xyz, bottom=0.012, spacing=0.004):
+    """The points of an axis-aligned box's volume (a stand-in for any clutter's visible surface)."""
+    axes = [np.arange(0.0, s + 1e-9, spacing) for s in size_xyz]
+    x, y, z = np.meshgrid(*axes, indexing="ij")
+    return np.stack([x.ravel(), y.ravel(), z.ravel() + bottom], axis=1)
+
+
+def _shape(points, depth=1.2):
+    return cluster_shape(points[:, 2], points[:, :2], np.full(len(points), depth))
+
+
+def test_a_mug_passes_the_gate():
+    shape = _shape(_mug_front((0.0, 0.0)))
+    assert rejection(shape) is None
+    assert 0.075 < shape.length_m < 0.085 and 0.03 < shape.width_m < 0.045
+
+
+@pytest.mark.parametrize("size, reason", [
+    ((0.21, 0.28, 0.008), "flat"),      # a magazine lying on the table
+    ((0.60, 0.03, 0.07), "long"),       # the edge of a counter, or a row of brochures, at mug height
+    ((0.03, 0.03, 0.12), "short"),      # a tap or a bottle neck: narrower than any mug
+    ((0.10, 0.08, 0.25), "tall"),       # a chair back
+    ((0.10, 0.008, 0.08), "thin"),      # a board seen end-on
+])
+def test_the_gate_rejects_clutter(size, reason):
+    assert rejection(_shape(_box(size))) == reason
+
+
+def test_a_mug_floating_above_the_table_is_rejected():
+    mug = _mug_front((0.0, 0.0))
+    assert rejection(_shape(mug + [0.0, 0.0, 0.06])) in ("floating", "tall")
+    lifted = mug[mug[:, 2] > 0.05]  # only the upper part visible: something taller hidden behind
+    assert rejection(_shape(lifted)) == "floating"
+
+
+def test_the_gate_thresholds_are_configurable():
+    magazine = _shape(_box((0.21, 0.28, 0.008)))
+    assert rejection(magazine, ObjectnessConfig(min_top_m=0.0, max_length_m=0.5, min_width_ratio=0.0)) is None
+    with pytest.raises(ValueError):
+        ObjectnessConfig(min_top_m=0.2, max_top_m=0.1)
+
+
+def test_two_touching_mugs_are_one_cluster_and_split_in_two():
+    left = _mug_front((0.0, 0.0))
+    right = _mug_front((0.085, 0.0))  # 5 mm between the walls: closer than DBSCAN's 2.5 cm
+    points = np.concatenate([left, right])
+    clusters = dbscan(points, SegmentationConfig().dbscan_eps_m, SegmentationConfig().dbscan_min_points)
+    assert len(np.unique(clusters)) == 1
+    assert rejection(_shape(points)) == "long"
+
+    second = split_in_two(points[:, :2])
+    is_right = np.arange(len(points)) >= len(left)
+    agreement = max(np.mean(second == is_right), np.mean(second != is_right))
+    assert agreement == 1.0
+    for half in (points[second], points[~second]):
+        assert rejection(_shape(half)) is None
+
+
+def test_a_split_counter_edge_stays_rejected():
+    edge = _box((0.28, 0.015, 0.08))  # a 28 cm board edge: halves are still slivers
+    second = split_in_two(edge[:, :2])
+    assert 0.4 < second.mean() < 0.6
+    assert all(rejection(_shape(half)) is not None for half in (edge[second], edge[~second]))
+
+
+# -- real data: a slice of 7-Scenes redkitchen -------------------------------------------------
+
+# The two mugs on the table, in the dataset's world levelled to z up (metres, x and y).
+_PATTERNED_MUG = np.array([0.26, 1.66])
+_WHITE_MUG = np.array([-0.72, 1.79])
+
+
+def _redkitchen_frame(index: int) -> Frame:
+    from PIL import Image
+
+    from ndfa.trajectory.up import level_frame, levelling_rotation
+
+    def listing(name):
+        return [line.split() for line in (REDKITCHEN / name).read_text().splitlines() if not line.startswith("#")]
+
+    millimetres = np.asarray(Image.open(REDKITCHEN / listing("depth.txt")[index][1]), dtype=np.float32)
+    depth = np.where(millimetres == 65535, 0.0, millimetres / 1000.0).astype(np.float32)
+    rgb = np.asarray(Image.open(REDKITCHEN / listing("rgb.txt")[index][1]).convert("RGB"))
+    row = [float(x) for x in listing("groundtruth.txt")[index][1:]]
+    pose = make_pose(matrix_from_quaternion_xyzw(np.array(row[3:])), np.array(row[:3]))
+    K = np.array([[585.0, 0.0, 320.0], [0.0, 585.0, 240.0], [0.0, 0.0, 1.0]])
+    frame = Frame(index=index, timestamp=index / 15.0, rgb=rgb, depth=depth, K=K, pose_world_camera=pose)
+    gravity = np.loadtxt(REDKITCHEN / "gravity-direction.txt")
+    return level_frame(frame, levelling_rotation(-gravity))
+
+
+@pytest.mark.skipif(not REDKITCHEN.is_dir(), reason=f"the 7-Scenes redkitchen slice is not at {REDKITCHEN} (../shared absent)")
+def test_on_redkitchen_the_segments_are_the_two_mugs():
+    """Frames where the camera sees the table with both mugs, magazines, the counter and chairs:
+    with the gate, the only segments are the mugs; without it, clutter is segmented too."""
+    found = set()
+    clutter_without_gate = 0
+    for index in (140, 150, 240):
+        frame = _redkitchen_frame(index)
+        labels, _ = explain_frame(frame)
+        for label in range(1, int(labels.max()) + 1):
+            rows, cols = np.nonzero(labels == label)
+            center = _world_points(frame, rows, cols).mean(axis=0)[:2]
+            distances = [np.linalg.norm(center - mug) for mug in (_PATTERNED_MUG, _WHITE_MUG)]
+            assert min(distances) < 0.08, f"frame {index}: segment at {center} is no mug"
+            found.add(int(np.argmin(distances)))
+        ungated, _ = explain_frame(frame, dataclasses.replace(SegmentationConfig(), objectness=None))
+        clutter_without_gate += int(ungated.max()) - int(labels.max())
+    assert found == {0, 1}
+    assert clutter_without_gate >= 3
+
+
+# -- the pipeline's occupancy test on segmented frames ------------------------------------------
+
+
+class _FixedOccupancyEncoder:
+    """Stands in for the NDF: every observation gets the same mean occupancy."""
+
+    def __init__(self, occupancy: float) -> None:
+        self.occupancy = occupancy
+
+    def encode_batch(self, clouds, poses):
+        from ndfa.ndf.encoder import ObjectCode
+
+        return [ObjectCode(shape_code=np.zeros(8), center_world=np.asarray(pose)[:3, 3], z=np.zeros((4, 3)),
+                           mean_occupancy=self.occupancy, reconstruction=np.zeros((0, 3))) for pose in poses]
+
+
+@pytest.mark.parametrize("occupancy, used", [(0.5, False), (0.7, True)])
+def test_segments_the_ndf_does_not_fit_are_not_measured_but_masks_are(occupancy, used):
+    from ndfa.core.events import ObservationEvent
+    from ndfa.io.recording import RecordingReader
+    from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
+
+    sample = Path(__file__).parents[1] / "recordings" / "sample" / "source.mcap"
+    frame = next(RecordingReader(sample).frames(4, 5))  # four mugs in view, all four segmented
+    for masked in (True, False):
+        pipeline = ChangeDetectionPipeline(PipelineConfig(), encoder=_FixedOccupancyEncoder(occupancy))
+        shown = frame if masked else dataclasses.replace(frame, instances=None)
+        observations = [e for e in pipeline.process("source", shown) if isinstance(e, ObservationEvent)
+                        and e.n_points > 0]
+        assert observations
+        if masked or used:
+            assert all(e.skipped is None for e in observations)
+        else:
+            assert all(e.skipped and "not mug-like" in e.skipped for e in observations)
