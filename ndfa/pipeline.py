@@ -58,9 +58,10 @@ class ChangeDetectionPipeline:
             raise ValueError(f"session must be one of {SESSIONS}, got {session!r}")
         started = time.perf_counter()
         segmentation_ms = {}
-        segmented = frame.instances is None and self.config.segmentation is not None
-        if segmented:
-            frame = replace(frame, instances=segment_frame(frame, self.config.segmentation))
+        segmentation = self.config.segmentation
+        segmented = frame.instances is None and segmentation is not None
+        if frame.instances is None and segmentation is not None:
+            frame = replace(frame, instances=segment_frame(frame, segmentation))
             segmentation_ms = {"segmentation": (time.perf_counter() - started) * 1e3}
             started = time.perf_counter()
         events: list[Event] = [FrameEvent(session=session, frame=frame)]
@@ -71,17 +72,19 @@ class ChangeDetectionPipeline:
                                           [frame.pose_world_camera] * len(observations))
         encoded = time.perf_counter()
 
-        measurements = []
-        for skip in skipped:
-            events.append(ObservationEvent(session=session, frame_index=frame.index, instance_id=skip.instance_id,
-                                           n_pixels=skip.n_pixels, skipped=skip.reason))
+        measurements: list[Measurement] = []
+        for skipped_observation in skipped:
+            events.append(ObservationEvent(session=session, frame_index=frame.index,
+                                           instance_id=skipped_observation.instance_id,
+                                           n_pixels=skipped_observation.n_pixels, skipped=skipped_observation.reason))
         for observation, code in zip(observations, codes):
             # No grid point above v0: the NDF does not see a whole object in this view (on the
             # `paper` scene such views gave centers several cm off); logged, not used.
             empty = code.mean_occupancy <= 0.0
-            skip = "empty reconstruction" if empty else None
+            skip: str | None = "empty reconstruction" if empty else None
             if not empty and segmented and code.mean_occupancy < self.config.min_segment_occupancy:
-                skip = f"segment not mug-like: mean occupancy {code.mean_occupancy:.2f} < {self.config.min_segment_occupancy}"
+                skip = (f"segment not mug-like: mean occupancy {code.mean_occupancy:.2f} "
+                        f"< {self.config.min_segment_occupancy}")
             events.append(ObservationEvent(
                 session=session, frame_index=frame.index, instance_id=observation.instance_id,
                 n_pixels=observation.n_pixels, skipped=skip,

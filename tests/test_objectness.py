@@ -105,7 +105,7 @@ _WHITE_MUG = np.array([-0.72, 1.79])
 def _redkitchen_frame(index: int) -> Frame:
     from PIL import Image
 
-    from ndfa.trajectory.up import level_frame, levelling_rotation
+    from ndfa.trajectory.level import level_frame, levelling_rotation
 
     def listing(name):
         return [line.split() for line in (REDKITCHEN / name).read_text().splitlines() if not line.startswith("#")]

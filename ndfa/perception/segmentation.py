@@ -351,8 +351,11 @@ def _split(heights: np.ndarray, flat: np.ndarray, depths: np.ndarray, config: Se
     second = split_in_two(flat)
     if min(second.sum(), (~second).sum()) < config.min_cluster_points:
         return None
-    shapes = tuple(cluster_shape(heights[half], flat[half], depths[half]) for half in (~second, second))
-    if any(rejection(shape, config.objectness) is not None for shape in shapes):
+    first = ~second
+    shapes = (cluster_shape(heights[first], flat[first], depths[first]),
+              cluster_shape(heights[second], flat[second], depths[second]))
+    gate = config.objectness
+    if gate is not None and any(rejection(shape, gate) is not None for shape in shapes):
         return None
     return second, shapes
 
