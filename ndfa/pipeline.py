@@ -59,8 +59,9 @@ class ChangeDetectionPipeline:
         started = time.perf_counter()
         segmentation_ms = {}
         segmentation = self.config.segmentation
-        segmented = frame.instances is None and segmentation is not None
+        segmented = False
         if frame.instances is None and segmentation is not None:
+            segmented = True
             frame = replace(frame, instances=segment_frame(frame, segmentation))
             segmentation_ms = {"segmentation": (time.perf_counter() - started) * 1e3}
             started = time.perf_counter()

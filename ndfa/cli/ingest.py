@@ -315,8 +315,8 @@ def info_command(
     table.add_row("frames", str(len(reader)))
     if reader.has_poses:  # without poses, up is found by `ndfa detect` after estimating them
         try:
-            table.add_row("world up", prepare_session(reader, meta.get("session", ""), up=up, poses="given")
-                          .describe().split("; up ", 1)[1])
+            world = prepare_session(reader, meta.get("session", ""), up=up, poses="given")
+            table.add_row("world up", world.describe_up())
         except RecordingError as error:
             table.add_row("world up", f"not found: {error}")
     table.add_row("instance masks", "yes" if reader.has_instances else "no")

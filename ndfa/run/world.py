@@ -56,14 +56,17 @@ class SessionWorld:
 
     def describe(self) -> str:
         """One line: which poses and which up this session runs on, and how they were found."""
-        text = f"{self.session}: poses {self.pose_source}; up "
+        return f"{self.session}: poses {self.pose_source}; up {self.describe_up()}"
+
+    def describe_up(self) -> str:
+        """Which up this session runs on, and how it was found."""
         if self.up is None:
-            return text + self.up_source
+            return self.up_source
         tilt = self.up.tilt_deg
         action = f"levelled by {tilt:.1f} deg" if self.levelling is not None else \
             f"the recording's z (estimate within {tilt:.1f} deg of it)"
-        return text + (f"{action}; estimated from {self.up.frames_agreeing}/{self.up.frames_used} agreeing frames, "
-                       f"spread {self.up.spread_deg:.1f} deg")
+        return (f"{action}; estimated from {self.up.frames_agreeing}/{self.up.frames_used} agreeing frames, "
+                f"spread {self.up.spread_deg:.1f} deg")
 
     def as_dict(self) -> dict:
         return {"poses": self.pose_source, "up": self.up_source,
