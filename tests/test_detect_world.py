@@ -101,3 +101,22 @@ def test_a_session_without_objects_says_why():
     counts.count(ObservationEvent(session="source", frame_index=0, instance_id=9, n_pixels=900,
                                   skipped="fragmented: largest cluster holds 10 of 90 points"))
     assert counts.why_none() == "every view of an object was skipped (2 pixels < min_pixels, 1 fragmented)"
+
+
+def test_truth_poses_replace_the_given_ones_and_need_a_ground_truth_channel(tmp_path):
+    offset = _tilt(10.0)
+    shifted = tmp_path / "shifted.mcap"
+    reader = RecordingReader(SAMPLE / "source.mcap")
+    meta = {k: v for k, v in reader.meta.items() if k not in WRITER_KEYS}
+    with RecordingWriter(shifted, meta) as writer:
+        for frame in reader.frames(stop=3):
+            writer.write_frame(dataclasses.replace(frame, pose_world_camera=offset @ frame.pose_world_camera,
+                                                   pose_world_camera_true=frame.pose_world_camera))
+    world = prepare_session(RecordingReader(shifted), "source", poses="truth")
+    for frame, original in zip(RecordingReader(shifted).frames(), RecordingReader(SAMPLE / "source.mcap").frames(stop=3)):
+        np.testing.assert_allclose(world.apply(frame).pose_world_camera, original.pose_world_camera, atol=1e-9)
+
+    without_truth = _rewritten(SAMPLE / "source.mcap", tmp_path / "plain.mcap", np.eye(4), {}, stop=2)
+    assert next(RecordingReader(without_truth).frames()).pose_world_camera_true is None
+    with pytest.raises(RecordingError, match="no true pose"):
+        prepare_session(RecordingReader(without_truth), "source", poses="truth")

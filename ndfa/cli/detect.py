@@ -42,7 +42,8 @@ def detect_command(
                                         "support planes and levelled if tilted) | estimate (always) | z (trust "
                                         "the recording: its world is z-up)."),
     poses: str = typer.Option("auto", help="Camera poses: auto (the recording's; estimated by odometry when it has "
-                                           "none) | given (never estimate) | estimate (always)."),
+                                           "none) | given (never estimate) | estimate (always) | truth (a "
+                                           "simulated recording's true poses: to score segmentation alone)."),
     threads: Optional[int] = typer.Option(None, help="Torch CPU threads for the NDF (default: torch's, one per core). "
                                                      "1 when other jobs share the cores: oversubscribed, 2 threads "
                                                      "ran ~10x slower than 1."),

@@ -26,9 +26,9 @@ from ndfa.trajectory.level import level_frame
 from ndfa.trajectory.up import UpEstimate, estimate_up
 
 UpMode = Literal["auto", "z", "estimate"]
-PoseMode = Literal["auto", "given", "estimate"]
+PoseMode = Literal["auto", "given", "estimate", "truth"]
 UP_MODES: tuple[str, ...] = ("auto", "z", "estimate")
-POSE_MODES: tuple[str, ...] = ("auto", "given", "estimate")
+POSE_MODES: tuple[str, ...] = ("auto", "given", "estimate", "truth")
 
 # Below this tilt the estimate cannot tell the world from z-up (0.6 deg on a noisy synthetic scene,
 # 1-2 deg on a Kinect sequence: docs/world_up.md), so the recording is used as it is.
@@ -82,7 +82,9 @@ def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
     if poses not in POSE_MODES:
         raise ValueError(f"poses must be one of {POSE_MODES}, got {poses!r}")
     world = SessionWorld(session, pose_source="given", up_source="")
-    if poses == "estimate" or (poses == "auto" and not reader.has_poses):
+    if poses == "truth":
+        world.poses, world.pose_source = _true_poses(reader), "true (the ground-truth channel)"
+    elif poses == "estimate" or (poses == "auto" and not reader.has_poses):
         world.poses, world.pose_source = _estimate_poses(reader)
     elif not reader.has_poses:
         raise RecordingError(f"{reader.path}: has no camera poses and pose estimation is off (--poses given)")
@@ -108,6 +110,17 @@ def _known_z_up(meta: dict) -> bool:
     """A recording of ndfa's simulator whose world was not tilted on purpose."""
     config = meta.get("config") if isinstance(meta.get("config"), dict) else {}
     return meta.get("source") == "sim" and not config.get("world_tilt_deg")
+
+
+def _true_poses(reader: RecordingReader) -> dict[int, np.ndarray]:
+    """The simulator's true camera poses: an oracle that separates segmentation from odometry."""
+    poses: dict[int, np.ndarray] = {}
+    for frame in reader.frames():
+        if frame.pose_world_camera_true is None:
+            raise RecordingError(f"{reader.path}: frame {frame.index} has no true pose (--poses truth needs "
+                                 "a recording with a ground-truth channel)")
+        poses[frame.index] = frame.pose_world_camera_true
+    return poses
 
 
 def _estimate_poses(reader: RecordingReader) -> tuple[dict[int, np.ndarray], str]:
