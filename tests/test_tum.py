@@ -202,6 +202,17 @@ def test_an_8_bit_depth_png_names_the_file(tmp_path):
         read(folder)
 
 
+def test_depth_65535_is_no_reading(tmp_path):
+    # Kinect / 7-Scenes write 65535 where the sensor saw nothing; it must not become a 65.5 m wall.
+    folder = make_folder(tmp_path / "tum")
+    depth = np.full((H, W), 1500, np.uint16)
+    depth[2:4, 3:6] = 65535
+    write_png(folder / "depth" / "0.100000.png", depth)
+    frame = read(folder, depth_scale=1000.0)[1]
+    assert (frame.depth[2:4, 3:6] == 0).all()
+    assert frame.depth[0, 0] == pytest.approx(1.5) and int((frame.depth == 0).sum()) == 6
+
+
 def test_no_groundtruth_and_no_estimator_asks_for_kiss_icp(tmp_path):
     folder = make_folder(tmp_path / "tum", groundtruth=None)
     with pytest.raises(IngestError, match="--poses kiss-icp"):

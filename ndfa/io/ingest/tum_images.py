@@ -12,10 +12,19 @@ from PIL import Image
 
 from ndfa.core.errors import IngestError
 
+# The largest 16-bit value: Kinect-class sensors and datasets built on them (7-Scenes) write it for
+# "no reading", as others write 0. Read as a distance it would be 65.5 m (at 1000 units per metre):
+# a wall that is not there for anything that does not clip depth to the method's range.
+NO_READING = np.iinfo(np.uint16).max
+
 
 def read_depth(path: Path, depth_scale: float) -> np.ndarray:
-    """(H, W) float32 metres, 0 = invalid; the PNG holds `depth_scale` units per metre."""
-    return (_read_16bit(path, "a depth image").astype(np.float64) / depth_scale).astype(np.float32)
+    """(H, W) float32 metres, 0 = invalid (both 0 and 65535 in the PNG mark a pixel without a
+    reading); the PNG holds `depth_scale` units per metre."""
+    pixels = _read_16bit(path, "a depth image")
+    depth = (pixels.astype(np.float64) / depth_scale).astype(np.float32)
+    depth[pixels == NO_READING] = 0.0
+    return depth
 
 
 def read_mask(path: Path) -> np.ndarray:
