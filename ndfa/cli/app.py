@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import warnings
 
 import typer
 from rich.console import Console
@@ -35,8 +36,20 @@ def bar_per_label(progress: Progress, prefix: str = "") -> LabelledProgress:
     return on_progress
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:  # noqa: ANN001
+    """ndfa's own warnings (about a user's input) as one line on stderr, like its errors."""
+    if category.__module__.startswith("ndfa."):
+        err_console.print(f"[yellow]warning:[/yellow] {message}", highlight=False, soft_wrap=True)
+    else:
+        _python_show_warning(message, category, filename, lineno, file, line)
+
+
+_python_show_warning = warnings.showwarning
+
+
 def main() -> None:
-    """Entry point: run the app, turning ndfa's own errors into one line on stderr."""
+    """Entry point: run the app, turning ndfa's own errors into one line on stderr (and its warnings)."""
+    warnings.showwarning = _show_warning
     try:
         app(standalone_mode=False)
     except NdfaError as error:

@@ -29,15 +29,31 @@ def _parse_range(text: str, what: str) -> tuple[int, int]:
 
 
 def _pose_estimator(poses: str):
-    """The importers' `--poses`: None for "given" (the input's own), else a per-frame odometry
-    (kiss-icp, rgbd, or estimate: rgbd when the input has colour)."""
+    """The importers' `--poses`: (None, None) for "given" (the input's own), else a per-frame odometry
+    (kiss-icp, rgbd, or estimate: rgbd when the input has colour) that checks each frame's input
+    and holds the last pose over frames without depth, and the monitor of those checks."""
     if poses == "given":
-        return None
+        return None, None
     if poses not in ("estimate", "rgbd", "kiss-icp"):
         raise NdfaError(f"--poses must be given, estimate, rgbd or kiss-icp, got {poses!r}")
+    from ndfa.trajectory.checks import InputMonitor, hold_without_depth
     from ndfa.trajectory.rgbd import streaming_pose_estimator
 
-    return streaming_pose_estimator(poses)
+    monitor = InputMonitor()
+    return hold_without_depth(streaming_pose_estimator(poses), monitor), monitor
+
+
+def _input_warnings(monitor, poses: str, source: Path, out: Path) -> list[str]:
+    """The input checks' warnings after an import with estimated poses; when no frame could be
+    tracked, the recording is removed and the import fails in one line naming the input."""
+    if monitor is None:
+        return []
+    uses_colour = poses != "kiss-icp" and any(check.textured is not None for check in monitor.checks)
+    report = monitor.report(uses_colour)
+    if report.untrackable is not None:
+        out.unlink(missing_ok=True)
+        raise NdfaError(f"{source}: {report.untrackable}; nothing written")
+    return report.warnings(untracked_poses="held at the last tracked frame's")
 
 
 @ingest_app.command("sim")
@@ -160,7 +176,7 @@ def ingest_tum_command(
 
     from ndfa.io.ingest.tum import TumWarning, ingest_tum
 
-    estimator = _pose_estimator(poses)
+    estimator, monitor = _pose_estimator(poses)
     camera = _parse_intrinsics(intrinsics)
 
     with warnings.catch_warnings():
@@ -170,6 +186,7 @@ def ingest_tum_command(
             summary = ingest_tum(folder, out, intrinsics=camera, depth_scale=depth_scale,
                                  masks=masks, max_dt=max_dt, session=session, estimate_poses=estimator,
                                  on_progress=lambda done, total: progress.update(task, completed=done, total=total))
+    input_warnings = _input_warnings(monitor, poses, folder, out)
 
     table = Table(title=f"{folder} -> {out}", show_header=False)
     table.add_column("what")
@@ -186,7 +203,7 @@ def ingest_tum_command(
     table.add_row("instance masks", "yes" if summary.has_instances else "no")
     table.add_row("ground truth", "yes" if summary.has_ground_truth else "no")
     console.print(table)
-    for message in summary.warnings:
+    for message in summary.warnings + input_warnings:
         console.print(f"[yellow]warning:[/yellow] {message}", highlight=False, soft_wrap=True)
 
 
@@ -220,7 +237,7 @@ def ingest_bag_command(
         return
     if out is None:
         raise typer.BadParameter("--out is required (or --list)")
-    estimator = _pose_estimator(poses)
+    estimator, monitor = _pose_estimator(poses)
 
     with progress_bar() as progress:
         task = progress.add_task(f"writing {out.name}", total=None)
@@ -228,6 +245,7 @@ def ingest_bag_command(
                              mask_topic=mask_topic, pose_source=pose_topic, world_frame=world_frame,
                              camera_frame=camera_frame, max_dt=max_dt, estimate_poses=estimator,
                              on_progress=lambda done, total: progress.update(task, completed=done, total=total))
+    input_warnings = _input_warnings(monitor, poses, bag, out)
 
     table = Table(title=f"{bag} -> {out}", show_header=False)
     table.add_column("what")
@@ -244,6 +262,8 @@ def ingest_bag_command(
     table.add_row("ground truth", "yes" if summary.ground_truth else "no")
     table.add_row("size", f"{summary.size_bytes / 1e6:.1f} MB")
     console.print(table)
+    for message in input_warnings:
+        console.print(f"[yellow]warning:[/yellow] {message}", highlight=False, soft_wrap=True)
 
 
 export_app = typer.Typer(no_args_is_help=True, help="Write ndfa recordings out in other formats.")

@@ -46,7 +46,7 @@ class SessionWorld:
     up: UpEstimate | None = None            # the estimate, when one was made
     levelling: np.ndarray | None = None     # (3, 3) rotation applied to every pose, or None
     poses: dict[int, np.ndarray] | None = None  # estimated camera-to-world poses by frame index
-    notes: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)  # warnings about the input: frames named, one line each
 
     def apply(self, frame: Frame) -> Frame:
         """`frame` with the estimated pose (if any), levelled (if needed)."""
@@ -55,8 +55,10 @@ class SessionWorld:
         return frame if self.levelling is None else level_frame(frame, self.levelling)
 
     def describe(self) -> str:
-        """One line: which poses and which up this session runs on, and how they were found."""
-        return f"{self.session}: poses {self.pose_source}; up {self.describe_up()}"
+        """One line: which poses and which up this session runs on, and how they were found; then one
+        indented line per warning about the session's input (`notes`)."""
+        return f"{self.session}: poses {self.pose_source}; up {self.describe_up()}" + "".join(
+            f"\n  warning: {self.session}: {note}" for note in self.notes)
 
     def describe_up(self) -> str:
         """Which up this session runs on, and how it was found."""
@@ -71,7 +73,7 @@ class SessionWorld:
     def as_dict(self) -> dict:
         return {"poses": self.pose_source, "up": self.up_source,
                 "up_estimate": None if self.up is None else self.up.to_dict(),
-                "levelled": self.levelling is not None}
+                "levelled": self.levelling is not None, "notes": list(self.notes)}
 
 
 def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
@@ -85,7 +87,8 @@ def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
     if poses == "truth":
         world.poses, world.pose_source = _true_poses(reader), "true (the ground-truth channel)"
     elif poses == "estimate" or (poses == "auto" and not reader.has_poses):
-        world.poses, world.pose_source = _estimate_poses(reader)
+        world.poses, world.pose_source, input_notes = _estimate_poses(reader)
+        world.notes.extend(input_notes)
     elif not reader.has_poses:
         raise RecordingError(f"{reader.path}: has no camera poses and pose estimation is off (--poses given)")
 
@@ -123,23 +126,40 @@ def _true_poses(reader: RecordingReader) -> dict[int, np.ndarray]:
     return poses
 
 
-def _estimate_poses(reader: RecordingReader) -> tuple[dict[int, np.ndarray], str]:
+def _estimate_poses(reader: RecordingReader) -> tuple[dict[int, np.ndarray], str, list[str]]:
+    """Every frame's pose by odometry over the whole session, the method, and warnings about the
+    input (`ndfa.trajectory.checks`). Frames without usable depth are not given to the odometry
+    (there is nothing to register): their poses are interpolated between the tracked frames around
+    them. A session none of whose frames can be tracked stops with one line naming the file."""
+    from ndfa.trajectory.checks import InputMonitor, fill_untracked
     from ndfa.trajectory.rewrite import choose_method
 
-    indices: list[int] = []
+    monitor = InputMonitor()
+    tracked: list[int] = []  # positions (in the session) of the frames given to the odometry
 
     def frames():
-        for frame in reader.frames():
-            indices.append(frame.index)
-            yield frame
+        for position, frame in enumerate(reader.frames()):
+            if monitor.observe(frame).has_depth:
+                tracked.append(position)
+                yield frame
 
-    if choose_method(reader) == "rgbd":
+    uses_colour = choose_method(reader) == "rgbd"
+    if uses_colour:
         from ndfa.trajectory.rgbd import estimate_rgbd_poses
 
-        poses, how = estimate_rgbd_poses(frames()), "estimated (rgbd odometry, loop-closed)"
+        estimate, how = estimate_rgbd_poses(frames()), "estimated (rgbd odometry, loop-closed)"
     else:
         from ndfa.trajectory.kiss import DepthOdometry, OdometryConfig
 
         odometry = DepthOdometry(OdometryConfig())
-        poses, how = [odometry.update(frame) for frame in frames()], "estimated (kiss-icp, depth only)"
-    return dict(zip(indices, poses, strict=True)), how
+        estimate, how = [odometry.update(frame) for frame in frames()], "estimated (kiss-icp, depth only)"
+    report = monitor.report(uses_colour)
+    report.raise_if_untrackable(reader.path)
+    if not monitor.checks:
+        return {}, how, []
+    poses: list[np.ndarray | None] = [None] * len(monitor.checks)
+    for position, pose in zip(tracked, estimate, strict=True):
+        poses[position] = pose
+    filled = fill_untracked([check.timestamp for check in monitor.checks], poses)
+    notes = report.warnings(untracked_poses="interpolated between the tracked frames around them")
+    return {check.index: pose for check, pose in zip(monitor.checks, filled, strict=True)}, how, notes

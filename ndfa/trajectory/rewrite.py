@@ -20,6 +20,7 @@ import numpy as np
 from ndfa.core.errors import TrajectoryError
 from ndfa.core.progress import Progress
 from ndfa.io.recording import RecordingReader, RecordingWriter
+from ndfa.trajectory.checks import check_recording
 from ndfa.trajectory.kiss import DepthOdometry, OdometryConfig
 from ndfa.trajectory.metrics import AbsoluteError, RelativeError, absolute_trajectory_error, relative_pose_error
 from ndfa.trajectory.rgbd import RgbdOdometry, RgbdOdometryConfig
@@ -86,6 +87,7 @@ def rewrite_poses(recording_in: str | Path, recording_out: str | Path, method: s
     reader = RecordingReader(recording_in)
     if method == "estimate":
         method = choose_method(reader)
+    check_recording(reader, uses_colour=method == "rgbd")  # InputWarnings; one line when nothing can be tracked
     if method == "rgbd":
         return _rewrite_rgbd(reader, recording_in, recording_out, rgbd_config, on_progress)
     meta = _output_meta(reader.meta, method, config)
