@@ -222,6 +222,8 @@ def ingest_bag_command(
     camera_frame: Optional[str] = typer.Option(None, help="tf frame of the camera (default: the depth images' frame_id)."),
     max_dt: float = typer.Option(MAX_DT_S, help="Largest depth-colour (and depth-mask) stamp difference, seconds."),
     poses: str = typer.Option("given", help="given (from the bag) | estimate | rgbd | kiss-icp (estimated)."),
+    imu_topic: Optional[str] = typer.Option(None, help="sensor_msgs/Imu topic whose still readings give world up "
+                                                       "(default: the bag's one Imu topic, if any)."),
 ) -> None:
     """Import a ROS1 or ROS2 bag into one recording, and say what was skipped and why."""
     from ndfa.io.ingest.bag import ingest_bag, list_topics
@@ -243,7 +245,7 @@ def ingest_bag_command(
         task = progress.add_task(f"writing {out.name}", total=None)
         summary = ingest_bag(bag, out, rgb_topic=rgb_topic, depth_topic=depth_topic, info_topic=info_topic,
                              mask_topic=mask_topic, pose_source=pose_topic, world_frame=world_frame,
-                             camera_frame=camera_frame, max_dt=max_dt, estimate_poses=estimator,
+                             camera_frame=camera_frame, max_dt=max_dt, estimate_poses=estimator, imu_topic=imu_topic,
                              on_progress=lambda done, total: progress.update(task, completed=done, total=total))
     input_warnings = _input_warnings(monitor, poses, bag, out)
 
@@ -260,6 +262,7 @@ def ingest_bag_command(
     table.add_row("frames", f"{summary.camera_frame} in {summary.world_frame or '-'}")
     table.add_row("instance masks", "yes" if summary.instances else "no")
     table.add_row("ground truth", "yes" if summary.ground_truth else "no")
+    table.add_row("IMU (world up)", summary.imu)
     table.add_row("size", f"{summary.size_bytes / 1e6:.1f} MB")
     console.print(table)
     for message in input_warnings:
@@ -339,6 +342,10 @@ def info_command(
             table.add_row("world up", world.describe_up())
         except RecordingError as error:
             table.add_row("world up", f"not found: {error}")
+    imu = meta.get("imu")
+    if isinstance(imu, dict):  # a bag's IMU: what it gave for world up (ndfa.io.ingest.bag_imu)
+        rotated = f"; into the camera by {imu['camera_from_imu']}" if imu.get("camera_from_imu") else ""
+        table.add_row("IMU", f"{imu.get('topic', '?')}: {imu.get('note', '')}{rotated}")
     table.add_row("instance masks", "yes" if reader.has_instances else "no")
     truth = reader.ground_truth
     if truth:

@@ -4,12 +4,19 @@ The core works on frames with camera poses in a z-up world (`ndfa.core.conventio
 
 - **poses**: the recording's own; or, for one without any (a raw sensor recording, meta
   `"poses": "none"`), estimated over the whole session by RGB-D odometry with loop closure
-  (`ndfa.trajectory.rgbd`; depth-only KISS-ICP when it has no colour).
+  (`ndfa.trajectory.rgbd`; depth-only KISS-ICP when it has no colour). The frames are checked on
+  the way (`ndfa.trajectory.checks`): time gaps, frames without depth (not given to the odometry;
+  their poses interpolated) and flat views become `notes`, which name the frames; a session none
+  of whose frames can be tracked stops with one line.
 - **up**: a synthetic recording says its world is z-up and is taken at its word. Any other is
-  checked: gravity is estimated from its support planes (`ndfa.trajectory.up`) on frames spread
-  over the session; a world tilted by more than `LEVEL_ABOVE_DEG` is levelled (every pose rotated
-  about the world origin), one within it is left exactly as it is. When no up can be found the
-  run stops with the reason, unless the user says the world is z-up (`up="z"`).
+  checked: gravity is taken from the IMU when the importer recorded its still readings (a bag with
+  an Imu topic: meta "imu"), checked by the support planes; otherwise it is estimated from the
+  support planes (`ndfa.trajectory.up`), on frames spread over the session. A world tilted by more
+  than `LEVEL_ABOVE_DEG` is levelled (every pose rotated about the world origin), one within it is
+  left exactly as it is. When no up can be found the run stops with the reason, unless the user
+  says the world is z-up (`up="z"`).
+
+`SessionWorld.describe()` (stderr of `ndfa detect`) and `as_dict()` (its JSON "world") carry the notes.
 """
 
 from __future__ import annotations
@@ -23,7 +30,7 @@ from ndfa.core.errors import RecordingError
 from ndfa.core.frame import Frame
 from ndfa.io.recording import RecordingReader
 from ndfa.trajectory.level import level_frame
-from ndfa.trajectory.up import UpEstimate, estimate_up
+from ndfa.trajectory.up import UpEstimate, angle_deg, estimate_up, imu_gravity, up_from_imu
 
 UpMode = Literal["auto", "z", "estimate"]
 PoseMode = Literal["auto", "given", "estimate", "truth"]
@@ -34,6 +41,10 @@ POSE_MODES: tuple[str, ...] = ("auto", "given", "estimate", "truth")
 # 1-2 deg on a Kinect sequence: docs/world_up.md), so the recording is used as it is.
 LEVEL_ABOVE_DEG = 2.0
 UP_FRAMES = 60  # frames the up estimate looks at, spread over the session
+# The IMU's up and the planes' agree within this on a level floor: the planes err by 1-2 deg on a
+# Kinect sequence (docs/world_up.md), a consumer IMU's accelerometer bias by about as much. A larger
+# difference is reported (a sloped floor, a wrong IMU mounting in the bag's tf, wrong poses).
+IMU_PLANES_AGREE_DEG = 5.0
 
 
 @dataclass
@@ -42,8 +53,9 @@ class SessionWorld:
 
     session: str
     pose_source: str                        # "given" or the odometry method that estimated them
-    up_source: str                          # "z (synthetic)", "z (user)", "estimated"
+    up_source: str                          # "z (synthetic)", "z (user)", "estimated" (planes), "imu"
     up: UpEstimate | None = None            # the estimate, when one was made
+    up_check: UpEstimate | None = None      # the planes' estimate that checked the IMU's ("imu" only)
     levelling: np.ndarray | None = None     # (3, 3) rotation applied to every pose, or None
     poses: dict[int, np.ndarray] | None = None  # estimated camera-to-world poses by frame index
     notes: list[str] = field(default_factory=list)  # warnings about the input: frames named, one line each
@@ -67,12 +79,21 @@ class SessionWorld:
         tilt = self.up.tilt_deg
         action = f"levelled by {tilt:.1f} deg" if self.levelling is not None else \
             f"the recording's z (estimate within {tilt:.1f} deg of it)"
-        return (f"{action}; estimated from {self.up.frames_agreeing}/{self.up.frames_used} agreeing frames, "
-                f"spread {self.up.spread_deg:.1f} deg")
+        if self.up_source != "imu":
+            return (f"{action}; estimated from {self.up.frames_agreeing}/{self.up.frames_used} agreeing frames, "
+                    f"spread {self.up.spread_deg:.1f} deg")
+        check = self.up_check
+        if check is None or check.up_world is None:
+            checked = "not checked by the planes"
+        else:
+            checked = f"the planes' estimate {angle_deg(check.up_world, self.up.up_world):.1f} deg from it"
+        return (f"{action}; from the IMU (still readings at {self.up.frames_used} frames, {self.up.frames_agreeing} "
+                f"agreeing, spread {self.up.spread_deg:.1f} deg); {checked}")
 
     def as_dict(self) -> dict:
         return {"poses": self.pose_source, "up": self.up_source,
                 "up_estimate": None if self.up is None else self.up.to_dict(),
+                "up_check": None if self.up_check is None else self.up_check.to_dict(),
                 "levelled": self.levelling is not None, "notes": list(self.notes)}
 
 
@@ -99,14 +120,44 @@ def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
         world.up_source = "z (a synthetic recording's world is z-up)"
         return world
     step = max(1, len(reader) // UP_FRAMES)
-    world.up = estimate_up(world.apply(f) for f in reader.frames(step=step))
-    world.up_source = "estimated"
+    imu = _up_from_imu(reader, world, step)
+    planes = estimate_up((world.apply(f) for f in reader.frames(step=step)),
+                         prior_up=None if imu is None else imu.up_world)
+    if imu is not None:
+        # The IMU measures gravity; the planes check it (a wrong mounting in the tf, wrong poses).
+        world.up, world.up_source, world.up_check = imu, "imu", planes
+        if planes.up_world is None:
+            world.notes.append(f"the planes could not check the IMU's up: {planes.reason}")
+        elif (difference := angle_deg(imu.up_world, planes.up_world)) > IMU_PLANES_AGREE_DEG:
+            world.notes.append(f"up from the IMU and from the planes differ by {difference:.1f} deg (more than "
+                               f"{IMU_PLANES_AGREE_DEG:g}): a sloped floor, or the IMU's mounting (tf) or the poses "
+                               "wrong? the IMU's is used")
+    else:
+        world.up, world.up_source = planes, "estimated"
     if not world.up.ok:
         raise RecordingError(f"{reader.path}: no world up found ({world.up.reason}); "
                              "if its world is z-up, say so with --up z")
     if world.up.tilt_deg > LEVEL_ABOVE_DEG:
         world.levelling = world.up.levelling()
     return world
+
+
+def _up_from_imu(reader: RecordingReader, world: SessionWorld, step: int) -> UpEstimate | None:
+    """Up from the still IMU readings the importer recorded (meta["imu"]) and the session's poses at
+    those frames (every `step`-th frame), or None (no IMU, or no estimate: a note says why)."""
+    imu = reader.meta.get("imu")
+    if not isinstance(imu, dict):
+        return None
+    gravity = imu_gravity(reader.meta)
+    if not gravity:
+        world.notes.append(f"IMU {imu.get('topic', '')} not used for up: {imu.get('note', 'no readings')}; "
+                           "up from the planes")
+        return None
+    estimate = up_from_imu(gravity, ((f.timestamp, world.apply(f).pose_world_camera) for f in reader.frames(step=step)))
+    if not estimate.ok:
+        world.notes.append(f"IMU {imu.get('topic', '')} not used for up: {estimate.reason}; up from the planes")
+        return None
+    return estimate
 
 
 def _known_z_up(meta: dict) -> bool:

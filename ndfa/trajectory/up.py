@@ -375,6 +375,42 @@ def up_from_accelerations(acc_camera: np.ndarray, poses: np.ndarray, still_toler
     return UpEstimate(True, reason, up, "imu", n, n_still, agreeing, fraction, spread, seconds)
 
 
+def imu_gravity(meta: dict) -> dict[float, np.ndarray]:
+    """A recording's still accelerometer readings by frame timestamp: {Frame.timestamp: (3,) m/s^2 in
+    the camera's optical frame}, from meta["imu"]["gravity_camera"] as `ndfa ingest bag` records it
+    (ndfa.io.ingest.bag_imu); empty when the recording has none."""
+    imu = meta.get("imu")
+    rows = imu.get("gravity_camera") if isinstance(imu, dict) else None
+    if not isinstance(rows, list):
+        return {}
+    gravity = {}
+    for row in rows:
+        if isinstance(row, list) and len(row) == 4 and all(isinstance(v, (int, float)) for v in row):
+            gravity[float(row[0])] = np.array(row[1:], dtype=np.float64)
+    return gravity
+
+
+def up_from_imu(gravity: dict[float, np.ndarray], frames: Iterable[tuple[float, np.ndarray]],
+                max_dt_s: float = 1e-6, min_samples: int = 3, agree_deg: float = 5.0) -> UpEstimate:
+    """World up from per-frame accelerometer readings (`imu_gravity`) and the frames' poses: each
+    frame (timestamp, (4, 4) camera-to-world pose) with a reading within `max_dt_s` of its timestamp
+    is one sample of `up_from_accelerations`. Fewer than `min_samples` such frames give no estimate."""
+    times = np.array(sorted(gravity), dtype=np.float64)
+    acc, poses, looked = [], [], 0
+    for timestamp, pose in frames:
+        looked += 1
+        if not len(times):
+            continue
+        nearest = times[np.argmin(np.abs(times - timestamp))]
+        if abs(nearest - timestamp) <= max_dt_s:
+            acc.append(gravity[float(nearest)])
+            poses.append(pose)
+    if len(acc) < min_samples:
+        return UpEstimate(False, f"an IMU reading at {len(acc)} of the {looked} frames looked at (need {min_samples})",
+                          None, "imu", looked, len(acc), 0, 0.0, float("nan"))
+    return up_from_accelerations(np.array(acc), np.array(poses), agree_deg=agree_deg, min_samples=min_samples)
+
+
 def angle_deg(a: np.ndarray, b: np.ndarray) -> float:
     """Angle between two directions in degrees."""
     a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)

@@ -41,9 +41,10 @@ from ndfa.core.errors import IngestError
 from ndfa.core.progress import Progress
 from ndfa.io.ingest import MAX_DT_S, PoseEstimator
 from ndfa.io.ingest.bag_frames import plan_frames, write_frames
+from ndfa.io.ingest.bag_imu import imu_meta
 from ndfa.io.ingest.bag_poses import pose_lookup
 from ndfa.io.ingest.bag_scan import scan_bag
-from ndfa.io.ingest.bag_topics import BagTopic, choose_pose_source, choose_topics, describe_topics
+from ndfa.io.ingest.bag_topics import BagTopic, choose_imu_topic, choose_pose_source, choose_topics, describe_topics
 from ndfa.io.ingest.tf_buffer import frame_name
 
 # Bag errors rosbags raises for missing, truncated or malformed bags.
@@ -66,6 +67,7 @@ class BagSummary:
     instances: bool = False
     ground_truth: bool = False
     size_bytes: int = 0
+    imu: str = "no IMU topic"  # what the IMU gave for world up (bag_imu.py), in one line
 
 
 def list_topics(path: str | Path) -> list[BagTopic]:
@@ -114,6 +116,7 @@ def ingest_bag(
     max_dt: float = MAX_DT_S,
     estimate_poses: PoseEstimator | None = None,
     on_progress: Progress | None = None,
+    imu_topic: str | None = None,
 ) -> BagSummary:
     """Import one bag into the recording `out`.
 
@@ -123,14 +126,16 @@ def ingest_bag(
     `camera_frame` to the depth images' header.frame_id. `max_dt` (s) is how far in stamp a colour
     image or mask may be from its depth image. With `estimate_poses`, poses come from it instead of
     the bag (the bag's pose of the first frame, if any, anchors them). `on_progress(done, total)`
-    follows the frames.
+    follows the frames. `imu_topic` (default: the bag's one sensor_msgs/Imu topic, if any): its
+    still readings, in the camera's axes, go to meta["imu"] for world up (bag_imu.py).
     """
     path, out = Path(path), Path(out)
     with open_bag(path) as reader:
         topics = {topic.name: topic for topic in describe_topics(reader, path)}
         chosen = choose_topics(path, topics, rgb_topic, depth_topic, info_topic, mask_topic)
         pose_topic = choose_pose_source(path, topics, pose_source, need=estimate_poses is None)
-        scan = scan_bag(reader, path, chosen, pose_topic)
+        imu_topic, imu_note = choose_imu_topic(path, topics, imu_topic)
+        scan = scan_bag(reader, path, chosen, pose_topic, imu_topic)
         camera = frame_name(camera_frame or scan.camera_frame)
         poses, world = pose_lookup(path, scan, pose_topic, world_frame, camera, required=estimate_poses is None)
         plans, skipped = plan_frames(scan, chosen, poses, round(max_dt * 1e9))
@@ -146,9 +151,13 @@ def ingest_bag(
             "instances": "bag" if "mask" in chosen else "none",
             "generator": f"ndfa {ndfa.__version__} ingest bag",
         }
+        if imu_topic is not None:
+            meta["imu"] = imu_meta(scan, imu_topic, camera, [plan.stamp for plan in plans])
+            imu_note = f"{imu_topic}: {meta['imu']['note']}"
         written = write_frames(reader, path, out, meta, chosen, plans, skipped, scan, estimate_poses, on_progress)
     return BagSummary(
         bag=path, out=out, frames=written, depth_messages=len(scan.stamps["depth"]), topics=chosen,
         pose_source=meta["pose_source"], world_frame=world, camera_frame=camera, skipped=dict(skipped),
         instances="mask" in chosen, ground_truth=scan.ground_truth is not None, size_bytes=out.stat().st_size,
+        imu=imu_note,
     )

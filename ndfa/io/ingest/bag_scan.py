@@ -8,7 +8,7 @@ written, and the frames can be planned (`bag_frames.py`) from stamps alone.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -32,14 +32,17 @@ class BagScan:
     pose_samples: list[tuple[int, str, str, np.ndarray]]  # (stamp, parent, child, T_parent_child)
     true_poses: dict[int, np.ndarray]
     ground_truth: dict | None
+    imu_frame: str = ""  # the IMU messages' header.frame_id
+    imu: list[tuple[int, np.ndarray]] = field(default_factory=list)  # (stamp, linear acceleration m/s^2, IMU frame)
 
 
-def scan_bag(reader: AnyReader, path: Path, chosen: dict[str, str], pose_topic: str | None) -> BagScan:
+def scan_bag(reader: AnyReader, path: Path, chosen: dict[str, str], pose_topic: str | None,
+             imu_topic: str | None = None) -> BagScan:
     """The first pass: the small messages and every image header (an unknown encoding stops here)."""
     role_of = {topic: role for role, topic in chosen.items()}
     topics = reader.topics
     wanted = set(chosen.values()) | {name for name, info in topics.items() if info.msgtype == TF_MESSAGE}
-    wanted |= {t for t in (pose_topic, GROUND_TRUTH_TOPIC, GROUND_TRUTH_POSE_TOPIC) if t in topics}
+    wanted |= {t for t in (pose_topic, imu_topic, GROUND_TRUTH_TOPIC, GROUND_TRUTH_POSE_TOPIC) if t in topics}
     connections = [c for c in reader.connections if c.topic in wanted]
     scan = BagScan({role: [] for role in ("depth", "color", "mask")}, "", [], TransformBuffer(), [], {}, None)
     for connection, _, data in reader.messages(connections=connections):
@@ -65,6 +68,10 @@ def scan_bag(reader: AnyReader, path: Path, chosen: dict[str, str], pose_topic: 
             pose = message.pose.pose if connection.msgtype == ODOMETRY else message.pose
             child = message.child_frame_id if connection.msgtype == ODOMETRY else ""
             scan.pose_samples.append((stamp_ns(message.header.stamp), message.header.frame_id, child, pose_matrix(pose)))
+        elif topic == imu_topic:
+            a = message.linear_acceleration
+            scan.imu.append((stamp_ns(message.header.stamp), np.array([a.x, a.y, a.z], dtype=np.float64)))
+            scan.imu_frame = scan.imu_frame or message.header.frame_id
         elif topic == GROUND_TRUTH_TOPIC:
             scan.ground_truth = _ground_truth(path, message.data)
         elif topic == GROUND_TRUTH_POSE_TOPIC:

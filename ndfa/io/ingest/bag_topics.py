@@ -18,6 +18,7 @@ TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 ODOMETRY = "nav_msgs/msg/Odometry"
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
 POSE_TYPES = (ODOMETRY, POSE_STAMPED)
+IMU = "sensor_msgs/msg/Imu"
 
 # ndfa's extension topics: the ground-truth JSON (std_msgs/String) and the true camera pose when the
 # recorded one is perturbed (PoseStamped); `ndfa export bag` writes them, the importer reads them back.
@@ -69,6 +70,9 @@ def guess_role(name: str, msgtype: str, encoding: str | None) -> str | None:
         return "tf"
     if msgtype in POSE_TYPES:
         return "ground truth pose" if name == GROUND_TRUTH_POSE_TOPIC else "pose"
+    if msgtype == IMU:
+        # RealSense publishes its gyro as an Imu too (accelerations zero): only an accelerometer tells up.
+        return None if "gyro" in lowered else "imu"
     if msgtype not in (IMAGE, COMPRESSED_IMAGE) or encoding is None:
         return None
     if any(word in lowered for word in _MASK_WORDS):
@@ -155,6 +159,22 @@ def choose_pose_source(path: Path, topics: dict[str, BagTopic], asked: str | Non
         raise IngestError(f"{path}: the bag has no camera poses (no /tf, Odometry or PoseStamped topic); "
                           "pass --poses kiss-icp to estimate them from depth")
     return None
+
+
+def choose_imu_topic(path: Path, topics: dict[str, BagTopic], asked: str | None) -> tuple[str | None, str]:
+    """The sensor_msgs/Imu topic whose accelerometer gives world up, and a note when there is none:
+    `asked` (--imu-topic), else the bag's one IMU topic (a gyro-only topic does not count). With
+    several, none is used (the IMU is optional: the import goes on) and the note names them."""
+    if asked is not None:
+        if asked not in topics or topics[asked].msgtype != IMU:
+            found = [t.name for t in topics.values() if t.msgtype == IMU]
+            raise IngestError(f"{path}: --imu-topic {asked!r} is not a sensor_msgs/Imu topic of the bag "
+                              f"(Imu topics: {', '.join(found) or 'none'})")
+        return asked, ""
+    candidates = [t.name for t in topics.values() if t.role == "imu" and t.count]
+    if len(candidates) > 1:
+        return None, f"several IMU topics ({', '.join(candidates)}), none used: choose one with --imu-topic"
+    return (candidates[0], "") if candidates else (None, "no IMU topic")
 
 
 def topic_list(topics: object) -> str:
