@@ -146,7 +146,7 @@ def test_hold_without_depth_keeps_the_odometry_away_from_empty_frames():
     monitor = InputMonitor()
     estimate = hold_without_depth(odometry, monitor)
     poses = [estimate(frame) for frame in frames]
-    assert seen == [1, 2, 4]
+    assert seen == [1, 2, 3, 4]  # the odometry starts on depth, then sees every frame (its motion model)
     assert np.allclose(poses[0], frames[0].pose_world_camera)  # before any tracked frame: its own pose
     assert poses[3][0, 3] == 2.0 and poses[4][0, 3] == 4.0  # held, then tracked again
     assert monitor.report().without_depth == [0, 3]

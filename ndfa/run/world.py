@@ -5,8 +5,8 @@ The core works on frames with camera poses in a z-up world (`ndfa.core.conventio
 - **poses**: the recording's own; or, for one without any (a raw sensor recording, meta
   `"poses": "none"`), estimated over the whole session by RGB-D odometry with loop closure
   (`ndfa.trajectory.rgbd`; depth-only KISS-ICP when it has no colour). The frames are checked on
-  the way (`ndfa.trajectory.checks`): time gaps, frames without depth (not given to the odometry;
-  their poses interpolated) and flat views become `notes`, which name the frames; a session none
+  the way (`ndfa.trajectory.checks`): time gaps, frames without depth (their poses interpolated
+  between the tracked frames, not extrapolated) and flat views become `notes`, which name the frames; a session none
   of whose frames can be tracked stops with one line.
 - **up**: a synthetic recording says its world is z-up and is taken at its word. Any other is
   checked: gravity is taken from the IMU when the importer recorded its still readings (a bag with
@@ -179,19 +179,22 @@ def _true_poses(reader: RecordingReader) -> dict[int, np.ndarray]:
 
 def _estimate_poses(reader: RecordingReader) -> tuple[dict[int, np.ndarray], str, list[str]]:
     """Every frame's pose by odometry over the whole session, the method, and warnings about the
-    input (`ndfa.trajectory.checks`). Frames without usable depth are not given to the odometry
-    (there is nothing to register): their poses are interpolated between the tracked frames around
-    them. A session none of whose frames can be tracked stops with one line naming the file."""
+    input (`ndfa.trajectory.checks`). The poses of frames without usable depth are interpolated
+    between the tracked frames around them, not taken from the odometry (which can only extrapolate
+    there); the odometry still sees them, except before the first frame with depth, so that its
+    motion model carries on across them (re-acquiring after a hole went better so than restarting
+    from the last tracked frame: docs/input_checks.md). A session none of whose frames can be
+    tracked stops with one line naming the file."""
     from ndfa.trajectory.checks import InputMonitor, fill_untracked
     from ndfa.trajectory.rewrite import choose_method
 
     monitor = InputMonitor()
-    tracked: list[int] = []  # positions (in the session) of the frames given to the odometry
+    fed: list[int] = []  # positions (in the session) of the frames given to the odometry
 
     def frames():
         for position, frame in enumerate(reader.frames()):
-            if monitor.observe(frame).has_depth:
-                tracked.append(position)
+            if monitor.observe(frame).has_depth or fed:
+                fed.append(position)
                 yield frame
 
     uses_colour = choose_method(reader) == "rgbd"
@@ -209,8 +212,8 @@ def _estimate_poses(reader: RecordingReader) -> tuple[dict[int, np.ndarray], str
     if not monitor.checks:
         return {}, how, []
     poses: list[np.ndarray | None] = [None] * len(monitor.checks)
-    for position, pose in zip(tracked, estimate, strict=True):
-        poses[position] = pose
+    for position, pose in zip(fed, estimate, strict=True):
+        poses[position] = pose if monitor.checks[position].has_depth else None
     filled = fill_untracked([check.timestamp for check in monitor.checks], poses)
     notes = report.warnings(untracked_poses="interpolated between the tracked frames around them")
     return {check.index: pose for check, pose in zip(monitor.checks, filled, strict=True)}, how, notes

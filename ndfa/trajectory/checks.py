@@ -15,10 +15,9 @@ Three kinds of input defeat odometry without it failing outright:
 `InputMonitor.observe(frame)` looks at one frame (its timestamp, depth, colour; a few ms at 320 px
 wide), `InputMonitor.report()` judges the session. A session none of whose frames can be tracked
 (no usable depth anywhere, or only flat untextured views) is `InputReport.untrackable`; callers
-stop there with one line naming the file. Frames without depth are not given to the odometry by the
-callers that can avoid it: their poses are interpolated between the tracked frames around them
-(`fill_untracked`) or held at the last one (`hold_without_depth`, for importers that write each
-frame as it comes).
+stop there with one line naming the file. The poses of frames without depth are not the odometry's
+extrapolation: they are interpolated between the tracked frames around them (`fill_untracked`), or
+held at the last one (`hold_without_depth`, for importers that write each frame as it comes).
 
 Pure: frames in, a report out (no file I/O). docs/input_checks.md shows the warnings.
 """
@@ -307,17 +306,20 @@ def fill_untracked(timestamps: Sequence[float], poses: Sequence[np.ndarray | Non
 
 
 def hold_without_depth(estimate: Callable[[Frame], np.ndarray], monitor: InputMonitor) -> Callable[[Frame], np.ndarray]:
-    """A per-frame pose estimator (an importer's `--poses`) that gives `estimate` only the frames with
-    usable depth and holds the last tracked pose over the others (the frame's own pose, the input's or
-    the identity, before the first tracked frame); every frame is checked with `monitor`."""
+    """A per-frame pose estimator (an importer's `--poses`) that checks every frame with `monitor` and
+    holds the last tracked pose over the frames without usable depth instead of returning the
+    odometry's extrapolation. `estimate` still sees those frames (its motion model carries on across
+    them), except before the first frame with depth, whose own pose (the input's, or the identity)
+    they keep."""
     last: list[np.ndarray] = []
 
     def estimate_checked(frame: Frame) -> np.ndarray:
         check = monitor.observe(frame)
-        if not check.has_depth:
-            return last[-1].copy() if last else np.asarray(frame.pose_world_camera, dtype=np.float64)
+        if not last and not check.has_depth:
+            return np.asarray(frame.pose_world_camera, dtype=np.float64)
         pose = np.asarray(estimate(frame), dtype=np.float64)
-        last[:] = [pose]
-        return pose
+        if check.has_depth or not last:
+            last[:] = [pose]
+        return last[-1].copy()
 
     return estimate_checked
