@@ -33,7 +33,7 @@ class BagScan:
     true_poses: dict[int, np.ndarray]
     ground_truth: dict | None
     imu_frame: str = ""  # the IMU messages' header.frame_id
-    imu: list[tuple[int, np.ndarray]] = field(default_factory=list)  # (stamp, linear acceleration m/s^2, IMU frame)
+    imu: list[tuple[int, np.ndarray]] = field(default_factory=list)  # (stamp, linear acceleration m/s^2 in imu_frame)
 
 
 def scan_bag(reader: AnyReader, path: Path, chosen: dict[str, str], pose_topic: str | None,
