@@ -67,7 +67,7 @@ def test_a_mug_floating_above_the_table_is_rejected():
 
 def test_the_gate_thresholds_are_configurable():
     magazine = _shape(_box((0.21, 0.28, 0.008)))
-    assert rejection(magazine, ObjectnessConfig(min_top_m=0.0, max_length_m=0.5, min_width_ratio=0.0)) is None
+    assert rejection(magazine, ObjectnessConfig(min_top_m=0.0, max_length_m=0.5, min_width_ratio=0.0, min_aspect=0.0)) is None
     with pytest.raises(ValueError):
         ObjectnessConfig(min_top_m=0.2, max_top_m=0.1)
 

@@ -58,7 +58,7 @@ from ndfa.core import conventions
 from ndfa.core.frame import Frame
 from ndfa.core.geometry import backproject
 from ndfa.perception.dbscan import dbscan
-from ndfa.perception.objectness import ClusterShape, ObjectnessConfig, cluster_shape, rejection
+from ndfa.perception.objectness import ClusterShape, ObjectnessConfig, cluster_shape, judge
 from ndfa.perception.planes import Plane, find_horizontal_planes, plane_axes
 from ndfa.perception.split import split_in_two
 
@@ -315,7 +315,7 @@ def _kept_clusters(points: np.ndarray, depths: np.ndarray, cluster_of_point: np.
         shape = cluster_shape(heights, flat, depths[members])
         reason = _size_rejection(shape, flat, config)
         if reason is None and config.objectness is not None:
-            reason = rejection(shape, config.objectness)
+            shape, reason = judge(heights, flat, depths[members], config.objectness)
             if reason == "long" and shape.length_m <= config.split_max_length_m:
                 halves = _split(heights, flat, depths[members], config)
                 if halves is not None:
@@ -352,12 +352,11 @@ def _split(heights: np.ndarray, flat: np.ndarray, depths: np.ndarray, config: Se
     if min(second.sum(), (~second).sum()) < config.min_cluster_points:
         return None
     first = ~second
-    shapes = (cluster_shape(heights[first], flat[first], depths[first]),
-              cluster_shape(heights[second], flat[second], depths[second]))
-    gate = config.objectness
-    if gate is not None and any(rejection(shape, gate) is not None for shape in shapes):
+    (shape_first, reason_first), (shape_second, reason_second) = (
+        judge(heights[half], flat[half], depths[half], config.objectness) for half in (first, second))
+    if reason_first is not None or reason_second is not None:
         return None
-    return second, shapes
+    return second, (shape_first, shape_second)
 
 
 def _hidden_above(depth: np.ndarray, rows: np.ndarray, cols: np.ndarray, config: SegmentationConfig) -> bool:
