@@ -17,8 +17,12 @@ object the detector tracks and may report. The gate keeps clusters of a mug's sc
 - no faces at right angles (`max_right_angles`, views closer than `right_angle_max_depth_m`):
   a box or a book seen from the side shows flat faces at right angles to each other, so the
   horizontal directions of its surface normals cluster at multiples of 90 degrees; a mug's wall
-  is round and its normals turn through half a circle in one view. Measured only on near views,
-  where the depth noise leaves the normals meaningful (`right_angles`).
+  is round and its normals turn through half a circle in one view;
+- not flared (`max_lean`): the wall facing the camera of a bowl leans towards it, its rim
+  several cm nearer than its foot; a mug's wall stands nearly upright (`lean`).
+
+The last two are measured only on views nearer than `near_view_depth_m`, where the depth noise
+leaves normals and a wall's slope meaningful, and only on clusters that pass the other tests.
 
 The footprint is measured along the principal axes of the cluster's horizontal positions, as a
 percentile range (`FOOTPRINT_PERCENTILES`) so that a few stray points do not stretch it. Figures
@@ -59,11 +63,14 @@ class ObjectnessConfig:
     min_aspect: top over the longer side at least this: the synthetic mugs are at least ~0.67 as
         tall as they are wide, their views with the handle 0.66 at the 2nd percentile; bowls
         (4-7 cm tall, 12-18 cm wide), books and low boxes lie below (docs/segmentation.md).
-    max_right_angles, right_angle_max_depth_m, normal_neighbours: a cluster whose median depth is
-        at most `right_angle_max_depth_m` is rejected ("boxy") when `right_angles` (see
-        `right_angles`, 0..1, with normals from `normal_neighbours` nearest points) exceeds
-        `max_right_angles`: near views of boxes and books score 0.6-0.9, of mugs 0.1-0.3.
-        Farther, the depth noise makes the normals of a mug score as high. 0 depth: off.
+    near_view_depth_m: the two tests below apply to clusters whose median depth is at most this;
+        farther, the depth noise (~7 mm at 2 m) makes a mug score like a box or a bowl. 0: off.
+    max_right_angles, normal_neighbours: "boxy" when `right_angles` (0..1, normals from
+        `normal_neighbours` nearest points) exceeds this: near views of boxes and books score
+        0.6-0.9 (median 0.76), of mugs 0.1-0.3 (3% above 0.5).
+    max_lean: "flared" when `lean` (how far the wall facing the camera leans towards it, metres
+        per metre of height) exceeds this: the bowl views that passed every other test lean
+        0.26-0.75, mug views 0.19 at the 98th percentile.
     """
 
     min_top_m: float = 0.05
@@ -75,9 +82,10 @@ class ObjectnessConfig:
     min_width_ratio: float = 0.2
     max_aspect: float = 2.2
     min_aspect: float = 0.62
+    near_view_depth_m: float = 2.0
     max_right_angles: float = 0.5
-    right_angle_max_depth_m: float = 2.0
     normal_neighbours: int = 24
+    max_lean: float = 0.25
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_top_m < self.max_top_m:
@@ -96,7 +104,8 @@ class ClusterShape:
     above the plane. length_m >= width_m: the footprint's extents along its principal axes.
     depth_m: median depth from the camera (how noisy the figures are).
     right_angles: how much the surface normals' horizontal directions agree with one set of
-    right angles (`right_angles`); None: not measured (a far view, or the gate is off).
+    right angles (`right_angles`); lean: how much the wall facing the camera leans towards it
+    (`lean`). None: not measured (a far view, no camera given, or the gate is off).
     """
 
     points: int
@@ -106,6 +115,7 @@ class ClusterShape:
     width_m: float
     depth_m: float
     right_angles: float | None = None
+    lean: float | None = None
 
 
 def cluster_shape(heights: np.ndarray, flat: np.ndarray, depths: np.ndarray) -> ClusterShape:
@@ -152,24 +162,47 @@ def right_angles(heights: np.ndarray, flat: np.ndarray, neighbours: int = 24) ->
     return float(np.abs(np.mean(np.exp(4j * azimuth))))
 
 
+def lean(heights: np.ndarray, flat: np.ndarray, camera_flat: np.ndarray, band_m: float = 0.01) -> float | None:
+    """How far the surface facing the camera leans towards it: minus the slope of its horizontal
+    distance from the camera (`camera_flat`, in the plane's coordinates) over the height above
+    the plane. Per height band of `band_m`, the 10th percentile of the points' horizontal
+    distance stands for the near surface; a line fitted through the bands gives the slope. About
+    0 for an upright wall; a bowl's, which widens from its foot to its rim, 0.3-0.8. None with
+    fewer than three bands of three points."""
+    distance = np.linalg.norm(flat - camera_flat, axis=1)
+    band = np.floor(heights / band_m).astype(np.int64)
+    centres, nearest = [], []
+    for index in np.unique(band):
+        members = band == index
+        if members.sum() >= 3:
+            centres.append((index + 0.5) * band_m)
+            nearest.append(np.percentile(distance[members], 10))
+    if len(centres) < 3:
+        return None
+    return float(-np.polyfit(centres, nearest, 1)[0])
+
+
 def judge(heights: np.ndarray, flat: np.ndarray, depths: np.ndarray,
-          config: ObjectnessConfig | None = ObjectnessConfig()) -> tuple[ClusterShape, str | None]:
-    """The cluster's shape and the gate's verdict (`rejection`; None: a mug, or no gate). The
-    normals (`right_angles`) are measured only for a near view that passed every other test:
-    they cost a neighbour search."""
+          config: ObjectnessConfig | None = ObjectnessConfig(),
+          camera_flat: np.ndarray | None = None) -> tuple[ClusterShape, str | None]:
+    """The cluster's shape and the gate's verdict (`rejection`; None: a mug, or no gate).
+    `camera_flat`: the camera's position in the plane's coordinates (None: no `lean` test). The
+    normals and the lean are measured only for a near view that passed every other test: the
+    normals cost a neighbour search."""
     shape = cluster_shape(heights, flat, depths)
     if config is None:
         return shape, None
     reason = rejection(shape, config)
-    if reason is None and shape.depth_m <= config.right_angle_max_depth_m:
-        shape = replace(shape, right_angles=right_angles(heights, flat, config.normal_neighbours))
+    if reason is None and shape.depth_m <= config.near_view_depth_m:
+        shape = replace(shape, right_angles=right_angles(heights, flat, config.normal_neighbours),
+                        lean=None if camera_flat is None else lean(heights, flat, camera_flat))
         reason = rejection(shape, config)
     return shape, reason
 
 
 def rejection(shape: ClusterShape, config: ObjectnessConfig = ObjectnessConfig()) -> str | None:
     """Why the cluster is not a mug ("flat", "tall", "floating", "long", "short", "thin", "sliver",
-    "column", "squat", "boxy"), or None."""
+    "column", "squat", "boxy", "flared"), or None."""
     if shape.top_m < config.min_top_m:
         return "flat"
     if shape.top_m > config.max_top_m:
@@ -190,4 +223,6 @@ def rejection(shape: ClusterShape, config: ObjectnessConfig = ObjectnessConfig()
         return "squat"
     if shape.right_angles is not None and shape.right_angles > config.max_right_angles:
         return "boxy"
+    if shape.lean is not None and shape.lean > config.max_lean:
+        return "flared"
     return None

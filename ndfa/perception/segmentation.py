@@ -206,7 +206,7 @@ def explain_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig(
     cluster_planes = plane_of_point[candidate]
     cluster_of_point = dbscan(cluster_points, config.dbscan_eps_m, config.dbscan_min_points)
     judged = _kept_clusters(cluster_points, frame.depth[rows[candidate], cols[candidate]], cluster_of_point,
-                            cluster_planes, planes, up, config)
+                            cluster_planes, planes, up, frame.pose_world_camera[:3, 3], config)
     kept = []
     for cluster, verdict in judged:
         cluster_rows = rows[candidate][cluster_of_point == cluster]
@@ -295,7 +295,7 @@ def _cell_keys(flat: np.ndarray, cell: float) -> np.ndarray:
 
 
 def _kept_clusters(points: np.ndarray, depths: np.ndarray, cluster_of_point: np.ndarray, plane_of_point: np.ndarray,
-                   planes: list[Plane], up: np.ndarray, config: SegmentationConfig
+                   planes: list[Plane], up: np.ndarray, camera: np.ndarray, config: SegmentationConfig
                    ) -> list[tuple[int, ClusterVerdict]]:
     """Step 5: every cluster of `min_cluster_points` with its verdict (kept: `rejected` is None),
     largest first. A cluster's top is its 95th percentile of height (one noisy point does not make
@@ -303,6 +303,7 @@ def _kept_clusters(points: np.ndarray, depths: np.ndarray, cluster_of_point: np.
     in place: its second half takes a new cluster index."""
     clusters, sizes = np.unique(cluster_of_point[cluster_of_point >= 0], return_counts=True)
     axes = plane_axes(up)
+    camera_flat = camera @ axes.T
     next_cluster = int(clusters.max()) + 1 if len(clusters) else 0
     judged = []
     for cluster, size in sorted(zip(clusters.tolist(), sizes.tolist()), key=lambda c: -c[1]):
@@ -315,9 +316,9 @@ def _kept_clusters(points: np.ndarray, depths: np.ndarray, cluster_of_point: np.
         shape = cluster_shape(heights, flat, depths[members])
         reason = _size_rejection(shape, flat, config)
         if reason is None and config.objectness is not None:
-            shape, reason = judge(heights, flat, depths[members], config.objectness)
+            shape, reason = judge(heights, flat, depths[members], config.objectness, camera_flat)
             if reason == "long" and shape.length_m <= config.split_max_length_m:
-                halves = _split(heights, flat, depths[members], config)
+                halves = _split(heights, flat, depths[members], camera_flat, config)
                 if halves is not None:
                     second, shapes = halves
                     cluster_of_point[members[second]] = next_cluster
@@ -344,8 +345,8 @@ def _size_rejection(shape: ClusterShape, flat: np.ndarray, config: SegmentationC
     return None
 
 
-def _split(heights: np.ndarray, flat: np.ndarray, depths: np.ndarray, config: SegmentationConfig
-           ) -> tuple[np.ndarray, tuple[ClusterShape, ClusterShape]] | None:
+def _split(heights: np.ndarray, flat: np.ndarray, depths: np.ndarray, camera_flat: np.ndarray,
+           config: SegmentationConfig) -> tuple[np.ndarray, tuple[ClusterShape, ClusterShape]] | None:
     """Two touching mugs: the cluster's 2-means halves (second-half mask and both shapes) if both
     have `min_cluster_points` and pass the objectness gate, else None."""
     second = split_in_two(flat)
@@ -353,7 +354,7 @@ def _split(heights: np.ndarray, flat: np.ndarray, depths: np.ndarray, config: Se
         return None
     first = ~second
     (shape_first, reason_first), (shape_second, reason_second) = (
-        judge(heights[half], flat[half], depths[half], config.objectness) for half in (first, second))
+        judge(heights[half], flat[half], depths[half], config.objectness, camera_flat) for half in (first, second))
     if reason_first is not None or reason_second is not None:
         return None
     return second, (shape_first, shape_second)
