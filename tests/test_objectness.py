@@ -13,7 +13,7 @@ import pytest
 from ndfa.core.frame import Frame
 from ndfa.core.geometry import make_pose, matrix_from_quaternion_xyzw
 from ndfa.perception.dbscan import dbscan
-from ndfa.perception.objectness import ObjectnessConfig, cluster_shape, rejection
+from ndfa.perception.objectness import ObjectnessConfig, cluster_shape, judge, rejection
 from ndfa.perception.segmentation import SegmentationConfig, _world_points, explain_frame
 from ndfa.perception.split import split_in_two
 
@@ -58,6 +58,62 @@ def test_the_gate_rejects_clutter(size, reason):
     assert rejection(_shape(_box(size))) == reason
 
 
+def _box_corner(size_xy=(0.08, 0.06), height=0.12, spacing=0.004):
+    """The two walls of a box that a camera looking at one of its corners sees (x = 0 and y = 0)."""
+    z = np.arange(0.012, height, spacing)
+    along_x, along_y = np.arange(0.0, size_xy[0], spacing), np.arange(spacing, size_xy[1], spacing)
+    wall_y0 = np.stack(np.meshgrid(along_x, [0.0], z), axis=-1).reshape(-1, 3)
+    wall_x0 = np.stack(np.meshgrid([0.0], along_y, z), axis=-1).reshape(-1, 3)
+    return np.concatenate([wall_y0, wall_x0])
+
+
+def _bowl_front(spacing=0.004):
+    """The front of a bowl's wall (foot radius 3 cm, widening by 5 mm per cm of height to 6.3 cm at
+    its 6.5 cm rim), ±50 degrees about the direction of a camera on the -y side: what a low camera
+    segments of a bowl whose rim's sides and far half are lost."""
+    points = []
+    for z in np.arange(0.012, 0.065, spacing):
+        radius = 0.03 + 0.5 * z
+        for angle in np.arange(-0.87, 0.87, spacing / radius):
+            points.append((radius * np.sin(angle), -radius * np.cos(angle), z))
+    return np.array(points)
+
+
+def _judge(points, camera_flat=(0.0, -1.2)):
+    return judge(points[:, 2], points[:, :2], np.full(len(points), 1.2), ObjectnessConfig(), np.array(camera_flat))
+
+
+def test_a_near_box_of_mug_size_is_boxy_and_a_mug_is_not():
+    """A box of a mug's size passes the size tests; its walls meet at a right angle."""
+    box = _box_corner()
+    assert rejection(_shape(box)) is None
+    shape, reason = _judge(box, camera_flat=(-0.8, -0.8))
+    assert reason == "boxy" and shape.right_angles > 0.8  # the corner itself mixes the two walls
+    shape, reason = _judge(_mug_front((0.0, 0.0)))
+    assert reason is None and shape.right_angles < 0.2
+    # Far away the normals are not measured (the depth noise would make a mug look boxy too).
+    far = judge(box[:, 2], box[:, :2], np.full(len(box), 3.0))
+    assert far[1] is None and far[0].right_angles is None
+
+
+def test_the_front_of_a_bowl_is_flared_and_a_mug_is_upright():
+    bowl = _bowl_front()
+    assert rejection(_shape(bowl)) is None  # a mug's height and footprint
+    shape, reason = _judge(bowl)
+    assert reason == "flared" and shape.lean > 0.4
+    shape, reason = _judge(_mug_front((0.0, 0.0)))
+    assert reason is None and abs(shape.lean) < 0.05
+    assert judge(bowl[:, 2], bowl[:, :2], np.full(len(bowl), 1.2))[1] is None  # no camera: no lean test
+
+
+@pytest.mark.parametrize("size, reason", [
+    ((0.12, 0.12, 0.06), "squat"),      # a bowl or a low box: wider than a mug of its height
+    ((0.08, 0.07, 0.14), "tall"),       # a tall box: taller than the tallest mug (13 cm)
+])
+def test_clutter_of_a_mug_footprint_is_rejected(size, reason):
+    assert rejection(_shape(_box(size))) == reason
+
+
 def test_a_mug_floating_above_the_table_is_rejected():
     mug = _mug_front((0.0, 0.0))
     assert rejection(_shape(mug + [0.0, 0.0, 0.06])) in ("floating", "tall")
@@ -67,7 +123,7 @@ def test_a_mug_floating_above_the_table_is_rejected():
 
 def test_the_gate_thresholds_are_configurable():
     magazine = _shape(_box((0.21, 0.28, 0.008)))
-    assert rejection(magazine, ObjectnessConfig(min_top_m=0.0, max_length_m=0.5, min_width_ratio=0.0)) is None
+    assert rejection(magazine, ObjectnessConfig(min_top_m=0.0, max_length_m=0.5, min_width_ratio=0.0, min_aspect=0.0)) is None
     with pytest.raises(ValueError):
         ObjectnessConfig(min_top_m=0.2, max_top_m=0.1)
 

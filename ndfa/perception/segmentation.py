@@ -34,9 +34,9 @@ rest with DBSCAN; this is that, for one frame at a time:
    `fill_distance_m` and the pixel lies above the plane; others stay 0. The mask thus follows the
    object's silhouette at full resolution, not the sample grid's blocks.
 
-On the `paper` scene (640x480, stride 2) this recovers 90% of the mug views with >= 200 pixels
+On the `paper` scene (640x480, stride 2) this recovers 87% of the mug views with >= 200 pixels
 of depth as one segment with IoU >= 0.5 (`segmentation_recall` in `segmentation_scoring`, `ndfa bench segment`); 94.7%
-without the gate and the border test. The other misses are mostly mugs 3+ m away, where the depth
+without the gate and the border test (the gate's clutter tests cost 3 points: docs/segmentation.md). The other misses are mostly mugs 3+ m away, where the depth
 noise (~17 mm) is a fifth of a mug. Known limits:
 mugs closer than `dbscan_eps_m` merge; the inside of a mug, cut off from its body by the sensor's
 dropout at the rim, can become a segment of its own (small: the pipeline's `min_pixels` skips it).
@@ -58,7 +58,7 @@ from ndfa.core import conventions
 from ndfa.core.frame import Frame
 from ndfa.core.geometry import backproject
 from ndfa.perception.dbscan import dbscan
-from ndfa.perception.objectness import ClusterShape, ObjectnessConfig, cluster_shape, rejection
+from ndfa.perception.objectness import ClusterShape, ObjectnessConfig, cluster_shape, judge
 from ndfa.perception.planes import Plane, find_horizontal_planes, plane_axes
 from ndfa.perception.split import split_in_two
 
@@ -206,7 +206,7 @@ def explain_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig(
     cluster_planes = plane_of_point[candidate]
     cluster_of_point = dbscan(cluster_points, config.dbscan_eps_m, config.dbscan_min_points)
     judged = _kept_clusters(cluster_points, frame.depth[rows[candidate], cols[candidate]], cluster_of_point,
-                            cluster_planes, planes, up, config)
+                            cluster_planes, planes, up, frame.pose_world_camera[:3, 3], config)
     kept = []
     for cluster, verdict in judged:
         cluster_rows = rows[candidate][cluster_of_point == cluster]
@@ -295,7 +295,7 @@ def _cell_keys(flat: np.ndarray, cell: float) -> np.ndarray:
 
 
 def _kept_clusters(points: np.ndarray, depths: np.ndarray, cluster_of_point: np.ndarray, plane_of_point: np.ndarray,
-                   planes: list[Plane], up: np.ndarray, config: SegmentationConfig
+                   planes: list[Plane], up: np.ndarray, camera: np.ndarray, config: SegmentationConfig
                    ) -> list[tuple[int, ClusterVerdict]]:
     """Step 5: every cluster of `min_cluster_points` with its verdict (kept: `rejected` is None),
     largest first. A cluster's top is its 95th percentile of height (one noisy point does not make
@@ -303,6 +303,7 @@ def _kept_clusters(points: np.ndarray, depths: np.ndarray, cluster_of_point: np.
     in place: its second half takes a new cluster index."""
     clusters, sizes = np.unique(cluster_of_point[cluster_of_point >= 0], return_counts=True)
     axes = plane_axes(up)
+    camera_flat = camera @ axes.T
     next_cluster = int(clusters.max()) + 1 if len(clusters) else 0
     judged = []
     for cluster, size in sorted(zip(clusters.tolist(), sizes.tolist()), key=lambda c: -c[1]):
@@ -315,9 +316,9 @@ def _kept_clusters(points: np.ndarray, depths: np.ndarray, cluster_of_point: np.
         shape = cluster_shape(heights, flat, depths[members])
         reason = _size_rejection(shape, flat, config)
         if reason is None and config.objectness is not None:
-            reason = rejection(shape, config.objectness)
+            shape, reason = judge(heights, flat, depths[members], config.objectness, camera_flat)
             if reason == "long" and shape.length_m <= config.split_max_length_m:
-                halves = _split(heights, flat, depths[members], config)
+                halves = _split(heights, flat, depths[members], camera_flat, config)
                 if halves is not None:
                     second, shapes = halves
                     cluster_of_point[members[second]] = next_cluster
@@ -344,20 +345,19 @@ def _size_rejection(shape: ClusterShape, flat: np.ndarray, config: SegmentationC
     return None
 
 
-def _split(heights: np.ndarray, flat: np.ndarray, depths: np.ndarray, config: SegmentationConfig
-           ) -> tuple[np.ndarray, tuple[ClusterShape, ClusterShape]] | None:
+def _split(heights: np.ndarray, flat: np.ndarray, depths: np.ndarray, camera_flat: np.ndarray,
+           config: SegmentationConfig) -> tuple[np.ndarray, tuple[ClusterShape, ClusterShape]] | None:
     """Two touching mugs: the cluster's 2-means halves (second-half mask and both shapes) if both
     have `min_cluster_points` and pass the objectness gate, else None."""
     second = split_in_two(flat)
     if min(second.sum(), (~second).sum()) < config.min_cluster_points:
         return None
     first = ~second
-    shapes = (cluster_shape(heights[first], flat[first], depths[first]),
-              cluster_shape(heights[second], flat[second], depths[second]))
-    gate = config.objectness
-    if gate is not None and any(rejection(shape, gate) is not None for shape in shapes):
+    (shape_first, reason_first), (shape_second, reason_second) = (
+        judge(heights[half], flat[half], depths[half], config.objectness, camera_flat) for half in (first, second))
+    if reason_first is not None or reason_second is not None:
         return None
-    return second, shapes
+    return second, (shape_first, shape_second)
 
 
 def _hidden_above(depth: np.ndarray, rows: np.ndarray, cols: np.ndarray, config: SegmentationConfig) -> bool:
