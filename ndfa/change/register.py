@@ -186,14 +186,15 @@ def verify_prior(
     target_centers: dict[int, np.ndarray],
     source_centers: dict[int, np.ndarray],
     inlier_m: float,
-    refine_from: int,
+    support_m: float,
 ) -> Registration:
-    """The prior's support among candidate (target id, source id) pairs, by RANSAC's inlier rule.
+    """The prior, verified and refined by candidate (target id, source id) pairs.
 
-    With `refine_from` inliers or more, the prior is corrected by the turn about z and shift that
-    best fits its inliers (`yaw_transform`), and the correction is kept when it loses none of
-    them; with fewer, the prior stands as given (a fit to two or three object centers, which
-    scatter by centimetres, is no better than a scene-level alignment or a shared world).
+    A prior carries its own error (a shared world: the poses'; a scene alignment: its voxels and
+    the drift of the poses it fused), so the pairs within `support_m` of where it puts them
+    support it; with two or more, it is corrected by the turn about z and shift that best fits
+    them (`yaw_transform`), kept when it has at least the prior's own inliers. Its inliers are
+    then counted by RANSAC's rule (within `inlier_m`, each object once).
     """
     transform = np.asarray(prior.transform, dtype=np.float64)
     if not pairs:
@@ -203,8 +204,9 @@ def verify_prior(
     target_ids = np.array([a for a, _ in pairs])
     source_ids = np.array([b for _, b in pairs])
     inliers = _unique_inliers(transform, t, s, target_ids, source_ids, inlier_m)
-    if len(inliers) >= max(refine_from, 2):
-        refined = yaw_transform(apply(transform, t[inliers]), s[inliers]) @ transform
+    support = _unique_inliers(transform, t, s, target_ids, source_ids, support_m)
+    if len(support) >= 2:
+        refined = yaw_transform(apply(transform, t[support]), s[support]) @ transform
         refined_inliers = _unique_inliers(refined, t, s, target_ids, source_ids, inlier_m)
         if len(refined_inliers) >= len(inliers):
             transform, inliers = refined, refined_inliers

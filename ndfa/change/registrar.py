@@ -129,7 +129,7 @@ class Registrar:
                                and self._agrees_with_priors(result, pairs, target_centers)))
         for prior in self.priors:
             result = verify_prior(prior, pairs, target_centers, source_centers, self.config.inlier_m,
-                                  refine_from=self.config.min_inliers)
+                                  support_m=self.config.prior_support_m)
             candidates.append((result, len(result.inliers) >= self.config.prior_min_inliers))
         passing = [r for r, ok in candidates if ok and r is not None]
         best = max(passing, key=lambda r: len(r.inliers), default=None)  # the first (RANSAC's) on a tie

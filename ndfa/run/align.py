@@ -76,12 +76,18 @@ class SceneAlignment:
 
     def describe(self) -> str:
         verdict = "proposed" if self.ok else "not proposed"
-        return (f"{self.method} {verdict}: {self.reason}; fitness {self.fitness:.2f}, rmse {self.rmse_m * 100:.1f} cm, "
+        if not np.isfinite(self.fitness):
+            return f"{self.method} {verdict}: {self.reason}"
+        rmse = f", rmse {self.rmse_m * 100:.1f} cm" if np.isfinite(self.rmse_m) else ""
+        return (f"{self.method} {verdict}: {self.reason}; fitness {self.fitness:.2f}{rmse}, "
                 f"{self.points[0]} / {self.points[1]} points, {self.seconds:.1f} s")
 
     def as_dict(self) -> dict:
-        return {"method": self.method, "ok": self.ok, "reason": self.reason, "fitness": round(self.fitness, 4),
-                "rmse_m": round(self.rmse_m, 4), "points": list(self.points), "seconds": round(self.seconds, 2),
+        def number(value: float) -> float | None:  # JSON has no NaN
+            return None if not np.isfinite(value) else round(float(value), 4)
+
+        return {"method": self.method, "ok": self.ok, "reason": self.reason, "fitness": number(self.fitness),
+                "rmse_m": number(self.rmse_m), "points": list(self.points), "seconds": round(self.seconds, 2),
                 "transform": None if self.transform is None else [round(float(v), 6) for v in self.transform.ravel()]}
 
 

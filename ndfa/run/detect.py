@@ -80,8 +80,9 @@ class DetectionResult:
         if self.registration is None:
             return "registration: none found"
         r = self.registration
-        return (f"registration: {r['method']}, {r['inliers']} inlier object pairs of {r['pairs']}, residual "
-                f"{r['residual_m'] * 100:.1f} cm, from target frame {r['frame']}")
+        residual = "" if r["residual_m"] is None else f", residual {r['residual_m'] * 100:.1f} cm"
+        return (f"registration: {r['method']}, {r['inliers']} inlier object pairs of {r['pairs']}{residual}, "
+                f"from target frame {r['frame']}")
 
 
 def open_pair(source: Path, target: Path, segment: bool = True) -> tuple[RecordingReader, RecordingReader, list[str]]:
@@ -217,7 +218,8 @@ def run_detection(
 
 def _registration_summary(event: RegistrationEvent) -> dict:
     return {"method": event.method, "inliers": len(event.inlier_pairs), "pairs": event.n_pairs,
-            "residual_m": round(float(event.residual_m), 4), "frame": event.frame_index,
+            "residual_m": round(float(event.residual_m), 4) if np.isfinite(event.residual_m) else None,
+            "frame": event.frame_index,
             "inlier_pairs": [list(p) for p in event.inlier_pairs]}
 
 
