@@ -30,7 +30,10 @@ class AssociationConfig:
 
 @dataclass(frozen=True)
 class RegistrationConfig:
-    """T_rel, target world -> source world (Sec. IV-B), from objects matched by shape."""
+    """T_rel, target world -> source world (Sec. IV-B), from objects matched by shape.
+
+    Prior hypotheses (`ndfa.change.register.RegistrationPrior`) are not fitted to the pairs, so
+    fewer agreeing pairs accept one than a RANSAC fit; the pairs near it refine it first."""
 
     pairs: int = 6                # N: target objects with a shape match before the first attempt
     candidates: int = 10          # shape matches per target object offered to RANSAC (paper 1)
@@ -39,6 +42,8 @@ class RegistrationConfig:
     enough_inliers: int = 12      # T_rel is re-estimated as target objects arrive until it has this many
     retry_frames: int = 10        # before T_rel exists: an attempt per new target object, else every this many frames
     seed: int = 0                 # RANSAC's sampling
+    prior_min_inliers: int = 2    # inliers needed to accept a prior hypothesis (shared world, scene alignment)
+    prior_support_m: float = 0.10  # pairs this close to where a prior puts them refine it (its own error)
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,7 @@ from ndfa.change.config import DetectorConfig
 from ndfa.change.describe import graph_event, tree_event
 from ndfa.change.graph import local_graph
 from ndfa.change.policy import DecisionPolicy
-from ndfa.change.register import Registration, apply
+from ndfa.change.register import Registration, RegistrationPrior, apply
 from ndfa.change.registrar import Registrar
 from ndfa.change.verdict import graph_verdict, shape_verdict
 from ndfa.core.events import AssociationEvent, DecisionEvent, DecisionKind, Event, Session
@@ -50,6 +50,10 @@ class ChangeDetector:
     def registration(self) -> Registration | None:
         """T_rel (target world -> source world), once one is accepted."""
         return self.registrar.registration
+
+    def add_registration_prior(self, prior: RegistrationPrior) -> None:
+        """A T_rel hypothesis from outside the object maps (`ndfa.change.registrar`); before the target pass."""
+        self.registrar.add_prior(prior)
 
     # -- the two passes -------------------------------------------------------------------------
 

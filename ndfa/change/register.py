@@ -13,6 +13,10 @@ threshold), and a sample is only fitted when its pairwise distances agree in bot
 (a rigid motion keeps them); one right pair per object is then enough, and the layout of the
 objects, not their codes alone, picks the transform. When RANSAC runs, and when its result
 replaces the current T_rel, is `ndfa.change.registrar`'s business.
+
+A prior hypothesis (`verify_prior`) is a T_rel proposed from outside the object maps (both
+sessions share one world; the sessions' scene clouds were aligned): it is not fitted to the pairs,
+so the pairs only verify it, by the same inlier rule, and refine it once enough of them agree.
 """
 
 from __future__ import annotations
@@ -23,7 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ndfa.core.geometry import kabsch
+from ndfa.core.events import RegistrationMethod
+from ndfa.core.geometry import kabsch, make_pose, rotation_z
 
 
 @dataclass(frozen=True)
@@ -35,6 +40,15 @@ class Registration:
     residual_m: float           # RMS distance of the inlier pairs after the fit
     n_pairs: int                # candidate pairs it was chosen from
     n_hypotheses: int           # minimal samples fitted
+    method: RegistrationMethod = "object pairs"
+
+
+@dataclass(frozen=True)
+class RegistrationPrior:
+    """A T_rel hypothesis (target world -> source world, (4, 4)) from outside the object maps."""
+
+    method: RegistrationMethod
+    transform: np.ndarray
 
 
 def rigid_transform(target: np.ndarray, source: np.ndarray) -> np.ndarray:
@@ -43,6 +57,20 @@ def rigid_transform(target: np.ndarray, source: np.ndarray) -> np.ndarray:
     target, source: (M, 3) corresponding points, M >= 3 and not all on one line.
     """
     return kabsch(target, source)[0]
+
+
+def yaw_transform(target: np.ndarray, source: np.ndarray) -> np.ndarray:
+    """(4, 4) rotation about z + translation minimising sum |R target_i + t - source_i|^2.
+
+    Both worlds are z-up (`ndfa.core.conventions`), so a turn about z and a shift is all that can
+    separate them; two points (not one above the other) determine it, where Kabsch's 6-DoF fit
+    needs three and tilts with the noise of near-coplanar centers.
+    """
+    a = target - target.mean(axis=0)
+    b = source - source.mean(axis=0)
+    yaw = np.arctan2(np.sum(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]), np.sum(a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]))
+    rotation = rotation_z(float(yaw))
+    return make_pose(rotation, source.mean(axis=0) - rotation @ target.mean(axis=0))
 
 
 def apply(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -150,3 +178,36 @@ def _rms(transform: np.ndarray, t: np.ndarray, s: np.ndarray) -> float:
     if len(t) == 0:
         return float("nan")
     return float(np.sqrt(np.mean(np.sum((apply(transform, t) - s) ** 2, axis=1))))
+
+
+def verify_prior(
+    prior: RegistrationPrior,
+    pairs: list[tuple[int, int]],
+    target_centers: dict[int, np.ndarray],
+    source_centers: dict[int, np.ndarray],
+    inlier_m: float,
+    support_m: float,
+) -> Registration:
+    """The prior, verified and refined by candidate (target id, source id) pairs.
+
+    A prior carries its own error (a shared world: the poses'; a scene alignment: its voxels and
+    the drift of the poses it fused), so the pairs within `support_m` of where it puts them
+    support it; with two or more, it is corrected by the turn about z and shift that best fits
+    them (`yaw_transform`), kept when it has at least the prior's own inliers. Its inliers are
+    then counted by RANSAC's rule (within `inlier_m`, each object once).
+    """
+    transform = np.asarray(prior.transform, dtype=np.float64)
+    if not pairs:
+        return Registration(transform, np.zeros(0, dtype=int), float("nan"), 0, 1, prior.method)
+    t = np.array([target_centers[a] for a, _ in pairs], dtype=np.float64)
+    s = np.array([source_centers[b] for _, b in pairs], dtype=np.float64)
+    target_ids = np.array([a for a, _ in pairs])
+    source_ids = np.array([b for _, b in pairs])
+    inliers = _unique_inliers(transform, t, s, target_ids, source_ids, inlier_m)
+    support = _unique_inliers(transform, t, s, target_ids, source_ids, support_m)
+    if len(support) >= 2:
+        refined = yaw_transform(apply(transform, t[support]), s[support]) @ transform
+        refined_inliers = _unique_inliers(refined, t, s, target_ids, source_ids, inlier_m)
+        if len(refined_inliers) >= len(inliers):
+            transform, inliers = refined, refined_inliers
+    return Registration(transform, inliers, _rms(transform, t[inliers], s[inliers]), len(pairs), 1, prior.method)

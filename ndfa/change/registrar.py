@@ -6,6 +6,13 @@ Until T_rel exists, an estimate is tried when a target object is created and oth
 target object triggers a re-estimate while T_rel has fewer than `enough_inliers` inliers, and the
 new estimate replaces it only with more inliers (decisions already made used it). The estimate
 itself is `ndfa.change.register.ransac_registration` on shape-matched (target, source) pairs.
+
+Prior hypotheses (`add_prior`: the sessions share one world, or their scene clouds were aligned)
+are scored at every attempt by the same pairs (`ndfa.change.register.verify_prior`), also before
+there are N of them: with few objects (two mugs on a table) RANSAC never gets its N, but a prior
+that two pairs agree with is a T_rel. Each candidate must pass its own bar (RANSAC `min_inliers`, a
+prior `prior_min_inliers`, and a RANSAC fit must agree with a prior where there is one); the one
+with most inliers wins, RANSAC's on a tie.
 """
 
 from __future__ import annotations
@@ -16,7 +23,7 @@ import numpy as np
 
 from ndfa.change.associate import Association, SessionMap, cosine_similarity
 from ndfa.change.config import RegistrationConfig
-from ndfa.change.register import Registration, apply, ransac_registration
+from ndfa.change.register import Registration, RegistrationPrior, apply, ransac_registration, verify_prior
 from ndfa.change.tree import Cell, in_cell
 from ndfa.core.events import RegistrationEvent
 
@@ -64,6 +71,7 @@ class Registrar:
         self.shape_similarity = shape_similarity
         self.source, self.target = source, target
         self.registration: Registration | None = None
+        self.priors: list[RegistrationPrior] = []
         self.centers = RegisteredCenters()
         self._last_try_frame = -(10**9)  # the last attempt before T_rel exists
 
@@ -103,28 +111,53 @@ class Registrar:
             pairs += [(target_id, int(source_ids[j])) for j in order if similarity[j] > self.shape_similarity]
         return pairs
 
+    def add_prior(self, prior: RegistrationPrior) -> None:
+        """A T_rel hypothesis from outside the object maps, verified by the pairs at every attempt."""
+        self.priors.append(prior)
+
     def _estimate(self, frame_index: int) -> list[RegistrationEvent]:
         source, target = self.source, self.target
         pairs = self.shape_pairs()
+        target_centers = {i: o.center_world for i, o in target.objects.items()}
+        source_centers = {i: o.center_world for i, o in source.objects.items()}
+        candidates: list[tuple[Registration | None, bool]] = []  # (estimate, passes its bar)
         # A small source map may have fewer objects than N: then all of them are enough.
-        if len({t for t, _ in pairs}) < min(self.config.pairs, len(source.objects)):
-            return []
-        result = ransac_registration(
-            pairs,
-            {i: o.center_world for i, o in target.objects.items()},
-            {i: o.center_world for i, o in source.objects.items()},
-            self.config.inlier_m, seed=self.config.seed)
+        if len({t for t, _ in pairs}) >= min(self.config.pairs, len(source.objects)):
+            result = ransac_registration(pairs, target_centers, source_centers, self.config.inlier_m,
+                                         seed=self.config.seed)
+            candidates.append((result, result is not None and len(result.inliers) >= self.config.min_inliers
+                               and self._agrees_with_priors(result, pairs, target_centers)))
+        for prior in self.priors:
+            result = verify_prior(prior, pairs, target_centers, source_centers, self.config.inlier_m,
+                                  support_m=self.config.prior_support_m)
+            candidates.append((result, len(result.inliers) >= self.config.prior_min_inliers))
+        passing = [r for r, ok in candidates if ok and r is not None]
+        best = max(passing, key=lambda r: len(r.inliers), default=None)  # the first (RANSAC's) on a tie
+        if best is not None and (self.registration is None or len(best.inliers) > len(self.registration.inliers)):
+            self.registration = best
+        return [self._event(frame_index, pairs, r, accepted=r is not None and r is self.registration and r is best)
+                for r, _ in candidates]
+
+    def _agrees_with_priors(self, result: Registration, pairs: list[tuple[int, int]],
+                            target_centers: dict[int, np.ndarray]) -> bool:
+        """With no prior, any estimate; else one that puts its inliers' target centers within 2 inlier_m
+        of where some prior puts them (few objects make layouts that fit by chance; the scene does not)."""
+        if not self.priors:
+            return True
+        centers = np.array([target_centers[pairs[i][0]] for i in result.inliers]).reshape(-1, 3)
+        return any(np.max(np.linalg.norm(apply(result.transform, centers) - apply(p.transform, centers), axis=1))
+                   <= 2 * self.config.inlier_m for p in self.priors)
+
+    def _event(self, frame_index: int, pairs: list[tuple[int, int]], result: Registration | None,
+               accepted: bool) -> RegistrationEvent:
+        source, target = self.source, self.target
         if result is None:
-            return [RegistrationEvent(frame_index=frame_index, accepted=False, n_pairs=len(pairs), n_hypotheses=0,
-                                      transform=None, inlier_pairs=(), residual_m=float("nan"),
-                                      target_centers=np.zeros((0, 3)), source_centers=np.zeros((0, 3)))]
-        accepted = len(result.inliers) >= self.config.min_inliers and (
-            self.registration is None or len(result.inliers) > len(self.registration.inliers))
-        if accepted:
-            self.registration = result
+            return RegistrationEvent(frame_index=frame_index, accepted=False, n_pairs=len(pairs), n_hypotheses=0,
+                                     transform=None, inlier_pairs=(), residual_m=float("nan"),
+                                     target_centers=np.zeros((0, 3)), source_centers=np.zeros((0, 3)))
         inlier_pairs = tuple(pairs[i] for i in result.inliers)
-        return [RegistrationEvent(
+        return RegistrationEvent(
             frame_index=frame_index, accepted=accepted, n_pairs=len(pairs), n_hypotheses=result.n_hypotheses,
-            transform=result.transform, inlier_pairs=inlier_pairs, residual_m=result.residual_m,
+            transform=result.transform, inlier_pairs=inlier_pairs, residual_m=result.residual_m, method=result.method,
             target_centers=np.array([target.objects[t].center_world for t, _ in inlier_pairs]).reshape(-1, 3),
-            source_centers=np.array([source.objects[s].center_world for _, s in inlier_pairs]).reshape(-1, 3))]
+            source_centers=np.array([source.objects[s].center_world for _, s in inlier_pairs]).reshape(-1, 3))

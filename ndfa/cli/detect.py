@@ -44,6 +44,12 @@ def detect_command(
     poses: str = typer.Option("auto", help="Camera poses: auto (the recording's; estimated by odometry when it has "
                                            "none) | given (never estimate) | estimate (always) | truth (a "
                                            "simulated recording's true poses: to score segmentation alone)."),
+    registration: str = typer.Option("auto", help="T_rel between the sessions: auto (shape-matched object pairs, "
+                                     "plus a hypothesis they verify: the shared world when both sessions' poses "
+                                     "are given and their scene clouds agree, the alignment of the scene clouds "
+                                     "when poses were estimated) | objects (the paper's object pairs alone) | "
+                                     "shared-world (both poses are in one world: trust it) | scene (align the "
+                                     "scene clouds whatever the poses)."),
     threads: Optional[int] = typer.Option(None, help="Torch CPU threads for the NDF (default: torch's, one per core). "
                                                      "1 when other jobs share the cores: oversubscribed, 2 threads "
                                                      "ran ~10x slower than 1."),
@@ -78,6 +84,10 @@ def detect_command(
         raise typer.BadParameter(f"--up must be one of {', '.join(UP_MODES)}, got {up!r}")
     if poses not in POSE_MODES:
         raise typer.BadParameter(f"--poses must be one of {', '.join(POSE_MODES)}, got {poses!r}")
+    from ndfa.run.align import REGISTRATION_MODES
+
+    if registration not in REGISTRATION_MODES:
+        raise typer.BadParameter(f"--registration must be one of {', '.join(REGISTRATION_MODES)}, got {registration!r}")
     sinks = []
     if log is not None:
         from ndfa.log.rerun_sink import RerunSink
@@ -90,8 +100,11 @@ def detect_command(
         sinks.append(TableSink(tables, changed_instances(truth) if truth and "objects" in truth else None))
     with progress_bar() as progress:
         result = run_detection(source, target, config, sinks, frame_step=frame_step, on_frame=bar_per_label(progress),
-                               up=up, poses=poses,
-                               on_world=lambda world: err_console.print(f"world {world.describe()}", highlight=False))
+                               up=up, poses=poses, registration=registration,
+                               on_world=lambda world: err_console.print(f"world {world.describe()}", highlight=False),
+                               on_alignment=lambda a: err_console.print(f"registration prior: {a.describe()}",
+                                                                        highlight=False))
+    err_console.print(result.describe_registration(), highlight=False)
 
     table = Table(title="changes")
     for column in ("kind", "session", "object", "frame", "position (source world)", "masks"):
@@ -105,6 +118,7 @@ def detect_command(
     line = f"objects: source {summary['objects_source']}, target {summary['objects_target']}; " \
            f"target pass {summary['fps']:.1f} frames/s (" + ", ".join(f"{k} {v:.1f} ms" for k, v in summary["stage_ms"].items()) + ")"
     console.print(line)
+    console.print(result.describe_registration(), highlight=False)
     if result.score is not None:
         s = result.score
         console.print(f"ground truth: TP {s.tp}  FP {s.fp}  FN {s.fn}  precision {s.precision:.2f}  recall {s.recall:.2f}")

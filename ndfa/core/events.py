@@ -17,6 +17,9 @@ from ndfa.core.frame import Frame
 Session = Literal["source", "target"]
 DecisionKind = Literal["unchanged", "added", "removed", "moved"]
 GraphMode = Literal["graph", "in place", "fallback"]
+# Where a T_rel came from: RANSAC on shape-matched object pairs (the paper's), or a prior hypothesis
+# the pairs verified: the sessions' shared world, or the alignment of their scene clouds.
+RegistrationMethod = Literal["object pairs", "shared world", "scene alignment"]
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -86,6 +89,7 @@ class RegistrationEvent:
     residual_m: float
     target_centers: np.ndarray               # (K, 3) inlier target centers, target world
     source_centers: np.ndarray               # (K, 3) their source partners, source world
+    method: RegistrationMethod = "object pairs"
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -126,7 +126,7 @@ class RerunSink:
             self.rec.log("registration/inliers", rr.LineStrips3D(np.stack([registered, e.source_centers], axis=1),
                                                                  colors=(255, 255, 0)))
         self.rec.log("registration/log", rr.TextLog(
-            f"frame {e.frame_index}: {'accepted' if e.accepted else 'rejected'}, {len(e.inlier_pairs)} inliers of "
+            f"frame {e.frame_index}: {e.method} {'accepted' if e.accepted else 'rejected'}, {len(e.inlier_pairs)} inliers of "
             f"{e.n_pairs} shape pairs, residual {e.residual_m * 1e3:.1f} mm", level="INFO" if e.accepted else "DEBUG"))
 
     def _GraphEvent(self, e: GraphEvent) -> None:

@@ -80,7 +80,7 @@ class TableSink:
             self._trees[event.session] = event
         elif isinstance(event, RegistrationEvent):
             self.rows["registration"].append({
-                "frame": event.frame_index, "accepted": event.accepted, "pairs": event.n_pairs,
+                "frame": event.frame_index, "method": event.method, "accepted": event.accepted, "pairs": event.n_pairs,
                 "hypotheses": event.n_hypotheses, "inliers": len(event.inlier_pairs), "residual_m": event.residual_m,
                 "inlier_pairs": [list(p) for p in event.inlier_pairs],
                 "transform": _list(event.transform.ravel()) if event.transform is not None else None})

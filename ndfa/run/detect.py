@@ -3,6 +3,10 @@
 This is the I/O shell around `ChangeDetectionPipeline`: it opens and checks the recordings, streams
 their frames (source first, then target), hands every event to every sink, and summarises the
 reported changes (scored when the target carries ground truth).
+
+Before the passes it may hand the detector a scene-level hypothesis of T_rel (`ndfa.run.align`:
+the sessions' shared world, or the alignment of their scene clouds), which the object pairs verify;
+the result says which registration was used and with how many inliers.
 """
 
 from __future__ import annotations
@@ -16,11 +20,12 @@ import numpy as np
 
 from ndfa.change.detector import reported_changes
 from ndfa.core.errors import RecordingError
-from ndfa.core.events import DecisionEvent, Event, FrameEvent, ObservationEvent, TimingEvent
+from ndfa.core.events import DecisionEvent, Event, FrameEvent, ObservationEvent, RegistrationEvent, TimingEvent
 from ndfa.core.progress import LabelledProgress
 from ndfa.eval.scoring import Score, is_visible, score
 from ndfa.io.recording import INSTANCES, RecordingReader
 from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
+from ndfa.run.align import AlignConfig, RegistrationMode, SceneAlignment, registration_prior
 from ndfa.run.world import PoseMode, SessionWorld, UpMode, prepare_session
 
 
@@ -39,6 +44,10 @@ class DetectionResult:
     score: Score | None = None
     notes: list[str] = field(default_factory=list)
     worlds: dict[str, SessionWorld] = field(default_factory=dict)  # poses and up each session ran on
+    registration: dict | None = None             # the accepted T_rel: method, inliers, frame (None: none found)
+    alignment: SceneAlignment | None = None      # the scene-level hypothesis offered to the detector, if any
+    object_centers: dict[str, np.ndarray] = field(default_factory=dict)  # session -> (n, 3) centers, own world
+    object_measurements: dict[str, np.ndarray] = field(default_factory=dict)  # session -> (n,) measurements each
 
     @property
     def target_fps(self) -> float:
@@ -61,8 +70,19 @@ class DetectionResult:
                          "instance_ids": list(c.instance_ids)} for c in self.changes],
             "notes": self.notes,
             "world": {session: world.as_dict() for session, world in self.worlds.items()},
+            "registration": self.registration,
+            "scene_alignment": None if self.alignment is None else self.alignment.as_dict(),
         }
         return out
+
+    def describe_registration(self) -> str:
+        """One line: which registration the target was tested with."""
+        if self.registration is None:
+            return "registration: none found"
+        r = self.registration
+        residual = "" if r["residual_m"] is None else f", residual {r['residual_m'] * 100:.1f} cm"
+        return (f"registration: {r['method']}, {r['inliers']} inlier object pairs of {r['pairs']}{residual}, "
+                f"from target frame {r['frame']}")
 
 
 def open_pair(source: Path, target: Path, segment: bool = True) -> tuple[RecordingReader, RecordingReader, list[str]]:
@@ -100,12 +120,17 @@ def run_detection(
     up: UpMode = "auto",
     poses: PoseMode = "auto",
     on_world: Callable[[SessionWorld], None] | None = None,
+    registration: RegistrationMode = "auto",
+    align: AlignConfig = AlignConfig(),
+    on_alignment: Callable[[SceneAlignment], None] | None = None,
 ) -> DetectionResult:
     """Source pass, target pass, finish. Sinks are closed at the end, also when interrupted.
 
     Before its pass, each session gets what it lacks (`ndfa.run.world`): poses when it has none,
     world up when its world is not known to be z-up (`up`, `poses`: the modes there);
-    `on_world` hears what was used, as soon as it is known."""
+    `on_world` hears what was used, as soon as it is known. Then the scene-level hypothesis of
+    T_rel that `registration` asks for (`ndfa.run.align.registration_prior`) is computed and,
+    when it holds, handed to the detector; `on_alignment` hears it."""
     source_reader, target_reader, notes = open_pair(Path(source), Path(target), segment=config.segmentation is not None)
     worlds = {}
     for session, reader in (("source", source_reader), ("target", target_reader)):
@@ -113,7 +138,15 @@ def run_detection(
         if on_world is not None:
             on_world(worlds[session])
     pipeline = pipeline or ChangeDetectionPipeline(config)
+    alignment = registration_prior(source_reader, target_reader, worlds, registration, align)
+    if alignment is not None:
+        if on_alignment is not None:
+            on_alignment(alignment)
+        prior = alignment.prior()
+        if prior is not None:
+            pipeline.detector.add_registration_prior(prior)
     frames, seconds, stage_totals, decisions, changes = {}, {}, {}, [], []
+    registration_event: RegistrationEvent | None = None  # the last accepted: the T_rel of the last decisions
     visible: dict[str, set[int]] = {"source": set(), "target": set()}  # for scoring (`ndfa.eval.scoring`)
     seen = {"source": SessionCounts(), "target": SessionCounts()}     # to explain a session without objects
     try:
@@ -126,6 +159,8 @@ def run_detection(
                     seen[session].count(event)
                     if isinstance(event, DecisionEvent):
                         decisions.append(event)
+                    if isinstance(event, RegistrationEvent) and event.accepted:
+                        registration_event = event
                     if isinstance(event, ObservationEvent) and is_visible(event.n_pixels):
                         visible[session].add(event.instance_id)
                     if isinstance(event, TimingEvent) and session == "target":
@@ -150,6 +185,12 @@ def run_detection(
     if detector.registration is None and detector.target.objects:
         notes.append("no registration between the sessions was found: no target object was tested, "
                      "so only the source's observed objects could be reported")
+        if alignment is not None and not alignment.ok:
+            notes.append(f"the scene-level hypothesis did not hold ({alignment.describe()})")
+        if alignment is not None and not alignment.ok and alignment.method == "shared world" \
+                and registration == "auto":
+            notes.append("the sessions' poses are given but do not share one world: --registration scene "
+                         "aligns their scene clouds instead")
     result = DetectionResult(
         changes=changes,
         frames=frames,
@@ -158,6 +199,12 @@ def run_detection(
         stage_ms={stage: total / max(frames["target"], 1) for stage, total in stage_totals.items()},
         notes=notes,
         worlds=worlds,
+        registration=None if registration_event is None else _registration_summary(registration_event),
+        alignment=alignment,
+        object_centers={name: np.array([o.center_world for o in m.objects.values()]).reshape(-1, 3)
+                        for name, m in (("source", detector.source), ("target", detector.target))},
+        object_measurements={name: np.array([o.n_measurements for o in m.objects.values()], dtype=int)
+                             for name, m in (("source", detector.source), ("target", detector.target))},
     )
     truth = target_reader.ground_truth
     segmented = not (source_reader.has_instances and target_reader.has_instances)
@@ -167,6 +214,13 @@ def run_detection(
     elif truth is not None and "objects" in truth:
         result.score = score([i for c in changes for i in c.reported_instances], truth, visible)
     return result
+
+
+def _registration_summary(event: RegistrationEvent) -> dict:
+    return {"method": event.method, "inliers": len(event.inlier_pairs), "pairs": event.n_pairs,
+            "residual_m": round(float(event.residual_m), 4) if np.isfinite(event.residual_m) else None,
+            "frame": event.frame_index,
+            "inlier_pairs": [list(p) for p in event.inlier_pairs]}
 
 
 @dataclass

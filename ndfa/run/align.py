@@ -1,0 +1,273 @@
+"""Scene-level hypotheses of T_rel (target world -> source world) for the registrar to verify.
+
+The paper registers the sessions by shape-matched objects alone, which needs N of them; a real
+table with two mugs never gets there. Two things outside the object maps can propose a T_rel,
+which the object pairs then verify (`ndfa.change.register.verify_prior`):
+
+- **shared world**: both sessions' poses live in one world (one dataset, one SLAM map). Each
+  session was levelled on its own (`ndfa.run.world`), so the hypothesis is the source's levelling
+  after the target's undone, not quite the identity. Whether the worlds are shared is checked on
+  the scene (`check_shared_world`): the upright surfaces of the target's fused cloud must lie on
+  the source's under it, and less so when it is nudged.
+- **scene alignment**: poses estimated per session (each world starts at its own first camera,
+  both levelled so z is up): the sessions' fused clouds are aligned globally (FPFH features and
+  RANSAC, Open3D), then by ICP that turns about z and shifts only (both are levelled; 4 DoF).
+
+A fused cloud is the depth of `frames` frames spread over the session, back-projected with the
+poses the detector will use, in the session's levelled world. Why these defaults, and what they
+gave on the kitchen sequence: `docs/detector.md`.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from ndfa.change.register import RegistrationPrior, yaw_transform
+from ndfa.core.conventions import MAX_DEPTH_M, MIN_DEPTH_M
+from ndfa.core.events import RegistrationMethod
+from ndfa.core.geometry import backproject, make_pose, rotation_z
+from ndfa.io.recording import RecordingReader
+from ndfa.run.world import SessionWorld
+
+RegistrationMode = Literal["auto", "objects", "shared-world", "scene"]
+REGISTRATION_MODES: tuple[str, ...] = ("auto", "objects", "shared-world", "scene")
+
+
+@dataclass(frozen=True)
+class AlignConfig:
+    """How the sessions' scene clouds are built and aligned."""
+
+    frames: int = 40                 # frames fused per session, spread over it
+    pixel_stride: int = 8            # every 8th pixel along each axis (80 x 60 of a 640 x 480 frame)
+    voxel_m: float = 0.05            # the fused clouds are thinned to one point per voxel
+    normal_radius_m: float = 0.10    # normals for FPFH: 2 voxels
+    feature_radius_m: float = 0.25   # FPFH neighbourhood: 5 voxels
+    ransac_distance_m: float = 0.10  # a feature match supports a RANSAC hypothesis this close: 2 voxels
+    ransac_iterations: int = 100_000
+    icp_distance_m: float = 0.05     # closest points farther than this are not paired (1 voxel)
+    icp_iterations: int = 30
+    min_fitness: float = 0.4         # scene alignment: share of the target cloud within icp_distance_m of the source's
+    upright_max_nz: float = 0.5      # shared world: points whose normal has |z| below this are upright
+    shared_min_fitness: float = 0.2  # shared world: share of the target's upright points near the source's
+    peak_shift_m: float = 0.10       # shared world: the overlap must be less this far off the hypothesis ...
+    peak_turn_deg: float = 3.0       # ... and turned this much about z
+    seed: int = 0                    # Open3D's RANSAC sampling
+
+
+@dataclass
+class SceneAlignment:
+    """A scene-level T_rel hypothesis and the figures that accepted or rejected it."""
+
+    method: RegistrationMethod       # "shared world" or "scene alignment"
+    ok: bool
+    transform: np.ndarray | None     # (4, 4) target world -> source world (both levelled)
+    fitness: float                   # share of the target cloud within icp_distance_m of the source's
+    rmse_m: float                    # RMS distance of those points
+    points: tuple[int, int]          # (source, target) points of the thinned clouds
+    seconds: float
+    reason: str                      # one line: why it holds or not
+
+    def prior(self) -> RegistrationPrior | None:
+        return RegistrationPrior(self.method, self.transform) if self.ok and self.transform is not None else None
+
+    def describe(self) -> str:
+        verdict = "proposed" if self.ok else "not proposed"
+        if not np.isfinite(self.fitness):
+            return f"{self.method} {verdict}: {self.reason}"
+        rmse = f", rmse {self.rmse_m * 100:.1f} cm" if np.isfinite(self.rmse_m) else ""
+        return (f"{self.method} {verdict}: {self.reason}; fitness {self.fitness:.2f}{rmse}, "
+                f"{self.points[0]} / {self.points[1]} points, {self.seconds:.1f} s")
+
+    def as_dict(self) -> dict:
+        def number(value: float) -> float | None:  # JSON has no NaN
+            return None if not np.isfinite(value) else round(float(value), 4)
+
+        return {"method": self.method, "ok": self.ok, "reason": self.reason, "fitness": number(self.fitness),
+                "rmse_m": number(self.rmse_m), "points": list(self.points), "seconds": round(self.seconds, 2),
+                "transform": None if self.transform is None else [round(float(v), 6) for v in self.transform.ravel()]}
+
+
+def registration_prior(source: RecordingReader, target: RecordingReader, worlds: dict[str, SessionWorld],
+                       mode: RegistrationMode = "auto", config: AlignConfig = AlignConfig()) -> SceneAlignment | None:
+    """The scene-level hypothesis `mode` asks for, or None (`objects`: the paper's object pairs alone).
+
+    auto: the shared world, checked on the scene, when neither session's poses were estimated (two
+    estimates each start their world at their own first camera); the scene alignment when one was.
+    A given-pose pair whose worlds differ gets no hypothesis in `auto` (`scene` asks for one).
+    shared-world: the user's word, unchecked. scene: the global alignment whatever the poses.
+    """
+    if mode not in REGISTRATION_MODES:
+        raise ValueError(f"registration mode must be one of {REGISTRATION_MODES}, got {mode!r}")
+    if mode == "objects":
+        return None
+    shared = shared_world_transform(worlds["source"], worlds["target"])
+    if mode == "shared-world":
+        return SceneAlignment("shared world", True, shared, float("nan"), float("nan"), (0, 0), 0.0,
+                              "as given (--registration shared-world), unchecked")
+    started = time.perf_counter()
+    source_cloud = scene_cloud(source, worlds["source"], config)
+    target_cloud = scene_cloud(target, worlds["target"], config)
+    estimated = worlds["source"].poses is not None or worlds["target"].poses is not None
+    if mode == "auto" and estimated and not (_is_truth(worlds["source"]) and _is_truth(worlds["target"])):
+        mode = "scene"
+    result = align_scenes(source_cloud, target_cloud, config) if mode == "scene" else \
+        check_shared_world(source_cloud, target_cloud, shared, config)
+    result.seconds = time.perf_counter() - started
+    return result
+
+
+def shared_world_transform(source: SessionWorld, target: SessionWorld) -> np.ndarray:
+    """T_rel if both sessions' poses are in one world: each was levelled by its own rotation about
+    the world origin, so a target point goes back through the target's levelling and forward
+    through the source's."""
+    source_levelling = np.eye(3) if source.levelling is None else source.levelling
+    target_levelling = np.eye(3) if target.levelling is None else target.levelling
+    return make_pose(source_levelling @ target_levelling.T, np.zeros(3))
+
+
+def scene_cloud(reader: RecordingReader, world: SessionWorld, config: AlignConfig = AlignConfig()) -> np.ndarray:
+    """(N, 3) the session's depth fused over `config.frames` frames, in its levelled world, one point per voxel."""
+    step = max(1, len(reader) // config.frames)
+    clouds = []
+    for frame in reader.frames(step=step):
+        frame = world.apply(frame)
+        depth = frame.depth[::config.pixel_stride, ::config.pixel_stride]
+        rows, cols = np.nonzero((depth > MIN_DEPTH_M) & (depth < MAX_DEPTH_M))
+        points = backproject(frame.K, rows * config.pixel_stride, cols * config.pixel_stride, depth[rows, cols])
+        pose = frame.pose_world_camera
+        clouds.append(points @ pose[:3, :3].T + pose[:3, 3])
+    cloud = np.concatenate(clouds) if clouds else np.zeros((0, 3))
+    return voxel_thin(cloud, config.voxel_m)
+
+
+def voxel_thin(points: np.ndarray, voxel_m: float) -> np.ndarray:
+    """One point per occupied voxel: the mean of the points in it."""
+    if len(points) == 0:
+        return points
+    keys = np.floor(points / voxel_m).astype(np.int64)
+    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
+    sums = np.zeros((len(counts), 3))
+    np.add.at(sums, inverse.ravel(), points)
+    thinned: np.ndarray = sums / counts[:, None]
+    return thinned
+
+
+def check_shared_world(source_cloud: np.ndarray, target_cloud: np.ndarray, hypothesis: np.ndarray,
+                       config: AlignConfig = AlignConfig()) -> SceneAlignment:
+    """Do the clouds' upright surfaces lie on each other under `hypothesis`, and best there?
+
+    Upright points only (normals off the vertical: walls, furniture, objects): floors and table
+    tops coincide under any shift once both worlds are levelled, so they prove nothing. Best
+    there: shifting the hypothesis by `peak_shift_m` along x or y, or turning it by `peak_turn_deg`,
+    must lose overlap; where it does not, the overlap is surfaces sliding along each other.
+    """
+    points = (len(source_cloud), len(target_cloud))
+    if min(points) < 3:
+        return SceneAlignment("shared world", False, None, 0.0, float("nan"), points, 0.0, "a session has no depth")
+    source_upright, target_upright = upright(source_cloud, config), upright(target_cloud, config)
+    fitness, rmse = overlap(source_upright, target_upright, hypothesis, config.icp_distance_m)
+    if fitness < config.shared_min_fitness:
+        return SceneAlignment("shared world", False, None, fitness, rmse, points, 0.0,
+                              f"the upright surfaces do not overlap under it (fitness below {config.shared_min_fitness})")
+    center = apply_transform(hypothesis, target_upright).mean(axis=0)
+    for dx, dy, turn in ((1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)):
+        rotation = rotation_z(np.radians(turn * config.peak_turn_deg))
+        nudge = make_pose(rotation, center - rotation @ center + config.peak_shift_m * np.array([dx, dy, 0.0]))
+        nudged, _ = overlap(source_upright, target_upright, nudge @ hypothesis, config.icp_distance_m)
+        if nudged >= fitness:
+            return SceneAlignment("shared world", False, None, fitness, rmse, points, 0.0,
+                                  f"not a peak: {nudged:.2f} of the upright surfaces overlap "
+                                  f"{config.peak_shift_m * 100:g} cm or {config.peak_turn_deg:g} deg off it")
+    return SceneAlignment("shared world", True, hypothesis, fitness, rmse, points, 0.0,
+                          "the upright surfaces overlap under it, and less when it is shifted or turned")
+
+
+def upright(cloud: np.ndarray, config: AlignConfig = AlignConfig()) -> np.ndarray:
+    """The points whose surface normal is off the vertical (|n_z| < `upright_max_nz`)."""
+    import open3d as o3d
+
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud))
+    pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=config.normal_radius_m, max_nn=30))
+    kept: np.ndarray = cloud[np.abs(np.asarray(pcd.normals)[:, 2]) < config.upright_max_nz]
+    return kept
+
+
+def apply_transform(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
+    moved: np.ndarray = points @ transform[:3, :3].T + transform[:3, 3]
+    return moved
+
+
+def align_scenes(source_cloud: np.ndarray, target_cloud: np.ndarray,
+                 config: AlignConfig = AlignConfig()) -> SceneAlignment:
+    """Global registration of the target's cloud onto the source's: FPFH + RANSAC, then 4-DoF ICP."""
+    import open3d as o3d
+
+    points = (len(source_cloud), len(target_cloud))
+    if min(points) < 3:
+        return SceneAlignment("scene alignment", False, None, 0.0, float("nan"), points, 0.0, "a session has no depth")
+    registration = o3d.pipelines.registration
+    clouds, features = [], []
+    for cloud in (target_cloud, source_cloud):
+        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud))
+        pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=config.normal_radius_m, max_nn=30))
+        clouds.append(pcd)
+        features.append(registration.compute_fpfh_feature(
+            pcd, o3d.geometry.KDTreeSearchParamHybrid(radius=config.feature_radius_m, max_nn=100)))
+    o3d.utility.random.seed(config.seed)
+    coarse = registration.registration_ransac_based_on_feature_matching(
+        clouds[0], clouds[1], features[0], features[1], True, config.ransac_distance_m,
+        registration.TransformationEstimationPointToPoint(False), 3,
+        [registration.CorrespondenceCheckerBasedOnEdgeLength(0.9),
+         registration.CorrespondenceCheckerBasedOnDistance(config.ransac_distance_m)],
+        registration.RANSACConvergenceCriteria(config.ransac_iterations, 0.999))
+    transform = icp_yaw(source_cloud, target_cloud, _yaw_only(np.asarray(coarse.transformation)), config)
+    fitness, rmse = overlap(source_cloud, target_cloud, transform, config.icp_distance_m)
+    ok = fitness >= config.min_fitness
+    reason = "FPFH + RANSAC, then ICP about z" + ("" if ok else f" (fitness below {config.min_fitness})")
+    return SceneAlignment("scene alignment", ok, transform, fitness, rmse, points, 0.0, reason)
+
+
+def icp_yaw(source_cloud: np.ndarray, target_cloud: np.ndarray, initial: np.ndarray,
+            config: AlignConfig = AlignConfig()) -> np.ndarray:
+    """Point-to-point ICP that turns about z and shifts only, from `initial` (target -> source)."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(source_cloud)
+    transform = initial
+    for _ in range(config.icp_iterations):
+        moved = target_cloud @ transform[:3, :3].T + transform[:3, 3]
+        distance, nearest = tree.query(moved, distance_upper_bound=config.icp_distance_m)
+        paired = np.isfinite(distance)
+        if paired.sum() < 3:
+            break
+        step = yaw_transform(moved[paired], source_cloud[nearest[paired]])
+        transform = step @ transform
+        if np.linalg.norm(step[:3, 3]) < 1e-4 and abs(np.arctan2(step[1, 0], step[0, 0])) < 1e-5:
+            break
+    return transform
+
+
+def overlap(source_cloud: np.ndarray, target_cloud: np.ndarray, transform: np.ndarray,
+            distance_m: float) -> tuple[float, float]:
+    """(share of target points within `distance_m` of a source point under `transform`, their RMS distance)."""
+    from scipy.spatial import cKDTree
+
+    moved = apply_transform(transform, target_cloud)
+    distance, _ = cKDTree(source_cloud).query(moved, distance_upper_bound=distance_m)
+    close = distance[np.isfinite(distance)]
+    return len(close) / max(len(moved), 1), float(np.sqrt(np.mean(close**2))) if len(close) else float("nan")
+
+
+def _yaw_only(transform: np.ndarray) -> np.ndarray:
+    """The turn about z (and the shift) of a transform between two levelled worlds; its tilt is noise."""
+    yaw = np.arctan2(transform[1, 0] - transform[0, 1], transform[0, 0] + transform[1, 1])
+    return make_pose(rotation_z(float(yaw)), transform[:3, 3])
+
+
+def _is_truth(world: SessionWorld) -> bool:
+    """Poses from a simulator's ground-truth channel: every session of it is in the simulator's world."""
+    return world.pose_source.startswith("true")
