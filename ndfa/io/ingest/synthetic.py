@@ -2,7 +2,9 @@
 
 The world (`ndfa.sim.world`) says where every mug stands in each session; this module moves the
 camera along each session's route, renders depth, instance ids and colour, adds sensor noise,
-perturbs the target's poses, and writes `source.mcap` and `target.mcap` with the full ground truth.
+perturbs the target's poses, and writes `source.mcap` and `target.mcap` with the full ground truth,
+including which instances each session shows (`visible`, counted on the rendered masks: a raw
+recording has none left to count them on).
 
 Options that make the recordings closer to raw sensor data (`SimConfig`; all off by default):
 textured walls, floor and tables; clutter on the tables; `raw` recordings without instance masks
@@ -21,8 +23,8 @@ from pathlib import Path
 import numpy as np
 
 import ndfa
-from ndfa.core.errors import IngestError
 from ndfa.core.conventions import depth_in_range
+from ndfa.core.errors import IngestError
 from ndfa.core.progress import LabelledProgress
 from ndfa.eval.scoring import is_visible
 from ndfa.io.recording import Frame, RecordingWriter
