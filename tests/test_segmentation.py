@@ -85,7 +85,10 @@ def test_detect_runs_on_recordings_without_masks(tmp_path):
     result = run_detection(source, target)
     assert result.objects["source"] >= 5 and result.objects["target"] >= 5
     assert result.changes, "the sample pair has five changed mugs; segmentation should let some be found"
-    assert result.score is None
+    # Scored by position (the sample's ground truth lists no visible instances: every mug is scored).
+    assert result.score is not None and result.score.as_dict()["scored_by"] == "position"
+    assert result.score.tp >= 4 and result.score.fp <= 2
+    assert any("scored by position" in note and "every mug is scored" in note for note in result.notes)
     assert any("segmented geometrically" in note for note in result.notes)
     assert "segmentation" in result.stage_ms
 

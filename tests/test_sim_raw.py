@@ -210,3 +210,44 @@ def test_world_tilt_keeps_the_trajectory_and_tilts_up_by_the_angle(recordings, s
     if truth["pose_offset"] is not None:  # the target's perturbation still maps true onto given poses
         offset = np.array(truth["pose_offset"])
         assert np.allclose(offset @ tilted[0].pose_world_camera_true, tilted[0].pose_world_camera, atol=1e-5)
+
+
+def test_ground_truth_lists_the_visible_instances_a_raw_recording_has_no_masks_for(recordings, tmp_path):
+    from ndfa.core.conventions import depth_in_range
+    from ndfa.eval.scoring import is_visible
+
+    # The same scene with masks: what `is_visible` makes of them, frame by frame.
+    ingest_sim(small_config(textures=True, clutter_per_table=2, world_tilt_deg=12.0), tmp_path)
+    expected = {}
+    for session in ("source", "target"):
+        most: dict[int, int] = {}
+        for frame in frames_of(tmp_path / f"{session}.mcap"):
+            ids, counts = np.unique(frame.instances[depth_in_range(frame.depth) & (frame.instances > 0)], return_counts=True)
+            for i, n in zip(ids.tolist(), counts.tolist()):
+                most[i] = max(n, most.get(i, 0))
+        expected[session] = sorted(i for i, n in most.items() if is_visible(n))
+    assert expected["source"] and expected["target"]
+    raw_source = RecordingReader(recordings["raw"] / "source.mcap").ground_truth["visible"]
+    raw_target = RecordingReader(recordings["raw"] / "target.mcap").ground_truth["visible"]
+    masked_target = RecordingReader(tmp_path / "target.mcap").ground_truth["visible"]
+    # The source is written before the target is rendered: it lists its own session only.
+    assert raw_source == {"source": expected["source"]}
+    assert raw_target == masked_target == expected
+
+
+def test_detect_scores_a_raw_recording_by_position(recordings):
+    from ndfa.eval.scoring import scorable_instances
+    from ndfa.run.detect import run_detection
+
+    raw = recordings["raw"]
+    # On the true poses; up as recorded (the tiny images give too few planes to estimate it from).
+    result = run_detection(raw / "source.mcap", raw / "target.mcap", poses="truth", up="z")
+    assert result.score is not None and result.score.as_dict()["scored_by"] == "position"
+    # Which mugs are scored follows the ground truth's visible lists (few at this image size).
+    truth = RecordingReader(raw / "target.mcap").ground_truth
+    visible = {session: set(ids) for session, ids in truth["visible"].items()}
+    mugs = {o["instance_id"] for o in truth["objects"]}
+    assert result.score.visibility_known
+    assert set(result.score.unscored_ids) == mugs - scorable_instances(truth, visible) != set()
+    assert max(result.score.alignment_rmse_m.values()) < 1e-6
+    assert any(note.startswith("scored by position") for note in result.notes)

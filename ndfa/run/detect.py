@@ -209,8 +209,11 @@ def run_detection(
     truth = target_reader.ground_truth
     segmented = not (source_reader.has_instances and target_reader.has_instances)
     if truth is not None and "objects" in truth and segmented:
-        notes.append("not scored: without masks the objects' ids are segment labels, not ground-truth "
-                     "instances (`ndfa segment --keep-truth` relabels segments for scoring)")
+        # Segment labels are no instance ids: each report is named by the item at its center.
+        from ndfa.run.position_score import score_segmented_run
+
+        result.score = score_segmented_run(changes, detector, {"source": source_reader, "target": target_reader},
+                                           worlds, notes)
     elif truth is not None and "objects" in truth:
         result.score = score([i for c in changes for i in c.reported_instances], truth, visible)
     return result

@@ -2,7 +2,9 @@
 
 The world (`ndfa.sim.world`) says where every mug stands in each session; this module moves the
 camera along each session's route, renders depth, instance ids and colour, adds sensor noise,
-perturbs the target's poses, and writes `source.mcap` and `target.mcap` with the full ground truth.
+perturbs the target's poses, and writes `source.mcap` and `target.mcap` with the full ground truth,
+including which instances each session shows (`visible`, counted on the rendered masks: a raw
+recording has none left to count them on).
 
 Options that make the recordings closer to raw sensor data (`SimConfig`; all off by default):
 textured walls, floor and tables; clutter on the tables; `raw` recordings without instance masks
@@ -21,9 +23,13 @@ from pathlib import Path
 import numpy as np
 
 import ndfa
+from ndfa.core.conventions import depth_in_range
 from ndfa.core.errors import IngestError
 from ndfa.core.progress import LabelledProgress
+from ndfa.eval.scoring import is_visible
 from ndfa.io.recording import Frame, RecordingWriter
+from ndfa.io.recording.channels import DEPTH_SCALE_M
+from ndfa.io.recording.writer import depth_to_millimetres
 from ndfa.sim.mug import Mug
 from ndfa.sim.presets import SimConfig
 from ndfa.sim.render import RenderObject, SceneRenderer
@@ -66,8 +72,10 @@ def ingest_sim(
     ground_truth = world_ground_truth(world, config)
     # The room's look is part of the static scene: one set of textures for both sessions.
     textures = room_textures(world.room, world.tables, np.random.default_rng([config.seed, 14])) if config.textures else None
+    visible: dict[str, list[int]] = {}  # filled session by session: the target's ground truth holds both
     return [
-        _render_session(world, config, session, out_dir / f"{session}.mcap", ground_truth, on_progress, textures)
+        _render_session(world, config, session, out_dir / f"{session}.mcap", ground_truth, on_progress, textures,
+                        visible)
         for session in SESSIONS
     ]
 
@@ -78,7 +86,10 @@ def world_tilt(config: SimConfig) -> np.ndarray:
 
 
 def _render_session(world: World, config: SimConfig, session: str, path: Path, ground_truth: dict,
-                    on_progress: LabelledProgress | None, textures: RoomTextures | None = None) -> SessionSummary:
+                    on_progress: LabelledProgress | None, textures: RoomTextures | None = None,
+                    visible: dict[str, list[int]] | None = None) -> SessionSummary:
+    """Render one session into `path`. `visible` (session -> instance ids) gains this session's
+    visible instances, and the recording's ground truth holds every session's rendered so far."""
     # One stream per session and purpose: changing the noise model does not move the cameras.
     stream = SESSIONS.index(session)
     route = config.source_route if session == "source" else config.target_route
@@ -113,14 +124,15 @@ def _render_session(world: World, config: SimConfig, session: str, path: Path, g
         "generator": f"ndfa {ndfa.__version__} ingest sim",
         "config": dataclasses.asdict(config),
     }
-    session_truth = dict(ground_truth, session=session,
-                         pose_offset=None if offset is None else offset.tolist())
+    visible = {} if visible is None else visible
+    pixels_seen: dict[int, int] = {}  # instance id -> its most pixels with depth in range in one frame
     camera = config.camera
     with RecordingWriter(path, meta) as writer:
-        writer.write_ground_truth(session_truth)
         for index, pose in enumerate(true_poses):
             view = renderer.render(camera, pose)
             depth = config.depth_noise.apply(view.depth, view.normals_camera, noise_rng, camera)
+            for instance_id, n_pixels in visible_pixels(view.instance, depth).items():
+                pixels_seen[instance_id] = max(n_pixels, pixels_seen.get(instance_id, 0))
             writer.write_frame(Frame(
                 index=index,
                 timestamp=SESSION_START[session] + index / config.fps,
@@ -134,10 +146,26 @@ def _render_session(world: World, config: SimConfig, session: str, path: Path, g
             ))
             if on_progress is not None:
                 on_progress(session, index + 1, len(true_poses))
+        # Known once every frame is rendered; the writer stores the ground truth at the end anyway.
+        visible[session] = sorted(i for i, n in pixels_seen.items() if is_visible(n))
+        writer.write_ground_truth(dict(ground_truth, session=session,
+                                       pose_offset=None if offset is None else offset.tolist(),
+                                       visible={s: visible[s] for s in SESSIONS if s in visible}))
     layout = world.layout(session)
     changes = {kind: n for kind, n in world.change_counts().items()
                if kind != ("added" if session == "source" else "removed")}
     return SessionSummary(session, path, len(true_poses), len(layout), changes, path.stat().st_size)
+
+
+def visible_pixels(instance: np.ndarray, depth: np.ndarray) -> dict[int, int]:
+    """Instance id (mugs and clutter) -> its mask pixels with depth in range in one frame, counted on
+    the depth as a reader gets it back (millimetres), so that the ground truth's `visible` is what
+    the masks of the same recording would give `ndfa.eval.scoring.is_visible`: a raw recording has
+    no masks to count later."""
+    recorded = (depth_to_millimetres(depth) * DEPTH_SCALE_M).astype(np.float32)
+    ids = instance[(instance > 0) & depth_in_range(recorded)]
+    counts = np.bincount(ids.astype(np.intp))
+    return {int(i): int(counts[i]) for i in np.flatnonzero(counts)}
 
 
 def render_objects(world: World, session: str, textures: RoomTextures | None = None) -> list[RenderObject]:
