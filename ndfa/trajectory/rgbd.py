@@ -44,6 +44,7 @@ from ndfa.core.conventions import MAX_DEPTH_M, MIN_DEPTH_M
 from ndfa.core.errors import TrajectoryError
 from ndfa.core.frame import Frame
 from ndfa.trajectory.degeneracy import depth_degeneracy, plane_information, textured_fraction
+from ndfa.trajectory.features import FeatureConfig, Features, detect_features, estimate_motion
 from ndfa.trajectory.pose_graph import PoseEdge, PoseGraphConfig, optimize_pose_graph
 
 # The term a frame was registered with, as reported per frame. "none": the first frame, or a frame
@@ -84,6 +85,11 @@ class RgbdOdometryConfig:
         overlap and a correction of the estimate of at most this.
     loop_candidates: at most this many candidates (the nearest) are registered per keyframe.
     anchor_to_first_pose: start the estimate at the first frame's given pose (see kiss.py).
+    features: sparse feature matching for each frame's first guess (features.py); None: the
+        constant-velocity prediction alone.
+    feature_agreement_m, feature_agreement_deg: a dense registration that lands farther than this
+        from the feature estimate it started at fell into another minimum: the feature estimate is
+        kept instead.
     """
 
     min_depth_m: float = MIN_DEPTH_M
@@ -111,6 +117,9 @@ class RgbdOdometryConfig:
     loop_max_correction_m: float = 0.3
     loop_candidates: int = 2
     anchor_to_first_pose: bool = True
+    features: FeatureConfig | None = field(default_factory=FeatureConfig)
+    feature_agreement_m: float = 0.05
+    feature_agreement_deg: float = 3.0
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_depth_m < self.max_depth_m:
@@ -132,6 +141,7 @@ class _View:
     """One frame prepared for registration: subsampled images as Open3D tensors."""
 
     rgbd: object  # open3d.t.geometry.RGBDImage (colour uint8, depth float32 metres, 0 = invalid)
+    features: Features  # ORB keypoints of the full-resolution image (none without colour)
     K: object  # open3d.core.Tensor (3, 3) float64, of the subsampled image
     plane_information: np.ndarray  # (6, 6) of the frame's own point-to-plane term (`plane_information`)
     median_depth_m: float
@@ -163,6 +173,8 @@ class RgbdOdometry:
         self.degenerate: list[bool] = []  # per frame, whether depth alone was ambiguous
         self.starved_frames = 0  # too little valid depth: not registered
         self.rejected_frames = 0  # registration rejected: the prediction kept
+        self.feature_frames = 0  # frames whose first guess came from feature matches
+        self.feature_fallbacks = 0  # dense result disagreed with the feature estimate: the latter kept
         self.seconds = 0.0
 
     @property
@@ -230,21 +242,17 @@ class RgbdOdometry:
             return prediction, NO_TERM, False
 
         keyframe = self.keyframes[-1]
-        initial = np.linalg.inv(keyframe.pose) @ prediction  # T_keyframe_frame
+        predicted = np.linalg.inv(keyframe.pose) @ prediction  # T_keyframe_frame
         degenerate = depth_degeneracy(view.plane_information, view.median_depth_m) < config.degenerate_ratio
         term = _choose_term(degenerate, view.textured and keyframe.view.textured)
-        keyframe_from_frame, fitness = self._register(view, keyframe.view, initial, term)
-        if term != INTENSITY and _jump(keyframe_from_frame, initial) > config.cross_check_m:
-            # Dense odometry on a few planes has false minima a few centimetres off; the camera
-            # moves smoothly, so of the two terms' results the one nearer the prediction wins.
-            other = POINT_TO_PLANE if term == HYBRID else HYBRID
-            if other == POINT_TO_PLANE or view.textured:
-                candidate, candidate_fitness = self._register(view, keyframe.view, initial, other)
-                if _jump(candidate, initial) < _jump(keyframe_from_frame, initial):
-                    keyframe_from_frame, fitness, term = candidate, candidate_fitness, other
-        if keyframe_from_frame is None or fitness < config.min_fitness or _jump(keyframe_from_frame, initial) > config.max_correction_m:
-            self.rejected_frames += 1
-            keyframe_from_frame = initial
+        motion = None
+        if config.features is not None:
+            motion = estimate_motion(view.features, keyframe.view.features, config.features)
+        if motion is not None:
+            self.feature_frames += 1
+            keyframe_from_frame, fitness, term = self._from_features(view, keyframe.view, motion.target_from_source, term)
+        else:
+            keyframe_from_frame, fitness, term = self._from_prediction(view, keyframe.view, predicted, term)
         pose = keyframe.pose @ keyframe_from_frame
 
         moved = np.linalg.norm(keyframe_from_frame[:3, 3])
@@ -255,6 +263,39 @@ class RgbdOdometry:
             self._add_keyframe(view, pose, PoseEdge(len(self.keyframes), len(self.keyframes) - 1,
                                                     keyframe_from_frame, information))
         return pose, term, degenerate
+
+    def _from_features(self, view: _View, keyframe: _View, feature_estimate: np.ndarray,
+                       term: str) -> tuple[np.ndarray, float, str]:
+        """T_keyframe_frame by dense registration from the feature estimate, its fitness and term.
+
+        Matched features need no guess, so they hold where the constant velocity does not; they are
+        only as precise as the depth at a few hundred corners, which the dense terms then refine.
+        A dense result far from the feature estimate fell into another minimum: the feature
+        estimate is kept."""
+        config = self.config
+        result, fitness = self._register(view, keyframe, feature_estimate, term)
+        if result is None or not _near(result, feature_estimate, config.feature_agreement_m, config.feature_agreement_deg):
+            self.feature_fallbacks += 1
+            return feature_estimate, fitness, term
+        return result, fitness, term
+
+    def _from_prediction(self, view: _View, keyframe: _View, predicted: np.ndarray, term: str) -> tuple[np.ndarray, float, str]:
+        """T_keyframe_frame by dense registration from the constant-velocity prediction (no feature
+        estimate: too few matches), its fitness and term."""
+        config = self.config
+        result, fitness = self._register(view, keyframe, predicted, term)
+        if term != INTENSITY and _jump(result, predicted) > config.cross_check_m:
+            # Dense odometry on a few planes has false minima a few centimetres off; the camera
+            # moves smoothly, so of the two terms' results the one nearer the prediction wins.
+            other = POINT_TO_PLANE if term == HYBRID else HYBRID
+            if other == POINT_TO_PLANE or view.textured:
+                candidate, candidate_fitness = self._register(view, keyframe, predicted, other)
+                if _jump(candidate, predicted) < _jump(result, predicted):
+                    result, fitness, term = candidate, candidate_fitness, other
+        if result is None or fitness < config.min_fitness or _jump(result, predicted) > config.max_correction_m:
+            self.rejected_frames += 1
+            return predicted, fitness, term
+        return result, fitness, term
 
     def _add_keyframe(self, view: _View, pose: np.ndarray, edge: PoseEdge | None) -> None:
         self.keyframes.append(_Keyframe(frame=len(self._poses), pose=pose, view=view))
@@ -300,17 +341,24 @@ class RgbdOdometry:
         depth[~(np.isfinite(depth) & (depth >= config.min_depth_m) & (depth <= config.max_depth_m))] = np.nan
         rows, cols = depth.shape
         if frame.rgb is not None:
-            # Block mean, not every step-th pixel: intensity residuals need the aliasing-free image.
-            rgb = frame.rgb[:rows * step, :cols * step].reshape(rows, step, cols, step, 3).mean(axis=(1, 3))
-            rgb = rgb.astype(np.uint8)
+            # Blurred, then every step-th pixel: intensity residuals need an image without aliasing,
+            # and centred on the depth samples (a block mean is centred half a pixel off them, and
+            # the intensity term then pulls every frame's rotation the same way).
+            rgb = frame.rgb if step == 1 else _smooth(frame.rgb, step)
+            rgb = rgb[::step, ::step][:rows, :cols]
         else:
             rgb = np.zeros((rows, cols, 3), np.uint8)
         valid = np.isfinite(depth)
+        features = Features(np.zeros((0, 3)), np.zeros((0, 32), np.uint8))
+        if frame.rgb is not None and config.features is not None:
+            full_depth = np.where((frame.depth >= config.min_depth_m) & (frame.depth <= config.max_depth_m), frame.depth, np.nan)
+            gray = frame.rgb.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
+            features = detect_features(gray.astype(np.uint8), full_depth, frame.K, config.features)
         K = frame.K.copy()
         K[:2] /= step  # pixel (step*i) becomes pixel i: centres at integer coordinates stay so
         rgbd = o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(np.ascontiguousarray(rgb)),
                                         o3d.t.geometry.Image(np.ascontiguousarray(depth[..., None])))
-        return _View(rgbd=rgbd, K=o3d.core.Tensor(K), plane_information=plane_information(depth, K),
+        return _View(rgbd=rgbd, features=features, K=o3d.core.Tensor(K), plane_information=plane_information(depth, K),
                      median_depth_m=float(np.median(depth[valid])) if valid.any() else 1.0,
                      valid_fraction=float(valid.mean()),
                      textured=frame.rgb is not None and textured_fraction(rgb, valid, config.gradient_threshold) >= config.textured_fraction)
@@ -350,6 +398,19 @@ class RgbdOdometry:
             return np.zeros((6, 6))
         return information if np.all(np.isfinite(information)) else np.zeros((6, 6))
 
+
+
+def _smooth(image: np.ndarray, step: int) -> np.ndarray:
+    """A Gaussian blur wide enough to subsample `image` by `step` without aliasing."""
+    import cv2
+
+    return cv2.GaussianBlur(image, (0, 0), sigmaX=0.5 * step)
+
+
+def _near(transform: np.ndarray, reference: np.ndarray, distance_m: float, angle_deg: float) -> bool:
+    """Whether two poses are within `distance_m` and `angle_deg` of each other."""
+    difference = np.linalg.inv(reference) @ transform
+    return bool(np.linalg.norm(difference[:3, 3]) <= distance_m and _angle_deg(difference[:3, :3]) <= angle_deg)
 
 
 def _jump(transform: np.ndarray | None, initial: np.ndarray) -> float:
