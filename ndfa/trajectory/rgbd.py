@@ -78,11 +78,14 @@ class RgbdOdometryConfig:
         keyframe when it has moved this far or turned this much from the keyframe, or its overlap
         (fitness) with the keyframe falls below this.
     loop_closure: look for loops among the keyframes and optimise the pose graph in `finish()`.
-    loop_radius_m, loop_angle_deg: a loop candidate's camera is at most this far and its optical
-        axis turned at most this much from the new keyframe's, in the current estimate.
-    loop_min_gap: and it is at least this many keyframes older.
-    loop_min_fitness, loop_max_correction_m: a loop registration is accepted with at least this
-        overlap and a correction of the estimate of at most this.
+    loop_radius_m, loop_angle_deg: a loop candidate's view centre (the point its camera looks at,
+        at its median depth) is at most this far and its optical axis turned at most this much
+        from the new keyframe's, in the current estimate.
+    loop_min_gap, loop_min_travel_m: and it is at least this many keyframes older, and the camera
+        travelled at least this far from it (nearer ones are the odometry's neighbours, not loops).
+    loop_min_inliers: with features, a loop needs this many feature inliers (loop_min_fitness, the
+        dense overlap, without).
+    loop_max_correction_m: and a loop that corrects the estimate by more than this is refused.
     loop_candidates: at most this many candidates (the nearest) are registered per keyframe.
     anchor_to_first_pose: start the estimate at the first frame's given pose (see kiss.py).
     features: sparse feature matching for each frame's first guess (features.py); None: the
@@ -110,11 +113,13 @@ class RgbdOdometryConfig:
     keyframe_rotation_deg: float = 15.0
     keyframe_min_fitness: float = 0.4
     loop_closure: bool = True
-    loop_radius_m: float = 0.5
-    loop_angle_deg: float = 30.0
+    loop_radius_m: float = 1.0
+    loop_angle_deg: float = 45.0
     loop_min_gap: int = 8
+    loop_min_travel_m: float = 2.0
     loop_min_fitness: float = 0.3
-    loop_max_correction_m: float = 0.3
+    loop_min_inliers: int = 40
+    loop_max_correction_m: float = 1.0
     loop_candidates: int = 2
     anchor_to_first_pose: bool = True
     features: FeatureConfig | None = field(default_factory=FeatureConfig)
@@ -154,6 +159,7 @@ class _Keyframe:
     frame: int  # index of the frame in the session
     pose: np.ndarray  # (4, 4) odometry pose, in the first camera's frame
     view: _View
+    travelled_m: float  # path length from the first keyframe, metres (odometry)
 
 
 @dataclass
@@ -298,34 +304,61 @@ class RgbdOdometry:
         return result, fitness, term
 
     def _add_keyframe(self, view: _View, pose: np.ndarray, edge: PoseEdge | None) -> None:
-        self.keyframes.append(_Keyframe(frame=len(self._poses), pose=pose, view=view))
+        travelled = 0.0
+        if self.keyframes:
+            last = self.keyframes[-1]
+            travelled = last.travelled_m + float(np.linalg.norm(pose[:3, 3] - last.pose[:3, 3]))
+        self.keyframes.append(_Keyframe(frame=len(self._poses), pose=pose, view=view, travelled_m=travelled))
         if edge is not None:
             self.edges.append(edge)
         if self.config.loop_closure:
             self._close_loops()
 
     def _close_loops(self) -> None:
-        """Register the newest keyframe to the old keyframes near it; each verified match is a loop edge."""
+        """Register the newest keyframe to the old keyframes that look at the same place; each
+        verified match is a loop edge."""
         config = self.config
         new_index = len(self.keyframes) - 1
         new = self.keyframes[new_index]
         candidates = []
-        for index, old in enumerate(self.keyframes[:new_index - config.loop_min_gap + 1]):
+        for index, old in enumerate(self.keyframes[:max(0, new_index - config.loop_min_gap + 1)]):
+            if new.travelled_m - old.travelled_m < config.loop_min_travel_m:
+                continue  # a neighbour along the path: the odometry already joins them
             relative = np.linalg.inv(old.pose) @ new.pose
-            distance = float(np.linalg.norm(relative[:3, 3]))
+            # Where the two cameras look, not where they stand: the same table seen from two
+            # places a metre apart is a loop; two cameras back to back at one spot are not.
+            distance = float(np.linalg.norm(_view_centre(new) - _view_centre(old)))
             axis_angle = math.degrees(math.acos(np.clip(old.pose[:3, 2] @ new.pose[:3, 2], -1.0, 1.0)))
             if distance <= config.loop_radius_m and axis_angle <= config.loop_angle_deg:
                 candidates.append((distance, index, relative))
         for _, index, initial in sorted(candidates, key=lambda c: c[0])[:config.loop_candidates]:
             old = self.keyframes[index]
-            term = HYBRID if new.view.textured and old.view.textured else POINT_TO_PLANE
-            measured, fitness = self._register(new.view, old.view, initial, term)
-            if measured is None or fitness < config.loop_min_fitness:
-                continue
-            if np.linalg.norm(measured[:3, 3] - initial[:3, 3]) > config.loop_max_correction_m:
+            measured = self._register_loop(new.view, old.view, initial)
+            if measured is None or np.linalg.norm(measured[:3, 3] - initial[:3, 3]) > config.loop_max_correction_m:
                 continue
             information = self._information(new.view, old.view, measured)
             self.edges.append(PoseEdge(new_index, index, measured, information, loop=True))
+
+    def _register_loop(self, new: _View, old: _View, estimate: np.ndarray) -> np.ndarray | None:
+        """T_old_new for a loop edge, or None when the two views do not verifiably overlap. With
+        features: their motion (stricter than the odometry's: a wrong loop bends the whole
+        trajectory), refined densely and kept when the refinement stays near it; it needs no
+        guess, so a loop is found however far the odometry drifted. Without: dense registration
+        from the current estimate, accepted on its overlap."""
+        config = self.config
+        if config.features is not None and len(new.features) and len(old.features):
+            loop_features = dataclasses.replace(config.features, min_inliers=config.loop_min_inliers)
+            motion = estimate_motion(new.features, old.features, loop_features)
+            if motion is None:
+                return None
+            term = HYBRID if new.textured and old.textured else POINT_TO_PLANE
+            measured, _ = self._register(new, old, motion.target_from_source, term)
+            near = measured is not None and _near(measured, motion.target_from_source, config.feature_agreement_m,
+                                                   config.feature_agreement_deg)
+            return measured if near else None
+        term = HYBRID if new.textured and old.textured else POINT_TO_PLANE
+        measured, fitness = self._register(new, old, estimate, term)
+        return measured if measured is not None and fitness >= config.loop_min_fitness else None
 
     # -- Open3D ------------------------------------------------------------------------------------
 
@@ -405,6 +438,11 @@ def _smooth(image: np.ndarray, step: int) -> np.ndarray:
     import cv2
 
     return cv2.GaussianBlur(image, (0, 0), sigmaX=0.5 * step)
+
+
+def _view_centre(keyframe: _Keyframe) -> np.ndarray:
+    """The point a keyframe's camera looks at: its median depth along the optical axis."""
+    return keyframe.pose[:3, 3] + keyframe.view.median_depth_m * keyframe.pose[:3, 2]
 
 
 def _near(transform: np.ndarray, reference: np.ndarray, distance_m: float, angle_deg: float) -> bool:
