@@ -44,7 +44,14 @@ from ndfa.core.conventions import MAX_DEPTH_M, MIN_DEPTH_M
 from ndfa.core.errors import TrajectoryError
 from ndfa.core.frame import Frame
 from ndfa.trajectory.degeneracy import depth_degeneracy, plane_information, textured_fraction
-from ndfa.trajectory.features import FeatureConfig, Features, detect_features, estimate_motion
+from ndfa.trajectory.features import (
+    FeatureConfig,
+    FeatureMotion,
+    Features,
+    detect_features,
+    estimate_motion,
+    no_features,
+)
 from ndfa.trajectory.pose_graph import PoseEdge, PoseGraphConfig, optimize_pose_graph
 
 # The term a frame was registered with, as reported per frame. "none": the first frame, or a frame
@@ -170,6 +177,9 @@ class RgbdOdometry:
     config: RgbdOdometryConfig = field(default_factory=RgbdOdometryConfig)
 
     def __post_init__(self) -> None:
+        import cv2  # noqa: F401  (imported here, once, so that no frame's time counts the imports)
+        import open3d  # noqa: F401
+
         self._anchor: np.ndarray | None = None
         self._poses: list[np.ndarray] = []  # odometry pose of every frame (first camera's frame)
         self._keyframe_of: list[int] = []  # per frame, the index of its keyframe in self.keyframes
@@ -179,8 +189,10 @@ class RgbdOdometry:
         self.degenerate: list[bool] = []  # per frame, whether depth alone was ambiguous
         self.starved_frames = 0  # too little valid depth: not registered
         self.rejected_frames = 0  # registration rejected: the prediction kept
+        self._previous: tuple[_View, np.ndarray] | None = None  # last frame if not a keyframe: view, T_keyframe_frame
+        self.promoted_frames = 0  # previous frames made keyframes when the keyframe had too little in common
         self.feature_frames = 0  # frames whose first guess came from feature matches
-        self.feature_fallbacks = 0  # dense result disagreed with the feature estimate: the latter kept
+        self.feature_fallbacks = 0  # dense result left the feature estimate, even after promoting: the latter kept
         self.seconds = 0.0
 
     @property
@@ -245,21 +257,32 @@ class RgbdOdometry:
         prediction = last @ np.linalg.inv(before) @ last  # constant velocity
         if view.valid_fraction < config.min_valid_fraction or not self.keyframes:
             self.starved_frames += 1
+            self._previous = None  # not registered: no keyframe material
             return prediction, NO_TERM, False
 
         keyframe = self.keyframes[-1]
         predicted = np.linalg.inv(keyframe.pose) @ prediction  # T_keyframe_frame
         degenerate = depth_degeneracy(view.plane_information, view.median_depth_m) < config.degenerate_ratio
         term = _choose_term(degenerate, view.textured and keyframe.view.textured)
-        motion = None
+        keyframe_from_frame, fitness, motion = None, 0.0, None
         if config.features is not None:
-            motion = estimate_motion(view.features, keyframe.view.features, config.features)
-        if motion is not None:
+            keyframe_from_frame, fitness, motion = self._from_features(view, keyframe.view, term)
+            if keyframe_from_frame is None and self._previous is not None:
+                # Too little left in common with the keyframe (too few matches, or a dense result
+                # that leaves them): the previous frame, which is always close, becomes the
+                # keyframe, and the frame is registered to it instead.
+                keyframe = self._promote_previous()
+                predicted = np.linalg.inv(keyframe.pose) @ prediction
+                keyframe_from_frame, fitness, motion = self._from_features(view, keyframe.view, term)
+        if keyframe_from_frame is not None:
             self.feature_frames += 1
-            keyframe_from_frame, fitness, term = self._from_features(view, keyframe.view, motion.target_from_source, term)
+        elif motion is not None:  # the dense result left the feature estimate: that is kept
+            self.feature_fallbacks += 1
+            keyframe_from_frame = motion.target_from_source
         else:
             keyframe_from_frame, fitness, term = self._from_prediction(view, keyframe.view, predicted, term)
         pose = keyframe.pose @ keyframe_from_frame
+        self._previous = (view, keyframe_from_frame)
 
         moved = np.linalg.norm(keyframe_from_frame[:3, 3])
         turned = _angle_deg(keyframe_from_frame[:3, :3])
@@ -268,22 +291,39 @@ class RgbdOdometry:
             information = self._information(view, keyframe.view, keyframe_from_frame)
             self._add_keyframe(view, pose, PoseEdge(len(self.keyframes), len(self.keyframes) - 1,
                                                     keyframe_from_frame, information))
+            self._previous = None
         return pose, term, degenerate
 
-    def _from_features(self, view: _View, keyframe: _View, feature_estimate: np.ndarray,
-                       term: str) -> tuple[np.ndarray, float, str]:
-        """T_keyframe_frame by dense registration from the feature estimate, its fitness and term.
+    def _promote_previous(self) -> _Keyframe:
+        """Make the previous frame (tracked, not a keyframe) the newest keyframe; returns it."""
+        assert self._previous is not None
+        view, keyframe_from_previous = self._previous
+        keyframe = self.keyframes[-1]
+        information = self._information(view, keyframe.view, keyframe_from_previous)
+        self._add_keyframe(view, self._poses[-1], PoseEdge(len(self.keyframes), len(self.keyframes) - 1,
+                                                           keyframe_from_previous, information), frame=len(self._poses) - 1)
+        self._keyframe_of[-1] = len(self.keyframes) - 1
+        self._previous = None
+        self.promoted_frames += 1
+        return self.keyframes[-1]
+
+    def _from_features(self, view: _View, keyframe: _View, term: str) -> tuple[np.ndarray | None, float, FeatureMotion | None]:
+        """T_keyframe_frame by dense registration from the feature estimate (None when there is no
+        estimate, or the dense result lands far from it), its fitness, and the feature estimate.
 
         Matched features need no guess, so they hold where the constant velocity does not; they are
         only as precise as the depth at a few hundred corners, which the dense terms then refine.
-        A dense result far from the feature estimate fell into another minimum: the feature
-        estimate is kept."""
+        A dense result far from the feature estimate fell into another minimum."""
         config = self.config
-        result, fitness = self._register(view, keyframe, feature_estimate, term)
-        if result is None or not _near(result, feature_estimate, config.feature_agreement_m, config.feature_agreement_deg):
-            self.feature_fallbacks += 1
-            return feature_estimate, fitness, term
-        return result, fitness, term
+        assert config.features is not None
+        motion = estimate_motion(view.features, keyframe.features, config.features)
+        if motion is None:
+            return None, 0.0, None
+        result, fitness = self._register(view, keyframe, motion.target_from_source, term)
+        if result is None or not _near(result, motion.target_from_source, config.feature_agreement_m,
+                                       config.feature_agreement_deg):
+            return None, fitness, motion
+        return result, fitness, motion
 
     def _from_prediction(self, view: _View, keyframe: _View, predicted: np.ndarray, term: str) -> tuple[np.ndarray, float, str]:
         """T_keyframe_frame by dense registration from the constant-velocity prediction (no feature
@@ -303,12 +343,15 @@ class RgbdOdometry:
             return predicted, fitness, term
         return result, fitness, term
 
-    def _add_keyframe(self, view: _View, pose: np.ndarray, edge: PoseEdge | None) -> None:
+    def _add_keyframe(self, view: _View, pose: np.ndarray, edge: PoseEdge | None, frame: int | None = None) -> None:
+        """Append a keyframe (by default the frame being tracked), its edge to the last keyframe,
+        and look for loops from it."""
         travelled = 0.0
         if self.keyframes:
             last = self.keyframes[-1]
             travelled = last.travelled_m + float(np.linalg.norm(pose[:3, 3] - last.pose[:3, 3]))
-        self.keyframes.append(_Keyframe(frame=len(self._poses), pose=pose, view=view, travelled_m=travelled))
+        frame = len(self._poses) if frame is None else frame
+        self.keyframes.append(_Keyframe(frame=frame, pose=pose, view=view, travelled_m=travelled))
         if edge is not None:
             self.edges.append(edge)
         if self.config.loop_closure:
@@ -382,9 +425,9 @@ class RgbdOdometry:
         else:
             rgb = np.zeros((rows, cols, 3), np.uint8)
         valid = np.isfinite(depth)
-        features = Features(np.zeros((0, 3)), np.zeros((0, 32), np.uint8))
+        features = no_features(frame.K)
         if frame.rgb is not None and config.features is not None:
-            full_depth = np.where((frame.depth >= config.min_depth_m) & (frame.depth <= config.max_depth_m), frame.depth, np.nan)
+            full_depth = np.where(frame.depth >= config.min_depth_m, frame.depth, np.nan)
             gray = frame.rgb.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
             features = detect_features(gray.astype(np.uint8), full_depth, frame.K, config.features)
         K = frame.K.copy()
