@@ -97,6 +97,9 @@ class RgbdOdometryConfig:
     anchor_to_first_pose: start the estimate at the first frame's given pose (see kiss.py).
     features: sparse feature matching for each frame's first guess (features.py); None: the
         constant-velocity prediction alone.
+    min_features: when the frame and its keyframe both have at least this many keypoints but do not
+        match, they have too little in common: the previous frame becomes the keyframe (with fewer,
+        the images have too little texture for features, and the prediction is used instead).
     feature_agreement_m, feature_agreement_deg: a dense registration that lands farther than this
         from the feature estimate it started at fell into another minimum: the feature estimate is
         kept instead.
@@ -130,6 +133,7 @@ class RgbdOdometryConfig:
     loop_candidates: int = 2
     anchor_to_first_pose: bool = True
     features: FeatureConfig | None = field(default_factory=FeatureConfig)
+    min_features: int = 100
     feature_agreement_m: float = 0.05
     feature_agreement_deg: float = 3.0
 
@@ -267,10 +271,11 @@ class RgbdOdometry:
         keyframe_from_frame, fitness, motion = None, 0.0, None
         if config.features is not None:
             keyframe_from_frame, fitness, motion = self._from_features(view, keyframe.view, term)
-            if keyframe_from_frame is None and self._previous is not None:
+            matchable = min(len(view.features), len(keyframe.view.features)) >= config.min_features
+            if keyframe_from_frame is None and self._previous is not None and matchable:
                 # Too little left in common with the keyframe (too few matches, or a dense result
-                # that leaves them): the previous frame, which is always close, becomes the
-                # keyframe, and the frame is registered to it instead.
+                # that leaves them) though both images have features: the previous frame, which is
+                # always close, becomes the keyframe, and the frame is registered to it instead.
                 keyframe = self._promote_previous()
                 predicted = np.linalg.inv(keyframe.pose) @ prediction
                 keyframe_from_frame, fitness, motion = self._from_features(view, keyframe.view, term)
