@@ -8,24 +8,34 @@ association, a coarse-to-fine image pyramid, Huber losses on depth and intensity
 both terms at once.
 
 Per frame:
-1. Prediction: the last motion again (constant velocity).
-2. Degeneracy check: the 6x6 information matrix of the depth term (point-to-plane) between the
-   frame and its keyframe at the prediction. Rotations are rescaled to arc length at the median
-   depth so both halves are in metres; a smallest eigenvalue far below the largest means a
-   direction depth cannot see (`degenerate_ratio`). The image is textured when enough pixels have
-   an intensity gradient. Term used: degenerate and textured -> intensity alone (the depth term
-   would only pull the slide toward the prediction); untextured (dark, or no colour) -> point-to-
-   plane alone (the intensity term would fit noise); otherwise the hybrid of both.
-3. Registration to the keyframe (not the previous frame: errors then add up per keyframe, not per
-   frame), from the prediction. A result with too little overlap or too large a correction is
-   rejected and the prediction kept.
+1. First guess from features (features.py): ORB keypoints matched to the keyframe's, lifted to 3D,
+   RANSAC over three-point fits. They need no prior, so a step of 8-10 cm and 5 degrees, beyond
+   the dense terms' basin, is still found. When the keyframe has too little left in common with
+   the frame (both have keypoints but they do not match), the previous frame becomes the keyframe
+   and the frame is matched to it. Without enough keypoints (dark, untextured, no colour) the
+   guess is the constant-velocity prediction (the last motion again).
+2. Degeneracy check: the 6x6 information matrix of the depth term (point-to-plane) of the frame.
+   Rotations are rescaled to arc length at the median depth so both halves are in metres; a
+   smallest eigenvalue far below the largest means a direction depth cannot see
+   (`degenerate_ratio`). The image is textured when enough pixels have an intensity gradient.
+   Term used: degenerate and textured -> intensity alone (the depth term would only pull the slide
+   toward the guess); untextured (dark, or no colour) -> point-to-plane alone (the intensity term
+   would fit noise); otherwise the hybrid of both.
+3. Dense registration to the keyframe (not the previous frame: errors then add up per keyframe,
+   not per frame) from the guess. From a feature guess, a result that leaves it by more than a few
+   centimetres or degrees fell into another minimum, and the feature estimate is kept. From the
+   prediction, the other term is tried when the result lands far from it (the nearer wins), and a
+   result with too little overlap or too large a correction is rejected.
 4. A new keyframe when the motion since the keyframe, or its overlap with it, passes a threshold.
-   Each new keyframe is checked against old keyframes near it in the current estimate but far back
-   in time; a verified registration to one is a loop edge (pose_graph.py).
+   Each new keyframe is matched (features, then dense) to old keyframes that look at the same
+   place in the current estimate but lie far back along the path; a verified match is a loop
+   edge (pose_graph.py). Features need no guess, so loops are found however far the odometry
+   drifted.
 
 `finish()` optimises the keyframe graph and returns every frame's pose: a non-keyframe keeps its
-pose relative to its keyframe, so it follows the keyframe's correction. Streaming callers that
-cannot wait for the end (the importers) use `update`'s poses, which are the odometry alone.
+pose relative to its keyframe, so it follows the keyframe's correction. Callers that write each
+frame as it comes can use `update`'s poses, the odometry alone (the importers instead write first
+and replace the poses with the whole-session estimate: rewrite.py).
 
 World frame: as kiss.py, the estimate starts at the first frame's given pose (`anchor_to_first_pose`).
 """
@@ -524,9 +534,10 @@ def estimate_rgbd_poses(frames, config: RgbdOdometryConfig = RgbdOdometryConfig(
 
 
 def streaming_pose_estimator(method: str) -> Callable[[Frame], np.ndarray]:
-    """A per-frame pose estimator for callers that write each frame as it comes (the importers'
-    `--poses`): "kiss-icp", "rgbd" (odometry alone: loop closure needs the whole session), or
-    "estimate" (rgbd when the first frame has colour, otherwise kiss-icp)."""
+    """A per-frame pose estimator for callers that write each frame as it comes: "kiss-icp",
+    "rgbd" (odometry alone: loop closure needs the whole session), or "estimate" (rgbd when the
+    first frame has colour, otherwise kiss-icp). The importers' `--poses` runs it while writing and
+    then replaces its poses with the whole session's (`ndfa.trajectory.rewrite.estimate_poses_in_place`)."""
     from ndfa.trajectory.kiss import DepthOdometry
 
     if method not in ("estimate", "rgbd", "kiss-icp"):
