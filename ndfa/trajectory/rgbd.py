@@ -110,6 +110,9 @@ class RgbdOdometryConfig:
     min_features: when the frame and its keyframe both have at least this many keypoints but do not
         match, they have too little in common: the previous frame becomes the keyframe (with fewer,
         the images have too little texture for features, and the prediction is used instead).
+    prediction_agreement_m, prediction_agreement_deg: a feature-led result farther than this from
+        the constant-velocity prediction is checked against the registration from the prediction;
+        the one with the larger overlap (fitness) is kept.
     feature_agreement_m, feature_agreement_deg: a dense registration that lands farther than this
         from the feature estimate it started at fell into another minimum: the feature estimate is
         kept instead.
@@ -144,6 +147,8 @@ class RgbdOdometryConfig:
     anchor_to_first_pose: bool = True
     features: FeatureConfig | None = field(default_factory=FeatureConfig)
     min_features: int = 100
+    prediction_agreement_m: float = 0.1
+    prediction_agreement_deg: float = 5.0
     feature_agreement_m: float = 0.05
     feature_agreement_deg: float = 3.0
 
@@ -206,6 +211,7 @@ class RgbdOdometry:
         self._previous: tuple[_View, np.ndarray] | None = None  # last frame if not a keyframe: view, T_keyframe_frame
         self.promoted_frames = 0  # previous frames made keyframes when the keyframe had too little in common
         self.feature_frames = 0  # frames whose first guess came from feature matches
+        self.prediction_wins = 0  # feature-led result far from the prediction, and the prediction's overlapped better
         self.feature_fallbacks = 0  # dense result left the feature estimate, even after promoting: the latter kept
         self.seconds = 0.0
 
@@ -291,6 +297,15 @@ class RgbdOdometry:
                 keyframe_from_frame, fitness, motion = self._from_features(view, keyframe.view, term)
         if keyframe_from_frame is not None:
             self.feature_frames += 1
+            if len(self._poses) > 1 and not _near(keyframe_from_frame, predicted, config.prediction_agreement_m,
+                                                  config.prediction_agreement_deg):
+                # Far from where the camera was heading: a real jerk, or features fooled by a
+                # repeated pattern (floor tiles, planks) with the dense terms agreeing on the same
+                # wrong shift. The registration from the prediction too; the better overlap wins.
+                candidate, candidate_fitness = self._register(view, keyframe.view, predicted, term)
+                if candidate is not None and candidate_fitness > fitness:
+                    keyframe_from_frame, fitness = candidate, candidate_fitness
+                    self.prediction_wins += 1
         elif motion is not None:  # the dense result left the feature estimate: that is kept
             self.feature_fallbacks += 1
             keyframe_from_frame = motion.target_from_source
