@@ -111,8 +111,10 @@ class RgbdOdometryConfig:
         match, they have too little in common: the previous frame becomes the keyframe (with fewer,
         the images have too little texture for features, and the prediction is used instead).
     prediction_agreement_m, prediction_agreement_deg: a feature-led result farther than this from
-        the constant-velocity prediction is checked against the registration from the prediction;
-        the one with the larger overlap (fitness) is kept.
+        the constant-velocity prediction is checked against the registration from the prediction,
+        which replaces it when its overlap (fitness) is `prediction_overlap_ratio` times as large
+        (a shift by one period of a repeated pattern overlaps far less; a real jerk overlaps about
+        as well or better from the features).
     feature_agreement_m, feature_agreement_deg: a dense registration that lands farther than this
         from the feature estimate it started at fell into another minimum: the feature estimate is
         kept instead.
@@ -149,6 +151,7 @@ class RgbdOdometryConfig:
     min_features: int = 100
     prediction_agreement_m: float = 0.1
     prediction_agreement_deg: float = 5.0
+    prediction_overlap_ratio: float = 2.0
     feature_agreement_m: float = 0.05
     feature_agreement_deg: float = 3.0
 
@@ -301,9 +304,9 @@ class RgbdOdometry:
                                                   config.prediction_agreement_deg):
                 # Far from where the camera was heading: a real jerk, or features fooled by a
                 # repeated pattern (floor tiles, planks) with the dense terms agreeing on the same
-                # wrong shift. The registration from the prediction too; the better overlap wins.
+                # wrong shift. The registration from the prediction too; a much better overlap wins.
                 candidate, candidate_fitness = self._register(view, keyframe.view, predicted, term)
-                if candidate is not None and candidate_fitness > fitness:
+                if candidate is not None and candidate_fitness > config.prediction_overlap_ratio * fitness:
                     keyframe_from_frame, fitness = candidate, candidate_fitness
                     self.prediction_wins += 1
         elif motion is not None:  # the dense result left the feature estimate: that is kept
