@@ -6,6 +6,7 @@ pixel), so the true poses are exact and the clip takes milliseconds to make.
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -13,9 +14,11 @@ import pytest
 
 from ndfa.core.frame import Frame
 from ndfa.core.geometry import axis_angle_to_matrix, invert_pose, look_at, make_pose, matrix_from_quaternion_xyzw
+from ndfa.io.recording import RecordingReader, RecordingWriter
 from ndfa.trajectory.degeneracy import depth_degeneracy
 from ndfa.trajectory.metrics import absolute_trajectory_error
 from ndfa.trajectory.pose_graph import PoseEdge, optimize_pose_graph
+from ndfa.trajectory.rewrite import estimate_poses_in_place
 from ndfa.trajectory.rgbd import (
     HYBRID,
     POINT_TO_PLANE,
@@ -173,3 +176,66 @@ def test_rgbd_odometry_on_a_slice_of_redkitchen():
     final = odometry.finish()
     assert absolute_trajectory_error(final, truth).rmse_m < 0.03
     assert odometry.rejected_frames == 0
+
+
+def write_clip(path: Path, frames: list[Frame]) -> None:
+    """A recording of `frames` as an import with estimated poses writes it: placeholder (identity)
+    poses, the true ones in the ground-truth channel."""
+    with RecordingWriter(path, {"source": "test", "session": "clip", "poses": "estimated"}) as writer:
+        for frame in frames:
+            writer.write_frame(dataclasses.replace(frame, pose_world_camera=np.eye(4),
+                                                   pose_world_camera_true=frame.pose_world_camera))
+
+
+def test_estimate_in_place_replaces_placeholder_poses_and_scores_the_true_ones(tmp_path):
+    frames = clip(8)
+    write_clip(tmp_path / "clip.mcap", frames)
+    report = estimate_poses_in_place(tmp_path / "clip.mcap", "rgbd")
+    assert report.method == "rgbd" and report.frames == 8 and report.truth == "true poses"
+    assert report.ate is not None and report.ate.rmse_m < 0.03
+    assert list(tmp_path.iterdir()) == [tmp_path / "clip.mcap"]  # replaced in place, nothing left beside it
+    reader = RecordingReader(tmp_path / "clip.mcap")
+    assert reader.meta["poses"] == "rgbd"
+    written = list(reader.frames())
+    assert all(np.allclose(a.pose_world_camera_true, b.pose_world_camera) for a, b in zip(written, frames))
+    assert np.linalg.norm(written[-1].pose_world_camera[:3, 3]) > 0.1  # no longer the placeholder
+
+
+def test_estimate_in_place_without_true_poses_scores_nothing(tmp_path):
+    frames = [dataclasses.replace(frame, pose_world_camera=np.eye(4)) for frame in clip(4)]
+    with RecordingWriter(tmp_path / "clip.mcap", {"source": "test", "session": "clip"}) as writer:
+        for frame in frames:
+            writer.write_frame(frame)
+    report = estimate_poses_in_place(tmp_path / "clip.mcap", "rgbd")
+    assert report.ate is None and report.truth == "none"
+    assert all(frame.pose_world_camera_true is None for frame in RecordingReader(tmp_path / "clip.mcap").frames())
+
+
+def test_ingest_tum_with_estimated_poses_runs_the_whole_session_estimate(tmp_path):
+    from PIL import Image
+    from typer.testing import CliRunner
+
+    from ndfa.cli import app
+    from ndfa.core.geometry import quaternion_xyzw_from_matrix
+    folder = tmp_path / "tum"
+    (folder / "rgb").mkdir(parents=True)
+    (folder / "depth").mkdir()
+    lists = {"rgb": [], "depth": [], "groundtruth": []}
+    for frame in clip(6):
+        stamp = f"{frame.timestamp:.6f}"
+        Image.fromarray(frame.rgb).save(folder / "rgb" / f"{stamp}.png")
+        Image.fromarray(np.round(frame.depth * 5000).astype(np.uint16)).save(folder / "depth" / f"{stamp}.png")
+        lists["rgb"].append(f"{stamp} rgb/{stamp}.png")
+        lists["depth"].append(f"{stamp} depth/{stamp}.png")
+        pose = frame.pose_world_camera
+        lists["groundtruth"].append(stamp + " " + " ".join(f"{v:.9f}" for v in [*pose[:3, 3], *quaternion_xyzw_from_matrix(pose[:3, :3])]))
+    for name, lines in lists.items():
+        (folder / f"{name}.txt").write_text("\n".join(lines) + "\n")
+    out = tmp_path / "clip.mcap"
+    result = CliRunner().invoke(app, ["ingest", "tum", str(folder), "--out", str(out), "--intrinsics",
+                                      f"{K[0, 0]},{K[1, 1]},{K[0, 2]},{K[1, 2]}", "--poses", "rgbd"])
+    assert result.exit_code == 0, result.output
+    assert "rgbd poses of" in result.output and "ATE RMSE" in result.output and "keyframes, loop closures" in result.output
+    reader = RecordingReader(out)
+    assert reader.meta["poses"] == "rgbd" and reader.meta["pose_estimation"]["method"] == "rgbd"
+    assert all(frame.pose_world_camera_true is not None for frame in reader.frames())

@@ -279,23 +279,8 @@ def poses_command(
     table = Table(title=f"{method} on {recording}: {report.frames} frames, against the {report.truth}")
     table.add_column("figure")
     table.add_column("value", justify="right")
-    if report.ate is not None:
-        table.add_row("ATE RMSE (SE(3)-aligned)", f"{100 * report.ate.rmse_m:.2f} cm")
-        table.add_row("ATE max", f"{100 * report.ate.max_m:.2f} cm")
-    for rpe in report.rpe:
-        delta = f"{rpe.delta:g} {'frame' if rpe.unit == 'frames' else 'm'}"
-        table.add_row(f"RPE per {delta}: translation RMSE", f"{1000 * rpe.translation_rmse_m:.1f} mm")
-        table.add_row(f"RPE per {delta}: rotation RMSE", f"{rpe.rotation_rmse_deg:.3f} deg")
-    table.add_row("odometry time", f"{report.ms_per_frame:.0f} ms / frame")
-    table.add_row("frames with too little depth", str(report.starved_frames))
-    table.add_row("registrations rejected" if report.method == "rgbd" else "refinements rejected",
-                  str(report.refinements_rejected))
-    if report.method == "rgbd":
-        from collections import Counter
-
-        table.add_row("terms used", ", ".join(f"{term} {n}" for term, n in Counter(report.terms).most_common()))
-        table.add_row("degenerate depth frames", str(len(report.degenerate_frames)))
-        table.add_row("keyframes, loop closures", f"{report.keyframes}, {report.loop_closures}")
+    for figure, value in report.rows():
+        table.add_row(figure, value)
     console.print(table)
     for path in (out, tum_out):
         if path is not None:

@@ -56,6 +56,27 @@ def _input_warnings(monitor, poses: str, source: Path, out: Path) -> list[str]:
     return report.warnings(untracked_poses="held at the last tracked frame's")
 
 
+def _estimate_session_poses(out: Path, poses: str) -> None:
+    """After an import with `--poses estimate|rgbd|kiss-icp`: the whole-session estimate (loop
+    closure needs every frame) replaces the poses written frame by frame; its errors are printed
+    when the input had true poses."""
+    if poses == "given":
+        return
+    from ndfa.trajectory.rewrite import estimate_poses_in_place
+
+    with progress_bar() as progress:
+        task = progress.add_task(f"poses of {out.name}", total=None)
+        report = estimate_poses_in_place(out, poses, on_progress=lambda done, total: progress.update(
+            task, completed=done, total=total))
+    table = Table(title=f"{report.method} poses of {out}: {report.frames} frames, against the {report.truth}",
+                  show_header=False)
+    table.add_column("figure")
+    table.add_column("value", justify="right")
+    for figure, value in report.rows():
+        table.add_row(figure, value)
+    console.print(table)
+
+
 @ingest_app.command("sim")
 def ingest_sim_command(
     out: Path = typer.Option(..., "--out", "-o", help="Output directory for source.mcap and target.mcap."),
@@ -205,6 +226,7 @@ def ingest_tum_command(
     console.print(table)
     for message in summary.warnings + input_warnings:
         console.print(f"[yellow]warning:[/yellow] {message}", highlight=False, soft_wrap=True)
+    _estimate_session_poses(out, poses)
 
 
 @ingest_app.command("bag")
@@ -267,6 +289,7 @@ def ingest_bag_command(
     console.print(table)
     for message in input_warnings:
         console.print(f"[yellow]warning:[/yellow] {message}", highlight=False, soft_wrap=True)
+    _estimate_session_poses(out, poses)
 
 
 export_app = typer.Typer(no_args_is_help=True, help="Write ndfa recordings out in other formats.")

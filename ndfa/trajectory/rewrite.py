@@ -7,11 +7,16 @@ The copy is the input frame for frame (images, calibration, instances, ground-tr
 for the pose. The truth is never lost: a recording that already has true poses keeps them; one that
 has none keeps its original poses as the true ones. So `ndfa detect` on the copy runs on estimated
 poses and still knows the truth, and `rewrite_poses` on the copy measures the estimate again.
+
+`estimate_poses_in_place` is the importers' `--poses estimate|rgbd|kiss-icp`: an import writes
+placeholder poses frame by frame, then the whole-session estimate (with loop closure, which needs
+every frame) replaces them in the same file.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -19,6 +24,7 @@ import numpy as np
 
 from ndfa.core.errors import TrajectoryError
 from ndfa.core.progress import Progress
+from ndfa.io.atomic import Staged
 from ndfa.io.recording import RecordingReader, RecordingWriter
 from ndfa.trajectory.checks import check_recording
 from ndfa.trajectory.kiss import DepthOdometry, OdometryConfig
@@ -71,14 +77,37 @@ class PoseReport:
     timestamps: np.ndarray = field(default_factory=lambda: np.zeros(0))
     estimate: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)))
 
+    def rows(self) -> list[tuple[str, str]]:
+        """(figure, value) pairs for a terminal table: errors, time and what the odometry did."""
+        rows = []
+        if self.ate is not None:
+            rows += [("ATE RMSE (SE(3)-aligned)", f"{100 * self.ate.rmse_m:.2f} cm"), ("ATE max", f"{100 * self.ate.max_m:.2f} cm")]
+        for rpe in self.rpe:
+            delta = f"{rpe.delta:g} {'frame' if rpe.unit == 'frames' else 'm'}"
+            rows += [(f"RPE per {delta}: translation RMSE", f"{1000 * rpe.translation_rmse_m:.1f} mm"),
+                     (f"RPE per {delta}: rotation RMSE", f"{rpe.rotation_rmse_deg:.3f} deg")]
+        rows += [("odometry time", f"{self.ms_per_frame:.0f} ms / frame"),
+                 ("frames with too little depth", str(self.starved_frames)),
+                 ("registrations rejected" if self.method == "rgbd" else "refinements rejected", str(self.refinements_rejected))]
+        if self.method == "rgbd":
+            terms = Counter(self.terms).most_common()
+            rows += [("terms used", ", ".join(f"{term} {n}" for term, n in terms)),
+                     ("degenerate depth frames", str(len(self.degenerate_frames))),
+                     ("keyframes, loop closures", f"{self.keyframes}, {self.loop_closures}")]
+        return rows
+
 
 def rewrite_poses(recording_in: str | Path, recording_out: str | Path, method: str = "kiss-icp",
                   config: OdometryConfig = OdometryConfig(), on_progress: Progress | None = None,
-                  rgbd_config: RgbdOdometryConfig = RgbdOdometryConfig()) -> PoseReport:
+                  rgbd_config: RgbdOdometryConfig = RgbdOdometryConfig(), given_poses_are_true: bool = True) -> PoseReport:
     """Estimate the camera poses of `recording_in` with `method` and write `recording_out`: the same
     recording with /tf replaced by the estimate (see the module docstring). kiss-icp: one pass, one
     frame in memory at a time. rgbd: a pass to estimate (keeping the keyframes' subsampled images),
-    loop closure, and a pass to write. The output appears only when complete. Returns the `PoseReport`."""
+    loop closure, and a pass to write. The output appears only when complete. Returns the `PoseReport`.
+
+    given_poses_are_true: where a frame has no true pose, its given pose becomes the true one (and
+    the errors are taken against it); False when the given poses are placeholders (an import that
+    estimates its poses), so that only real true poses are kept and scored."""
     recording_in, recording_out = Path(recording_in), Path(recording_out)
     if method not in METHODS:
         raise TrajectoryError(f"unknown pose method {method!r}; expected one of {', '.join(METHODS)}")
@@ -89,7 +118,7 @@ def rewrite_poses(recording_in: str | Path, recording_out: str | Path, method: s
         method = choose_method(reader)
     check_recording(reader, uses_colour=method == "rgbd")  # InputWarnings; one line when nothing can be tracked
     if method == "rgbd":
-        return _rewrite_rgbd(reader, recording_in, recording_out, rgbd_config, on_progress)
+        return _rewrite_rgbd(reader, recording_in, recording_out, rgbd_config, on_progress, given_poses_are_true)
     meta = _output_meta(reader.meta, method, config)
 
     odometry = DepthOdometry(config)
@@ -100,10 +129,7 @@ def rewrite_poses(recording_in: str | Path, recording_out: str | Path, method: s
             writer.write_ground_truth(reader.ground_truth)
         for frame in reader.frames():
             pose = odometry.update(frame)
-            true_pose = frame.pose_world_camera_true
-            truth_kinds.add("true poses" if true_pose is not None else "given poses")
-            if true_pose is None:
-                true_pose = frame.pose_world_camera
+            true_pose = _true_pose(frame, given_poses_are_true, truth_kinds)
             writer.write_frame(dataclasses.replace(frame, pose_world_camera=pose, pose_world_camera_true=true_pose))
             timestamps.append(frame.timestamp)
             estimate.append(pose)
@@ -126,7 +152,7 @@ def choose_method(reader: RecordingReader) -> str:
 
 
 def _rewrite_rgbd(reader: RecordingReader, recording_in: Path, recording_out: Path, config: RgbdOdometryConfig,
-                  on_progress: Progress | None) -> PoseReport:
+                  on_progress: Progress | None, given_poses_are_true: bool) -> PoseReport:
     """`rewrite_poses` with the RGB-D odometry: estimate over the whole session (loop closure needs
     it), then write the copy."""
     odometry = RgbdOdometry(config)
@@ -135,10 +161,8 @@ def _rewrite_rgbd(reader: RecordingReader, recording_in: Path, recording_out: Pa
     total = 2 * len(reader)
     for frame in reader.frames():
         odometry.update(frame)
-        true_pose = frame.pose_world_camera_true
-        truth_kinds.add("true poses" if true_pose is not None else "given poses")
         timestamps.append(frame.timestamp)
-        reference.append(true_pose if true_pose is not None else frame.pose_world_camera)
+        reference.append(_true_pose(frame, given_poses_are_true, truth_kinds))
         if on_progress is not None:
             on_progress(len(timestamps), total)
     estimate = odometry.finish()
@@ -159,9 +183,39 @@ def _rewrite_rgbd(reader: RecordingReader, recording_in: Path, recording_out: Pa
     return report
 
 
-def _add_errors(report: PoseReport, estimate: list[np.ndarray], reference: list[np.ndarray]) -> None:
-    """ATE and RPE of the estimate against the reference poses, where there are enough frames."""
-    if len(estimate) >= 3:
+def estimate_poses_in_place(recording: str | Path, method: str = "estimate", on_progress: Progress | None = None,
+                            rgbd_config: RgbdOdometryConfig = RgbdOdometryConfig()) -> PoseReport:
+    """Replace the poses of `recording` (placeholders written by an import) by the whole-session
+    estimate of `method`, loop closure included, atomically: the recording is either the old one or
+    the complete new one. Its true poses, if any, are kept and scored; its given ones are not."""
+    recording = Path(recording)
+    staged = Staged(recording)
+    try:
+        report = rewrite_poses(recording, staged.temporary, method, on_progress=on_progress, rgbd_config=rgbd_config,
+                               given_poses_are_true=False)
+        staged.commit()
+    finally:
+        staged.discard()
+    report.recording_out = recording
+    return report
+
+
+def _true_pose(frame, given_poses_are_true: bool, kinds: set[str]) -> np.ndarray | None:
+    """The frame's true pose: its own, else its given one when those count as true (None when not);
+    `kinds` collects which it was."""
+    if frame.pose_world_camera_true is not None:
+        kinds.add("true poses")
+        return frame.pose_world_camera_true
+    if given_poses_are_true:
+        kinds.add("given poses")
+        return frame.pose_world_camera
+    return None
+
+
+def _add_errors(report: PoseReport, estimate: list[np.ndarray], reference: list[np.ndarray | None]) -> None:
+    """ATE and RPE of the estimate against the reference poses, where there are enough frames and
+    every frame has one."""
+    if len(estimate) >= 3 and all(pose is not None for pose in reference):
         report.ate = absolute_trajectory_error(estimate, reference)
         for delta, unit in RPE_DELTAS:
             try:
