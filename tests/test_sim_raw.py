@@ -251,3 +251,19 @@ def test_detect_scores_a_raw_recording_by_position(recordings):
     assert set(result.score.unscored_ids) == mugs - scorable_instances(truth, visible) != set()
     assert max(result.score.alignment_rmse_m.values()) < 1e-6
     assert any(note.startswith("scored by position") for note in result.notes)
+
+
+def test_a_raw_route_turns_at_most_the_limit_and_keeps_slow_turns():
+    from ndfa.sim.trajectory import limit_turns
+
+    # A gaze that pans slowly, then whips round by 180 deg through "straight down".
+    headings = np.radians(np.r_[np.arange(0, 20, 2.0), np.full(12, 200.0)])
+    gazes = np.c_[np.cos(headings), np.sin(headings), np.full(len(headings), -0.2)]
+    gazes[10] = [0.0, 0.0, -1.0]
+    limited = limit_turns(gazes, max_turn_deg=20.0)
+    heading = np.degrees(np.unwrap(np.arctan2(limited[:, 1], limited[:, 0])))
+    pitch = np.degrees(np.arcsin(limited[:, 2]))
+    assert np.abs(np.diff(heading)).max() <= 20.0 + 1e-6 and np.abs(np.diff(pitch)).max() <= 20.0 + 1e-6
+    assert (heading[-1] - 200.0) % 360.0 == pytest.approx(0.0, abs=1e-6)   # the whip is made up over a few frames
+    np.testing.assert_allclose(limited[:10], gazes[:10] / np.linalg.norm(gazes[:10], axis=1, keepdims=True), atol=1e-12)
+    assert np.degrees(np.arcsin(-limited[:, 2])).max() <= 30.0 + 1e-6   # never more than 30 deg down

@@ -14,6 +14,7 @@ from ndfa.cli.app import app, bar_per_label, console, err_console, progress_bar
 from ndfa.core.errors import NdfaError
 from ndfa.io.ingest import MAX_DT_S
 from ndfa.io.ingest.tum_layout import DEFAULT_INTRINSICS, DEPTH_SCALE, INTRINSICS_PRESETS
+from ndfa.sim.trajectory import RAW_MAX_TURN_DEG
 
 _PRESETS = " | ".join(INTRINSICS_PRESETS)
 
@@ -107,6 +108,8 @@ def ingest_sim_command(
                                                   "(/tf); the true poses stay in the ground truth."),
     world_tilt: float = typer.Option(0.0, help="Tilt the recorded world frame this many degrees away from z-up "
                                                "(random roll/pitch axis from the seed)."),
+    max_turn: Optional[float] = typer.Option(None, help="Most the camera turns between frames, degrees; 0: unlimited "
+                                                        f"(default: {RAW_MAX_TURN_DEG:g} with --raw, else unlimited)."),
 ) -> None:
     """Render a synthetic source/target pair of recordings with ground truth."""
     from ndfa.io.ingest.synthetic import check_output_dir, ingest_sim
@@ -133,6 +136,11 @@ def ingest_sim_command(
         overrides["target_route"] = target_route
     if step is not None:
         overrides["trajectory"] = dataclasses.replace(config.trajectory, step_m=step)
+    if max_turn is None:
+        max_turn = RAW_MAX_TURN_DEG if raw else 0.0
+    if max_turn:
+        trajectory = overrides.get("trajectory", config.trajectory)
+        overrides["trajectory"] = dataclasses.replace(trajectory, max_turn_deg=max_turn)
     if noise is not None or noise_scale is not None:
         overrides["depth_noise"] = DepthNoise().scaled(1.0 if noise_scale is None else noise_scale)
         if noise is False:

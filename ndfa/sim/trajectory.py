@@ -24,6 +24,9 @@ from ndfa.core.geometry import look_at
 from ndfa.sim.scene import Table
 
 ROUTES = ("perimeter", "corridor", "weave", "circles")
+# The gaze limit of a raw (sensor-like) recording: a quick hand-held turn, 100 deg/s at the
+# simulator's 5 frames/s; at a 60 deg field of view two frames still share two thirds of the view.
+RAW_MAX_TURN_DEG = 20.0
 
 
 @dataclass(frozen=True)
@@ -35,6 +38,11 @@ class TrajectoryConfig:
     height_wobble_m: float = 0.05   # smooth random height variation (the paper trains on +-0.1 m)
     look_height_m: float = 0.06     # the camera looks at this height above the nearest table's centre
     smoothing_m: float = 0.35       # Gaussian smoothing length of the route's corners and of the gaze
+    # Most the gaze turns between two frames, degrees; 0: unlimited. Where the nearest table
+    # changes sides, the smoothed gaze target can pass under the camera and the view whips round by
+    # over 100 deg in one frame, which no real camera does and no odometry can follow. Off keeps the
+    # published scenes' routes (with given poses the whips do not matter); `ingest sim --raw` sets it.
+    max_turn_deg: float = 0.0
 
 
 def camera_poses(tables: list[Table], config: TrajectoryConfig, rng: np.random.Generator) -> np.ndarray:
@@ -49,7 +57,34 @@ def camera_poses(tables: list[Table], config: TrajectoryConfig, rng: np.random.G
     wobble *= config.height_wobble_m / max(np.abs(wobble).max(), 1e-9)
     heights = table_height + config.height_above_table_m + wobble
     eyes = np.c_[positions_xy, heights]
+    if config.max_turn_deg > 0:
+        targets = eyes + limit_turns(targets - eyes, config.max_turn_deg)
     return np.stack([look_at(eye, target) for eye, target in zip(eyes, targets)])
+
+
+def limit_turns(gazes: np.ndarray, max_turn_deg: float, max_down_deg: float = 30.0) -> np.ndarray:
+    """Unit gaze directions (N, 3) that follow `gazes` but turn at most `max_turn_deg` per step in
+    heading (about world up) and in pitch, and look at most `max_down_deg` below the horizon. A whip
+    becomes a quick pan over a few frames; a turn under the limit is kept as it is. Heading and
+    pitch are limited apart because a great-circle turn between two opposite headings passes
+    through "straight down", which is the whip again; the pitch bound keeps the camera off the
+    floor where the smoothed target passes under it."""
+    gazes = np.asarray(gazes, dtype=float)
+    limit, lowest = np.radians(max_turn_deg), np.radians(max_down_deg)
+    out = np.empty_like(gazes)
+    heading = pitch = 0.0
+    for i, gaze in enumerate(gazes):
+        horizontal = float(np.linalg.norm(gaze[:2]))
+        wanted_heading = float(np.arctan2(gaze[1], gaze[0])) if horizontal > 1e-9 else heading
+        wanted_pitch = max(float(np.arctan2(gaze[2], horizontal)), -lowest)
+        if i == 0:
+            heading, pitch = wanted_heading, wanted_pitch
+        else:
+            turn = (wanted_heading - heading + np.pi) % (2 * np.pi) - np.pi
+            heading += float(np.clip(turn, -limit, limit))
+            pitch += float(np.clip(wanted_pitch - pitch, -limit, limit))
+        out[i] = [np.cos(pitch) * np.cos(heading), np.cos(pitch) * np.sin(heading), np.sin(pitch)]
+    return out
 
 
 def route_waypoints(tables: list[Table], route: str, clearance: float) -> tuple[np.ndarray, bool]:
