@@ -217,3 +217,11 @@ def test_import_with_estimated_poses_warns_and_stops(tmp_path):
     assert isinstance(result.exception, NdfaError)
     assert "no frame can be tracked: none of its 8 frames has usable depth" in str(result.exception)
     assert not (tmp_path / "dark-in.mcap").exists()
+
+
+def test_the_gap_clock_flags_the_frame_after_a_gap_as_check_frames_does():
+    from ndfa.trajectory.checks import GapClock
+
+    clock = GapClock()
+    times = [i / 30 for i in range(5)] + [2.0 + i / 30 for i in range(5, 8)]  # 30 Hz, then 2 s missing
+    assert [clock.after_gap(t) for t in times] == [False] * 5 + [True, False, False]

@@ -214,6 +214,31 @@ def _block_mean(rgb: np.ndarray, step: int, shape: tuple[int, ...]) -> np.ndarra
     return total / (step * step)
 
 
+def gap_limit_s(median_step_s: float, config: InputCheckConfig = InputCheckConfig()) -> float:
+    """The longest step between two frames that is not a time gap (see `InputCheckConfig`)."""
+    return max(config.gap_s, config.gap_factor * median_step_s)
+
+
+class GapClock:
+    """Frame by frame, whether a frame comes after a time gap: the odometry's motion prediction
+    (one more step of the last motion) does not hold across one, since more time passed."""
+
+    def __init__(self, config: InputCheckConfig = InputCheckConfig()) -> None:
+        self.config = config
+        self._last: float | None = None
+        self._steps: list[float] = []
+
+    def after_gap(self, timestamp: float) -> bool:
+        last, self._last = self._last, timestamp
+        if last is None:
+            return False
+        step = timestamp - last
+        gap = bool(self._steps) and step > gap_limit_s(float(np.median(self._steps[-50:])), self.config)
+        if not gap:
+            self._steps.append(step)
+        return gap
+
+
 def check_frames(checks: Sequence[FrameCheck], config: InputCheckConfig = InputCheckConfig(),
                  uses_colour: bool = True) -> InputReport:
     """Judge a session from its frames' checks (in time order). `uses_colour`: whether the odometry
@@ -223,7 +248,7 @@ def check_frames(checks: Sequence[FrameCheck], config: InputCheckConfig = InputC
     median = float(np.median(steps)) if len(steps) else float("nan")
     report = InputReport(frames=len(checks), median_step_s=median, config=config)
     if len(steps):
-        limit = max(config.gap_s, config.gap_factor * median)
+        limit = gap_limit_s(median, config)
         for i in np.flatnonzero(steps > limit):
             report.gaps.append(Gap(checks[i].index, checks[i + 1].index, float(times[i] - times[0]),
                                    float(times[i + 1] - times[0])))

@@ -29,6 +29,7 @@ import numpy as np
 from ndfa.core.errors import TrajectoryError
 from ndfa.core.frame import Frame
 from ndfa.core.geometry import backproject, project
+from ndfa.trajectory.checks import GapClock
 
 # Below this many valid depth points a frame is not registered: its pose is the constant-velocity
 # prediction (the camera keeps its last motion), and the frame is counted as starved.
@@ -173,6 +174,7 @@ class DepthOdometry:
         self._anchor: np.ndarray | None = None  # T_world_camera0
         self.frames = 0
         self.starved_frames = 0  # frames with fewer than MIN_POINTS valid points, not registered
+        self._clock = GapClock()
         self.refinements_rejected = 0  # frames whose point-to-plane refinement was not trusted
         self.seconds = 0.0  # spent in back-projection and registration
 
@@ -186,7 +188,8 @@ class DepthOdometry:
         distance = np.linalg.norm(points, axis=1)
         points = points[(distance >= config.min_range_m) & (distance <= config.max_range_m)]
 
-        prediction = kiss.last_pose @ kiss.last_delta  # constant velocity
+        # Constant velocity; across a time gap the motion is unknown, so no motion is the guess.
+        prediction = kiss.last_pose if self._clock.after_gap(frame.timestamp) else kiss.last_pose @ kiss.last_delta
         if len(points) < MIN_POINTS:
             # Keep moving as before; the map is not updated from a frame that shows (almost) nothing.
             self.starved_frames += 1

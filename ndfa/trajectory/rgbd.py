@@ -53,6 +53,7 @@ import numpy as np
 from ndfa.core.conventions import MAX_DEPTH_M, MIN_DEPTH_M
 from ndfa.core.errors import TrajectoryError
 from ndfa.core.frame import Frame
+from ndfa.trajectory.checks import GapClock
 from ndfa.trajectory.degeneracy import depth_degeneracy, plane_information, textured_fraction
 from ndfa.trajectory.features import (
     FeatureConfig,
@@ -210,6 +211,7 @@ class RgbdOdometry:
         self.terms: list[str] = []  # per frame, the term it was registered with
         self.degenerate: list[bool] = []  # per frame, whether depth alone was ambiguous
         self.starved_frames = 0  # too little valid depth: not registered
+        self._clock = GapClock()
         self.rejected_frames = 0  # registration rejected: the prediction kept
         self._previous: tuple[_View, np.ndarray] | None = None  # last frame if not a keyframe: view, T_keyframe_frame
         self.promoted_frames = 0  # previous frames made keyframes when the keyframe had too little in common
@@ -242,7 +244,7 @@ class RgbdOdometry:
         if self._anchor is None:
             self._anchor = frame.pose_world_camera.copy() if self.config.anchor_to_first_pose else np.eye(4)
         view = self._prepare(frame)
-        pose, term, degenerate = self._track(view)
+        pose, term, degenerate = self._track(view, after_gap=self._clock.after_gap(frame.timestamp))
         self._poses.append(pose)
         self.terms.append(term)
         self.degenerate.append(degenerate)
@@ -269,7 +271,7 @@ class RgbdOdometry:
 
     # -- one frame --------------------------------------------------------------------------------
 
-    def _track(self, view: _View) -> tuple[np.ndarray, str, bool]:
+    def _track(self, view: _View, after_gap: bool = False) -> tuple[np.ndarray, str, bool]:
         """The odometry pose of the frame, the term used, and whether depth was degenerate."""
         config = self.config
         if not self._poses:
@@ -277,7 +279,8 @@ class RgbdOdometry:
             return np.eye(4), NO_TERM, False
         last = self._poses[-1]
         before = self._poses[-2] if len(self._poses) > 1 else last
-        prediction = last @ np.linalg.inv(before) @ last  # constant velocity
+        # Constant velocity; across a time gap the motion is unknown, so no motion is the guess.
+        prediction = last if after_gap else last @ np.linalg.inv(before) @ last
         if view.valid_fraction < config.min_valid_fraction or not self.keyframes:
             self.starved_frames += 1
             self._previous = None  # not registered: no keyframe material
