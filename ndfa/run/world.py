@@ -59,6 +59,9 @@ class SessionWorld:
     levelling: np.ndarray | None = None     # (3, 3) rotation applied to every pose, or None
     poses: dict[int, np.ndarray] | None = None  # estimated camera-to-world poses by frame index
     notes: list[str] = field(default_factory=list)  # warnings about the input: frames named, one line each
+    # The estimated poses against the recording's true ones (a simulator's ground-truth channel), when
+    # it has them: {"ate_rmse_m", "ate_max_m", "rpe_translation_m", "rpe_rotation_deg", "frames"}.
+    pose_quality: dict | None = None
 
     def apply(self, frame: Frame) -> Frame:
         """`frame` with the estimated pose (if any), levelled (if needed)."""
@@ -69,7 +72,11 @@ class SessionWorld:
     def describe(self) -> str:
         """One line: which poses and which up this session runs on, and how they were found; then one
         indented line per warning about the session's input (`notes`)."""
-        return f"{self.session}: poses {self.pose_source}; up {self.describe_up()}" + "".join(
+        quality = "" if self.pose_quality is None else (
+            f" (against the true poses: ATE RMSE {100 * self.pose_quality['ate_rmse_m']:.1f} cm, "
+            f"max {100 * self.pose_quality['ate_max_m']:.1f} cm, RPE {1000 * self.pose_quality['rpe_translation_m']:.1f} mm "
+            f"/ {self.pose_quality['rpe_rotation_deg']:.2f} deg per frame)")
+        return f"{self.session}: poses {self.pose_source}{quality}; up {self.describe_up()}" + "".join(
             f"\n  warning: {self.session}: {note}" for note in self.notes)
 
     def describe_up(self) -> str:
@@ -94,7 +101,7 @@ class SessionWorld:
         return {"poses": self.pose_source, "up": self.up_source,
                 "up_estimate": None if self.up is None else self.up.to_dict(),
                 "up_check": None if self.up_check is None else self.up_check.to_dict(),
-                "levelled": self.levelling is not None, "notes": list(self.notes)}
+                "levelled": self.levelling is not None, "notes": list(self.notes), "pose_quality": self.pose_quality}
 
 
 def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
@@ -108,8 +115,9 @@ def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
     if poses == "truth":
         world.poses, world.pose_source = _true_poses(reader), "true (the ground-truth channel)"
     elif poses == "estimate" or (poses == "auto" and not reader.has_poses):
-        world.poses, world.pose_source, input_notes = _estimate_poses(reader)
+        world.poses, world.pose_source, input_notes, truth = _estimate_poses(reader)
         world.notes.extend(input_notes)
+        world.pose_quality = _pose_quality(world.poses, truth)
     elif not reader.has_poses:
         raise RecordingError(f"{reader.path}: has no camera poses and pose estimation is off (--poses given)")
 
@@ -177,22 +185,38 @@ def _true_poses(reader: RecordingReader) -> dict[int, np.ndarray]:
     return poses
 
 
-def _estimate_poses(reader: RecordingReader) -> tuple[dict[int, np.ndarray], str, list[str]]:
+def _pose_quality(estimate: dict[int, np.ndarray], truth: dict[int, np.ndarray]) -> dict | None:
+    """ATE and per-frame RPE of `estimate` against `truth` when every frame has a true pose."""
+    from ndfa.trajectory.metrics import absolute_trajectory_error, relative_pose_error
+
+    if len(estimate) < 3 or set(truth) != set(estimate):
+        return None
+    indices = sorted(estimate)
+    ate = absolute_trajectory_error([estimate[i] for i in indices], [truth[i] for i in indices])
+    rpe = relative_pose_error([estimate[i] for i in indices], [truth[i] for i in indices])
+    return {"frames": len(indices), "ate_rmse_m": ate.rmse_m, "ate_max_m": ate.max_m,
+            "rpe_translation_m": rpe.translation_rmse_m, "rpe_rotation_deg": rpe.rotation_rmse_deg}
+
+
+def _estimate_poses(reader: RecordingReader) -> tuple[dict[int, np.ndarray], str, list[str], dict[int, np.ndarray]]:
     """Every frame's pose by odometry over the whole session, the method, and warnings about the
     input (`ndfa.trajectory.checks`). The poses of frames without usable depth are interpolated
     between the tracked frames around them, not taken from the odometry (which can only extrapolate
     there); the odometry still sees them, except before the first frame with depth, so that its
     motion model carries on across them (re-acquiring after a hole went better so than restarting
     from the last tracked frame: docs/input_checks.md). A session none of whose frames can be
-    tracked stops with one line naming the file."""
+    tracked stops with one line naming the file. Also returns the frames' true poses (those it has)."""
     from ndfa.trajectory.checks import InputMonitor, fill_untracked
     from ndfa.trajectory.rewrite import choose_method
 
     monitor = InputMonitor()
     fed: list[int] = []  # positions (in the session) of the frames given to the odometry
+    truth: dict[int, np.ndarray] = {}
 
     def frames():
         for position, frame in enumerate(reader.frames()):
+            if frame.pose_world_camera_true is not None:
+                truth[frame.index] = frame.pose_world_camera_true
             if monitor.observe(frame).has_depth or fed:
                 fed.append(position)
                 yield frame
@@ -210,10 +234,10 @@ def _estimate_poses(reader: RecordingReader) -> tuple[dict[int, np.ndarray], str
     report = monitor.report(uses_colour)
     report.raise_if_untrackable(reader.path)
     if not monitor.checks:
-        return {}, how, []
+        return {}, how, [], truth
     poses: list[np.ndarray | None] = [None] * len(monitor.checks)
     for position, pose in zip(fed, estimate, strict=True):
         poses[position] = pose if monitor.checks[position].has_depth else None
     filled = fill_untracked([check.timestamp for check in monitor.checks], poses)
     notes = report.warnings(untracked_poses="interpolated between the tracked frames around them")
-    return {check.index: pose for check, pose in zip(monitor.checks, filled, strict=True)}, how, notes
+    return {check.index: pose for check, pose in zip(monitor.checks, filled, strict=True)}, how, notes, truth
