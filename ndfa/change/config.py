@@ -55,6 +55,11 @@ class DecisionConfig:
     in_place_m: float = 0.05           # no edge agrees, yet unchanged this close to its shape match; 0: off
     min_measurements: int = 3          # an object is tested (and reported) only from this many measurements
     confirm_measurements: int = 8      # a "changed" verdict on fewer measurements waits for more views
+    # A source object counts as looked at by the target (and so "removed" when never matched) when a
+    # tested target object stands in its neighbourhood AND within this height of it: the trees are
+    # horizontal, so without it testing a mug on a table "observes" a piece of floor under the
+    # table, which the target may never have seen (docs/detector.md). 0: off (any height).
+    observed_height_m: float = 0.3
 
 
 @dataclass(frozen=True)
@@ -76,5 +81,5 @@ class DetectorConfig:
             registration=RegistrationConfig(pairs=6, candidates=1, inlier_m=0.05, min_inliers=0, enough_inliers=0,
                                             retry_frames=1, seed=0),
             decision=DecisionConfig(edge_m=0.03, fallback_distance_m=0.05, in_place_m=0.0, min_measurements=1,
-                                    confirm_measurements=1),
+                                    confirm_measurements=1, observed_height_m=0.0),
         )

@@ -128,6 +128,14 @@ class ChangeDetector:
             events.append(tree_event(session, m.frame_index, session_map))
         return a, events
 
+    def _looked_at(self, center_source: np.ndarray, source_ids: list[int]) -> list[int]:
+        """The neighbours a test at `center_source` counts as observed by the target (see
+        `DecisionConfig.observed_height_m`)."""
+        height = self.config.decision.observed_height_m
+        if height <= 0:
+            return source_ids
+        return [s for s in source_ids if abs(self.source.objects[s].center_world[2] - center_source[2]) <= height]
+
     def _test(self, object_id: int, frame_index: int, final: bool = False) -> list[Event]:
         """The change test of target object O at T_rel t_O, unless O is already marked changed."""
         if object_id in self.changed:
@@ -141,7 +149,7 @@ class ChangeDetector:
         rotation = transform[:3, :3]
         center_source = apply(transform, obj.center_world[None])[0]
         source_ids = self.source.neighbourhood(center_source)
-        self.observed.update(source_ids)
+        self.observed.update(self._looked_at(center_source, source_ids))
         similarity = {s: float(cosine_similarity(obj.shape_code, self.source.objects[s].shape_code)) for s in source_ids}
         shape_similarity = self.config.association.shape_similarity
         verdict = shape_verdict(source_ids, similarity, shape_similarity)
