@@ -137,3 +137,12 @@ def test_estimated_poses_are_scored_against_the_true_ones_when_a_recording_has_t
     assert _pose_quality(jumped, {i: truth[i] for i in range(5)}) is None   # not every frame has a true pose
     world = SessionWorld("target", pose_source="estimated", up_source="z", pose_quality=quality)
     assert "ATE RMSE" in world.describe() and world.as_dict()["pose_quality"] == quality
+
+
+@pytest.mark.slow
+def test_a_synthetic_recording_with_estimated_poses_has_its_up_estimated(tmp_path):
+    # Odometry's world starts at its first camera: the simulator's "z is up" no longer holds there.
+    short = _rewritten(SAMPLE / "source.mcap", tmp_path / "short.mcap", np.eye(4), {}, stop=12)
+    world = prepare_session(RecordingReader(short), "source", poses="estimate")
+    assert world.poses is not None and world.up is not None and world.up_source == "estimated"
+    assert prepare_session(RecordingReader(short), "source").up_source.startswith("z (a synthetic")

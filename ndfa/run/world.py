@@ -8,7 +8,8 @@ The core works on frames with camera poses in a z-up world (`ndfa.core.conventio
   the way (`ndfa.trajectory.checks`): time gaps, frames without depth (their poses interpolated
   between the tracked frames, not extrapolated) and flat views become `notes`, which name the frames; a session none
   of whose frames can be tracked stops with one line.
-- **up**: a synthetic recording says its world is z-up and is taken at its word. Any other is
+- **up**: a synthetic recording says its world is z-up and is taken at its word (unless its poses
+  were estimated: odometry's world starts at the first camera). Any other is
   checked: gravity is taken from the IMU when the importer recorded its still readings (a bag with
   an Imu topic: meta "imu"), checked by the support planes; otherwise it is estimated from the
   support planes (`ndfa.trajectory.up`), on frames spread over the session. A world tilted by more
@@ -124,7 +125,9 @@ def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
     if up == "z":
         world.up_source = "z (as given: --up z)"
         return world
-    if up == "auto" and _known_z_up(reader.meta):
+    # Odometry's world starts at its first camera (whose up is -y), whatever the recording's was.
+    estimated = world.poses is not None and poses != "truth"
+    if up == "auto" and _known_z_up(reader.meta) and not estimated:
         world.up_source = "z (a synthetic recording's world is z-up)"
         return world
     step = max(1, len(reader) // UP_FRAMES)
