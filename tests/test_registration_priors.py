@@ -112,3 +112,27 @@ def test_the_scene_alignment_finds_a_turn_and_a_shift_between_two_scans():
     result = align_scenes(source, target, AlignConfig())
     assert result.ok and result.transform is not None
     np.testing.assert_allclose(result.transform, motion, atol=0.05)
+
+
+def test_a_weak_prior_does_not_veto_a_ransac_fit_of_many_objects_and_a_binding_one_does():
+    rng = np.random.default_rng(1)
+    mugs = {i: np.array([*rng.uniform(-2, 2, size=2), 0.8]) for i in range(1, 11)}
+    offset = make_pose(rotation_z(0.7), np.array([0.4, -0.3, 0.0]))
+    wrong = make_pose(rotation_z(-1.5), np.array([2.0, 1.0, 0.0]))
+
+    def run(prior: RegistrationPrior) -> ChangeDetector:
+        detector = ChangeDetector(DetectorConfig())
+        detector.add_registration_prior(prior)
+        for f in range(6):
+            detector.add_source([Measurement(f, i, _code(i) + rng.normal(scale=0.02, size=16), c, 0.8)
+                                 for i, c in mugs.items()])
+        for f in range(6):
+            detector.add_target([Measurement(f, i, _code(i) + rng.normal(scale=0.02, size=16),
+                                             apply(offset, c[None])[0], 0.8) for i, c in mugs.items()])
+        detector.finish()
+        return detector
+
+    weak = run(RegistrationPrior("scene alignment", wrong, binding=False))
+    assert weak.registration is not None and weak.registration.method == "object pairs"
+    np.testing.assert_allclose(weak.registration.transform, np.linalg.inv(offset), atol=0.02)
+    assert run(RegistrationPrior("scene alignment", wrong, binding=True)).registration is None

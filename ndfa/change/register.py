@@ -49,6 +49,10 @@ class RegistrationPrior:
 
     method: RegistrationMethod
     transform: np.ndarray
+    # Whether a RANSAC fit must agree with it: a confident prior (a shared world, a scene alignment
+    # with a clear overlap) rules out chance layouts of few objects; a weak one (rooms of identical
+    # tables align several ways) is only one more hypothesis.
+    binding: bool = True
 
 
 def rigid_transform(target: np.ndarray, source: np.ndarray) -> np.ndarray:

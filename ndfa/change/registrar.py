@@ -140,13 +140,14 @@ class Registrar:
 
     def _agrees_with_priors(self, result: Registration, pairs: list[tuple[int, int]],
                             target_centers: dict[int, np.ndarray]) -> bool:
-        """With no prior, any estimate; else one that puts its inliers' target centers within 2 inlier_m
+        """With no binding prior, any estimate; else one that puts its inliers' target centers within 2 inlier_m
         of where some prior puts them (few objects make layouts that fit by chance; the scene does not)."""
-        if not self.priors:
+        binding = [p for p in self.priors if p.binding]
+        if not binding:
             return True
         centers = np.array([target_centers[pairs[i][0]] for i in result.inliers]).reshape(-1, 3)
         return any(np.max(np.linalg.norm(apply(result.transform, centers) - apply(p.transform, centers), axis=1))
-                   <= 2 * self.config.inlier_m for p in self.priors)
+                   <= 2 * self.config.inlier_m for p in binding)
 
     def _event(self, frame_index: int, pairs: list[tuple[int, int]], result: Registration | None,
                accepted: bool) -> RegistrationEvent:

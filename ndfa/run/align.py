@@ -52,6 +52,7 @@ class AlignConfig:
     icp_distance_m: float = 0.05     # closest points farther than this are not paired (1 voxel)
     icp_iterations: int = 30
     min_fitness: float = 0.4         # scene alignment: share of the target cloud within icp_distance_m of the source's
+    binding_fitness: float = 0.6     # ... from which RANSAC's fits must agree with it (RegistrationPrior.binding)
     upright_max_nz: float = 0.5      # shared world: points whose normal has |z| below this are upright
     shared_min_fitness: float = 0.2  # shared world: share of the target's upright points near the source's
     peak_shift_m: float = 0.10       # shared world: the overlap must be less this far off the hypothesis ...
@@ -72,9 +73,12 @@ class SceneAlignment:
     points: tuple[int, int]          # (source, target) points of the thinned clouds
     seconds: float
     reason: str                      # one line: why it holds or not
+    binding: bool = False            # RANSAC's fits must agree with it (`RegistrationPrior.binding`)
 
     def prior(self) -> RegistrationPrior | None:
-        return RegistrationPrior(self.method, self.transform) if self.ok and self.transform is not None else None
+        if not self.ok or self.transform is None:
+            return None
+        return RegistrationPrior(self.method, self.transform, binding=self.binding)
 
     def describe(self) -> str:
         verdict = "proposed" if self.ok else "not proposed"
@@ -109,7 +113,7 @@ def registration_prior(source: RecordingReader, target: RecordingReader, worlds:
     shared = shared_world_transform(worlds["source"], worlds["target"])
     if mode == "shared-world":
         return SceneAlignment("shared world", True, shared, float("nan"), float("nan"), (0, 0), 0.0,
-                              "as given (--registration shared-world), unchecked")
+                              "as given (--registration shared-world), unchecked", binding=True)
     started = time.perf_counter()
     source_cloud = scene_cloud(source, worlds["source"], config)
     target_cloud = scene_cloud(target, worlds["target"], config)
@@ -185,7 +189,7 @@ def check_shared_world(source_cloud: np.ndarray, target_cloud: np.ndarray, hypot
                                   f"not a peak: {nudged:.2f} of the upright surfaces overlap "
                                   f"{config.peak_shift_m * 100:g} cm or {config.peak_turn_deg:g} deg off it")
     return SceneAlignment("shared world", True, hypothesis, fitness, rmse, points, 0.0,
-                          "the upright surfaces overlap under it, and less when it is shifted or turned")
+                          "the upright surfaces overlap under it, and less when it is shifted or turned", binding=True)
 
 
 def upright(cloud: np.ndarray, config: AlignConfig = AlignConfig()) -> np.ndarray:
@@ -247,7 +251,10 @@ def align_scenes(source_cloud: np.ndarray, target_cloud: np.ndarray,
     fitness, rmse, transform = best
     ok = fitness >= config.min_fitness
     reason = "FPFH + RANSAC, then ICP about z" + ("" if ok else f" (fitness below {config.min_fitness})")
-    return SceneAlignment("scene alignment", ok, transform, fitness, rmse, points, 0.0, reason)
+    binding = fitness >= config.binding_fitness
+    if ok and not binding:
+        reason += f" (a weak overlap, below {config.binding_fitness}: RANSAC's fits need not agree with it)"
+    return SceneAlignment("scene alignment", ok, transform, fitness, rmse, points, 0.0, reason, binding=binding)
 
 
 def icp_yaw(source_cloud: np.ndarray, target_cloud: np.ndarray, initial: np.ndarray,
