@@ -121,33 +121,27 @@ class Registrar:
         target_centers = {i: o.center_world for i, o in target.objects.items()}
         source_centers = {i: o.center_world for i, o in source.objects.items()}
         candidates: list[tuple[Registration | None, bool]] = []  # (estimate, passes its bar)
+        verified = []  # the priors and how the pairs verify them
+        for prior in self.priors:
+            result = verify_prior(prior, pairs, target_centers, source_centers, self.config.inlier_m,
+                                  support_m=self.config.prior_support_m)
+            verified.append((prior, result, len(result.inliers) >= self.config.prior_min_inliers))
+        # A binding prior vetoes RANSAC's fits only while the objects support it: one they do not
+        # (a confident but wrong scene alignment) must not stop a registration they do support.
+        vetoes = [prior for prior, _, supported in verified if prior.binding and supported]
         # A small source map may have fewer objects than N: then all of them are enough.
         if len({t for t, _ in pairs}) >= min(self.config.pairs, len(source.objects)):
             result = ransac_registration(pairs, target_centers, source_centers, self.config.inlier_m,
                                          seed=self.config.seed)
             candidates.append((result, result is not None and len(result.inliers) >= self.config.min_inliers
-                               and self._agrees_with_priors(result, pairs, target_centers)))
-        for prior in self.priors:
-            result = verify_prior(prior, pairs, target_centers, source_centers, self.config.inlier_m,
-                                  support_m=self.config.prior_support_m)
-            candidates.append((result, len(result.inliers) >= self.config.prior_min_inliers))
+                               and _agrees_with(result, vetoes, pairs, target_centers, self.config.inlier_m)))
+        candidates += [(result, supported) for _, result, supported in verified]
         passing = [r for r, ok in candidates if ok and r is not None]
         best = max(passing, key=lambda r: len(r.inliers), default=None)  # the first (RANSAC's) on a tie
         if best is not None and (self.registration is None or len(best.inliers) > len(self.registration.inliers)):
             self.registration = best
         return [self._event(frame_index, pairs, r, accepted=r is not None and r is self.registration and r is best)
                 for r, _ in candidates]
-
-    def _agrees_with_priors(self, result: Registration, pairs: list[tuple[int, int]],
-                            target_centers: dict[int, np.ndarray]) -> bool:
-        """With no binding prior, any estimate; else one that puts its inliers' target centers within 2 inlier_m
-        of where some prior puts them (few objects make layouts that fit by chance; the scene does not)."""
-        binding = [p for p in self.priors if p.binding]
-        if not binding:
-            return True
-        centers = np.array([target_centers[pairs[i][0]] for i in result.inliers]).reshape(-1, 3)
-        return any(np.max(np.linalg.norm(apply(result.transform, centers) - apply(p.transform, centers), axis=1))
-                   <= 2 * self.config.inlier_m for p in binding)
 
     def _event(self, frame_index: int, pairs: list[tuple[int, int]], result: Registration | None,
                accepted: bool) -> RegistrationEvent:
@@ -162,3 +156,14 @@ class Registrar:
             transform=result.transform, inlier_pairs=inlier_pairs, residual_m=result.residual_m, method=result.method,
             target_centers=np.array([target.objects[t].center_world for t, _ in inlier_pairs]).reshape(-1, 3),
             source_centers=np.array([source.objects[s].center_world for _, s in inlier_pairs]).reshape(-1, 3))
+
+
+def _agrees_with(result: Registration, priors: list[RegistrationPrior], pairs: list[tuple[int, int]],
+                 target_centers: dict[int, np.ndarray], inlier_m: float) -> bool:
+    """With no prior, any estimate; else one that puts its inliers' target centers within 2 inlier_m
+    of where some prior puts them (few objects make layouts that fit by chance; the scene does not)."""
+    if not priors:
+        return True
+    centers = np.array([target_centers[pairs[i][0]] for i in result.inliers]).reshape(-1, 3)
+    return any(np.max(np.linalg.norm(apply(result.transform, centers) - apply(p.transform, centers), axis=1))
+               <= 2 * inlier_m for p in priors)
