@@ -123,9 +123,9 @@ class Registrar:
         candidates: list[tuple[Registration | None, bool]] = []  # (estimate, passes its bar)
         verified = []  # the priors and how the pairs verify them
         for prior in self.priors:
-            result = verify_prior(prior, pairs, target_centers, source_centers, self.config.inlier_m,
-                                  support_m=self.config.prior_support_m)
-            verified.append((prior, result, len(result.inliers) >= self.config.prior_min_inliers))
+            check = verify_prior(prior, pairs, target_centers, source_centers, self.config.inlier_m,
+                                 support_m=self.config.prior_support_m)
+            verified.append((prior, check, len(check.inliers) >= self.config.prior_min_inliers))
         # A binding prior vetoes RANSAC's fits only while the objects support it: one they do not
         # (a confident but wrong scene alignment) must not stop a registration they do support.
         vetoes = [prior for prior, _, supported in verified if prior.binding and supported]
@@ -135,7 +135,7 @@ class Registrar:
                                          seed=self.config.seed)
             candidates.append((result, result is not None and len(result.inliers) >= self.config.min_inliers
                                and _agrees_with(result, vetoes, pairs, target_centers, self.config.inlier_m)))
-        candidates += [(result, supported) for _, result, supported in verified]
+        candidates += [(check, supported) for _, check, supported in verified]
         passing = [r for r, ok in candidates if ok and r is not None]
         best = max(passing, key=lambda r: len(r.inliers), default=None)  # the first (RANSAC's) on a tie
         if best is not None and (self.registration is None or len(best.inliers) > len(self.registration.inliers)):
