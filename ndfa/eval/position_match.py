@@ -81,6 +81,7 @@ class PositionScore(Score):
 
     def as_dict(self) -> dict:
         return super().as_dict() | {"scored_by": "position", "radius_m": self.radius_m,
+                                    "fp_ids": list(self.false_positive_ids), "fn_ids": list(self.false_negative_ids),
                                     "clutter_fp": list(self.clutter_ids), "unmatched_fp": list(self.unmatched),
                                     "alignment_rmse_m": dict(self.alignment_rmse_m),
                                     "visibility_known": self.visibility_known}
