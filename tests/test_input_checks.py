@@ -24,7 +24,6 @@ from ndfa.trajectory.checks import (
     check_frames,
     describe_frames,
     fill_untracked,
-    hold_without_depth,
     inspect_frame,
 )
 from ndfa.trajectory.rewrite import rewrite_poses
@@ -135,23 +134,6 @@ def test_fill_untracked_interpolates_in_time_and_holds_at_the_ends():
         fill_untracked([0.0], [None])
 
 
-def test_hold_without_depth_keeps_the_odometry_away_from_empty_frames():
-    frames = [without_depth({0, 3})(frame) for frame in wall_frames(5, textured=True)]
-    seen = []
-
-    def odometry(frame):
-        seen.append(frame.index)
-        return make_pose(np.eye(3), np.array([float(frame.index), 0.0, 0.0]))
-
-    monitor = InputMonitor()
-    estimate = hold_without_depth(odometry, monitor)
-    poses = [estimate(frame) for frame in frames]
-    assert seen == [1, 2, 3, 4]  # the odometry starts on depth, then sees every frame (its motion model)
-    assert np.allclose(poses[0], frames[0].pose_world_camera)  # before any tracked frame: its own pose
-    assert poses[3][0, 3] == 2.0 and poses[4][0, 3] == 4.0  # held, then tracked again
-    assert monitor.report().without_depth == [0, 3]
-
-
 # -- where poses are estimated -------------------------------------------------------------------------
 
 
@@ -206,7 +188,7 @@ def test_import_with_estimated_poses_warns_and_stops(tmp_path):
     assert result.exit_code == 0, result.output
     assert "warning: time gap of 2.20 s between frames 3 (at 0.60 s) and 4 (at 2.80 s" in result.output
     assert "warning: frames 1-2 (2 of 8) have no usable depth" in result.output
-    assert "held at the last tracked frame's" in result.output
+    assert "their poses are the odometry's guess" in result.output
     poses = [frame.pose_world_camera for frame in RecordingReader(tmp_path / "in.mcap").frames()]
     assert np.array_equal(poses[1], poses[0]) and np.array_equal(poses[2], poses[0])
 

@@ -24,7 +24,6 @@ from ndfa.trajectory.rgbd import (
     POINT_TO_PLANE,
     RgbdOdometry,
     RgbdOdometryConfig,
-    streaming_pose_estimator,
 )
 
 K = np.array([[160.0, 0.0, 79.5], [0.0, 160.0, 59.5], [0.0, 0.0, 1.0]])
@@ -141,15 +140,6 @@ def test_loop_closure_removes_injected_drift():
     assert np.allclose(optimized[0], truth[0], atol=1e-6)  # the first keyframe holds still
     unchanged = optimize_pose_graph(odometry, edges[:-1])  # no loop edge: nothing to correct
     assert all(np.allclose(a, b) for a, b in zip(unchanged, odometry))
-
-
-def test_streaming_estimator_picks_by_colour():
-    with pytest.raises(Exception, match="unknown pose method"):
-        streaming_pose_estimator("orb-slam")
-    frames = clip(3, colour=False)
-    estimate = streaming_pose_estimator("estimate")
-    poses = [estimate(frame) for frame in frames]
-    assert len(poses) == 3 and np.allclose(poses[0], frames[0].pose_world_camera)
 
 
 @pytest.mark.skipif(not REDKITCHEN.is_dir(), reason=f"the real redkitchen sequence is not here ({REDKITCHEN})")

@@ -6,6 +6,7 @@ import dataclasses
 from pathlib import Path
 from typing import Optional
 
+import numpy as np
 import typer
 from rich.progress import Progress, TextColumn
 from rich.table import Table
@@ -30,18 +31,24 @@ def _parse_range(text: str, what: str) -> tuple[int, int]:
 
 
 def _pose_estimator(poses: str):
-    """The importers' `--poses`: (None, None) for "given" (the input's own), else a per-frame odometry
-    (kiss-icp, rgbd, or estimate: rgbd when the input has colour) that checks each frame's input
-    and holds the last pose over frames without depth, and the monitor of those checks."""
+    """The importers' `--poses`: (None, None) for "given" (the input's own), else a per-frame
+    placeholder pose (the frame's own, the identity when it has none) that checks each frame's
+    input, and the monitor of those checks. The placeholders are replaced afterwards by the
+    whole-session estimate (`_estimate_session_poses`): running the odometry while writing as well
+    would only do it twice."""
     if poses == "given":
         return None, None
     if poses not in ("estimate", "rgbd", "kiss-icp"):
         raise NdfaError(f"--poses must be given, estimate, rgbd or kiss-icp, got {poses!r}")
-    from ndfa.trajectory.checks import InputMonitor, hold_without_depth
-    from ndfa.trajectory.rgbd import streaming_pose_estimator
+    from ndfa.trajectory.checks import InputMonitor
 
     monitor = InputMonitor()
-    return hold_without_depth(streaming_pose_estimator(poses), monitor), monitor
+
+    def placeholder(frame):
+        monitor.observe(frame)
+        return np.asarray(frame.pose_world_camera, dtype=np.float64)
+
+    return placeholder, monitor
 
 
 def _input_warnings(monitor, poses: str, source: Path, out: Path) -> list[str]:
@@ -54,7 +61,7 @@ def _input_warnings(monitor, poses: str, source: Path, out: Path) -> list[str]:
     if report.untrackable is not None:
         out.unlink(missing_ok=True)
         raise NdfaError(f"{source}: {report.untrackable}; nothing written")
-    return report.warnings(untracked_poses="held at the last tracked frame's")
+    return report.warnings()
 
 
 def _estimate_session_poses(out: Path, poses: str) -> None:
@@ -68,7 +75,7 @@ def _estimate_session_poses(out: Path, poses: str) -> None:
     with progress_bar() as progress:
         task = progress.add_task(f"poses of {out.name}", total=None)
         report = estimate_poses_in_place(out, poses, on_progress=lambda done, total: progress.update(
-            task, completed=done, total=total))
+            task, completed=done, total=total), check_input=False)  # the import has checked and warned
     table = Table(title=f"{report.method} poses of {out}: {report.frames} frames, against the {report.truth}",
                   show_header=False)
     table.add_column("figure")

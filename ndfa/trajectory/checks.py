@@ -16,8 +16,9 @@ Three kinds of input defeat odometry without it failing outright:
 wide), `InputMonitor.report()` judges the session. A session none of whose frames can be tracked
 (no usable depth anywhere, or only flat untextured views) is `InputReport.untrackable`; callers
 stop there with one line naming the file. The poses of frames without depth are not the odometry's
-extrapolation: they are interpolated between the tracked frames around them (`fill_untracked`), or
-held at the last one (`hold_without_depth`, for importers that write each frame as it comes).
+extrapolation where the caller can help it: `ndfa detect` interpolates them between the tracked
+frames around them (`fill_untracked`); `ndfa poses` and the importers say in the warning that theirs
+are the odometry's guess.
 
 Pure: frames in, a report out (no file I/O). docs/input_checks.md shows the warnings.
 """
@@ -26,7 +27,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -328,23 +329,3 @@ def fill_untracked(timestamps: Sequence[float], poses: Sequence[np.ndarray | Non
         weight = (timestamps[i] - timestamps[before]) / span if span > 0 else (i - before) / (after - before)
         filled.append(interpolate_pose(poses[before], poses[after], float(np.clip(weight, 0.0, 1.0))))
     return filled
-
-
-def hold_without_depth(estimate: Callable[[Frame], np.ndarray], monitor: InputMonitor) -> Callable[[Frame], np.ndarray]:
-    """A per-frame pose estimator (an importer's `--poses`) that checks every frame with `monitor` and
-    holds the last tracked pose over the frames without usable depth instead of returning the
-    odometry's extrapolation. `estimate` still sees those frames (its motion model carries on across
-    them), except before the first frame with depth, whose own pose (the input's, or the identity)
-    they keep."""
-    last: list[np.ndarray] = []
-
-    def estimate_checked(frame: Frame) -> np.ndarray:
-        check = monitor.observe(frame)
-        if not last and not check.has_depth:
-            return np.asarray(frame.pose_world_camera, dtype=np.float64)
-        pose = np.asarray(estimate(frame), dtype=np.float64)
-        if check.has_depth or not last:
-            last[:] = [pose]
-        return last[-1].copy()
-
-    return estimate_checked

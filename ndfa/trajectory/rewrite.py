@@ -99,7 +99,8 @@ class PoseReport:
 
 def rewrite_poses(recording_in: str | Path, recording_out: str | Path, method: str = "kiss-icp",
                   config: OdometryConfig = OdometryConfig(), on_progress: Progress | None = None,
-                  rgbd_config: RgbdOdometryConfig = RgbdOdometryConfig(), given_poses_are_true: bool = True) -> PoseReport:
+                  rgbd_config: RgbdOdometryConfig = RgbdOdometryConfig(), given_poses_are_true: bool = True,
+                  check_input: bool = True) -> PoseReport:
     """Estimate the camera poses of `recording_in` with `method` and write `recording_out`: the same
     recording with /tf replaced by the estimate (see the module docstring). kiss-icp: one pass, one
     frame in memory at a time. rgbd: a pass to estimate (keeping the keyframes' subsampled images),
@@ -107,7 +108,8 @@ def rewrite_poses(recording_in: str | Path, recording_out: str | Path, method: s
 
     given_poses_are_true: where a frame has no true pose, its given pose becomes the true one (and
     the errors are taken against it); False when the given poses are placeholders (an import that
-    estimates its poses), so that only real true poses are kept and scored."""
+    estimates its poses), so that only real true poses are kept and scored. check_input: run the
+    input checks (`ndfa.trajectory.checks`) first; False where the caller already has."""
     recording_in, recording_out = Path(recording_in), Path(recording_out)
     if method not in METHODS:
         raise TrajectoryError(f"unknown pose method {method!r}; expected one of {', '.join(METHODS)}")
@@ -116,7 +118,8 @@ def rewrite_poses(recording_in: str | Path, recording_out: str | Path, method: s
     reader = RecordingReader(recording_in)
     if method == "estimate":
         method = choose_method(reader)
-    check_recording(reader, uses_colour=method == "rgbd")  # InputWarnings; one line when nothing can be tracked
+    if check_input:
+        check_recording(reader, uses_colour=method == "rgbd")  # InputWarnings; one line when nothing can be tracked
     if method == "rgbd":
         return _rewrite_rgbd(reader, recording_in, recording_out, rgbd_config, on_progress, given_poses_are_true)
     meta = _output_meta(reader.meta, method, config)
@@ -184,7 +187,7 @@ def _rewrite_rgbd(reader: RecordingReader, recording_in: Path, recording_out: Pa
 
 
 def estimate_poses_in_place(recording: str | Path, method: str = "estimate", on_progress: Progress | None = None,
-                            rgbd_config: RgbdOdometryConfig = RgbdOdometryConfig()) -> PoseReport:
+                            rgbd_config: RgbdOdometryConfig = RgbdOdometryConfig(), check_input: bool = True) -> PoseReport:
     """Replace the poses of `recording` (placeholders written by an import) by the whole-session
     estimate of `method`, loop closure included, atomically: the recording is either the old one or
     the complete new one. Its true poses, if any, are kept and scored; its given ones are not."""
@@ -192,7 +195,7 @@ def estimate_poses_in_place(recording: str | Path, method: str = "estimate", on_
     staged = Staged(recording)
     try:
         report = rewrite_poses(recording, staged.temporary, method, on_progress=on_progress, rgbd_config=rgbd_config,
-                               given_poses_are_true=False)
+                               given_poses_are_true=False, check_input=check_input)
         staged.commit()
     finally:
         staged.discard()

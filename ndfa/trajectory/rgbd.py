@@ -45,7 +45,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -552,23 +551,3 @@ def estimate_rgbd_poses(frames, config: RgbdOdometryConfig = RgbdOdometryConfig(
     for frame in frames:
         odometry.update(frame)
     return odometry.finish()
-
-
-def streaming_pose_estimator(method: str) -> Callable[[Frame], np.ndarray]:
-    """A per-frame pose estimator for callers that write each frame as it comes: "kiss-icp",
-    "rgbd" (odometry alone: loop closure needs the whole session), or "estimate" (rgbd when the
-    first frame has colour, otherwise kiss-icp). The importers' `--poses` runs it while writing and
-    then replaces its poses with the whole session's (`ndfa.trajectory.rewrite.estimate_poses_in_place`)."""
-    from ndfa.trajectory.kiss import DepthOdometry
-
-    if method not in ("estimate", "rgbd", "kiss-icp"):
-        raise TrajectoryError(f"unknown pose method {method!r}; expected estimate, rgbd or kiss-icp")
-    chosen: list = []
-
-    def estimate(frame: Frame) -> np.ndarray:
-        if not chosen:
-            use_rgbd = method == "rgbd" or (method == "estimate" and frame.rgb is not None)
-            chosen.append(RgbdOdometry(RgbdOdometryConfig(loop_closure=False)) if use_rgbd else DepthOdometry())
-        return chosen[0].update(frame)
-
-    return estimate
