@@ -59,6 +59,35 @@ def test_tree_queries_match_brute_force_with_10000_objects():
     assert time.perf_counter() - started < 30  # a sanity bound, not a benchmark (see `ndfa bench detect`)
 
 
+def test_a_margin_reaches_the_cells_across_an_edge_and_no_farther():
+    tree = ObjectTree(1.0)
+    tree.insert(0, np.array([0.0, 0.0, 0.8]))   # x node [-0.5, 0.5]
+    tree.insert(1, np.array([0.9, 0.0, 0.8]))   # x node clipped to (0.5, 1.4]
+    tree.insert(2, np.array([0.9, 1.2, 0.8]))   # other y node
+    edge = np.array([0.48, 0.0, 0.0])            # 2 cm inside object 0's cell
+    assert tree.neighbourhood(edge) == {0}
+    assert tree.neighbourhood(edge, margin=0.05) == {0, 1}      # across the x edge, not up to y's
+    assert tree.neighbourhood(np.array([0.0, 0.0, 0.0]), margin=0.05) == {0}
+    region = tree.region(edge, margin=0.05)
+    inside = region.contains(np.array([[0.52, 0.1, 0], [1.45, 0.1, 0], [0.0, 0.6, 0]]))
+    assert inside.tolist() == [True, False, False]
+    assert region.contains(np.array([[1.45, 0.1, 0]]), margin=0.06).tolist() == [True]
+
+
+def test_tree_queries_with_a_margin_match_brute_force():
+    rng = np.random.default_rng(1)
+    centers = rng.uniform(-10, 10, size=(2_000, 3))
+    tree = ObjectTree(1.2)
+    for i, c in enumerate(centers):
+        tree.insert(i, c)
+    cells = {i: tree.cell(i) for i in range(len(centers))}
+    for q in rng.uniform(-10, 10, size=(100, 3)):
+        x_nodes = {id(n) for n in tree.x.nodes if n.low <= q[0] + 0.05 and n.high >= q[0] - 0.05}
+        y_nodes = {id(n) for n in tree.y.nodes if n.low <= q[1] + 0.05 and n.high >= q[1] - 0.05}
+        expected = {i for i, (nx, ny) in cells.items() if id(nx) in x_nodes and id(ny) in y_nodes}
+        assert tree.neighbourhood(q, margin=0.05) == expected
+
+
 # -- association --------------------------------------------------------------------------------
 
 def _code(seed: int, dim: int = 16) -> np.ndarray:
@@ -79,6 +108,51 @@ def test_association_merges_near_similar_measurements_and_keeps_the_most_confide
     assert obj.n_measurements == 3 and obj.mean_occupancy == 0.9
     np.testing.assert_allclose(obj.center_world, [1.02, 1.0, 0.8])
     assert len(session) == 3
+
+
+def test_a_measurement_across_a_cell_edge_joins_its_object():
+    """Object 1's cell begins 1 cm before its center; its next measurement lands 2 cm off, across."""
+    def session(across_cells):
+        s = SessionMap(AssociationConfig(tree_length_m=1.0, across_cells=across_cells, revisit_m=0.0))
+        s.update(Measurement(0, 1, _code(1), np.array([0.0, 0.0, 0.8]), 0.5))    # x node [-0.5, 0.5]
+        s.update(Measurement(1, 2, _code(2), np.array([0.51, 0.0, 0.8]), 0.5))   # x node clipped to (0.5, 1.01]
+        return s.update(Measurement(2, 2, _code(2), np.array([0.49, 0.0, 0.8]), 0.5))
+
+    joined = session(across_cells=True)
+    assert not joined.created and joined.object_id == 1
+    assert session(across_cells=False).created   # the paper's cell only: a duplicate
+
+
+def test_an_alike_object_seen_again_after_drift_takes_the_measurement_unless_seen_in_the_same_frame():
+    config = AssociationConfig(distance_m=0.05, revisit_m=0.12, same_place_m=0.03)
+    s = SessionMap(config)
+    first = s.update(Measurement(0, 1, _code(1), np.array([0.0, 0.0, 0.8]), 0.5))
+    later = s.update(Measurement(50, 1, _code(1), np.array([0.09, 0.0, 0.8]), 0.5))      # 9 cm: drift
+    assert not later.created and later.object_id == first.object_id
+    # two alike objects measured in one frame are two objects, however close
+    s = SessionMap(config)
+    a = s.update(Measurement(0, 1, _code(1), np.array([0.0, 0.0, 0.8]), 0.5))
+    b = s.update(Measurement(0, 2, _code(1), np.array([0.09, 0.0, 0.8]), 0.5))
+    assert b.created and b.object_id != a.object_id
+    # unlike, or farther than revisit_m, or on another shelf: a new object
+    for code, center in [(_code(2), [0.09, 0, 0.8]), (_code(1), [0.15, 0, 0.8]), (_code(1), [0.09, 0, 1.1])]:
+        s = SessionMap(config)
+        s.update(Measurement(0, 1, _code(1), np.array([0.0, 0.0, 0.8]), 0.5))
+        assert s.update(Measurement(50, 1, code, np.array(center), 0.5)).created
+    # off in the paper's rules
+    s = SessionMap(DetectorConfig.paper().association)
+    s.update(Measurement(0, 1, _code(1), np.array([0.0, 0.0, 0.8]), 0.5))
+    assert s.update(Measurement(50, 1, _code(1), np.array([0.09, 0.0, 0.8]), 0.5)).created
+
+
+def test_center_scatter_is_the_rms_horizontal_spread_of_the_measurements():
+    s = SessionMap(AssociationConfig(distance_m=0.05))
+    for k, x in enumerate([0.0, 0.02, -0.02, 0.0]):
+        a = s.update(Measurement(k, 1, _code(1), np.array([x, 0.0, 0.8]), 0.5))
+    assert s.objects[a.object_id].center_scatter_m == pytest.approx(np.sqrt((0.02**2 * 2) / 4))
+    best = SessionMap(AssociationConfig(fusion="best"))
+    b = best.update(Measurement(0, 1, _code(1), np.array([0.0, 0.0, 0.8]), 0.5))
+    assert best.objects[b.object_id].center_scatter_m == 0.0
 
 
 # -- registration -------------------------------------------------------------------------------
@@ -276,6 +350,8 @@ def test_the_default_config_is_ndfas_tuning_and_paper_gives_the_papers_parameter
     # T_rel accepted as RANSAC returns it, never re-estimated, tried on every frame
     assert (a.same_place_m, d.in_place_m, d.min_measurements, d.confirm_measurements) == (0.0, 0.0, 1, 1)
     assert (r.min_inliers, r.enough_inliers, r.retry_frames) == (0, 0, 1)
+    # ... and no allowance for drift: the cell only, no revisits, fixed distances
+    assert (a.across_cells, a.revisit_m, d.cell_margin_m, d.scatter_factor) == (False, 0.0, 0.0, 0.0)
 
 
 def test_session_maps_take_the_association_config():
@@ -356,6 +432,20 @@ def test_a_verdict_from_a_hand_built_neighbourhood():
     verdict = graph_verdict(graph, target[0].center_world, [0, 1, 2], similarity, source, np.eye(3), 0.9, decision)
     assert verdict.kind == "undecided" and verdict.comparisons == ()
     assert verdict.otherwise.kind == "unchanged" and verdict.otherwise.comparisons[0].result.mode == "fallback"
+
+    # a lone object 7 cm from its match: changed at a fixed 5 cm, unchanged when both objects' centers
+    # scattered by 4 cm while they were seen (drift on a real sequence): the test widens by it
+    lone_source = {0: source[0]}
+    _, target, graph, similarity = _neighbourhoods({0: [0.07, 0, 0.8]})
+    fixed = graph_verdict(graph, target[0].center_world, [0], similarity, lone_source, np.eye(3), 0.9, decision)
+    assert fixed.kind == "changed" and fixed.comparisons[0].result.mode == "fallback"
+    lone_source[0].centers = [np.array([0.04, 0, 0.8]), np.array([-0.04, 0, 0.8])]
+    widened = graph_verdict(graph, target[0].center_world, [0], similarity, lone_source, np.eye(3), 0.9, decision,
+                            target_scatter_m=0.0)
+    assert lone_source[0].center_scatter_m == pytest.approx(0.04) and widened.kind == "unchanged"
+    paper = graph_verdict(graph, target[0].center_world, [0], similarity, lone_source, np.eye(3), 0.9,
+                          DetectorConfig.paper().decision)
+    assert paper.kind == "changed"
 
     # nothing around it looks like it, or nothing is around it: changed on shapes alone
     assert shape_verdict([0, 1, 2], {0: 0.1, 1: 0.2, 2: 0.3}, 0.9).reason == \

@@ -9,7 +9,9 @@ measurement starts a new object.
 ndfa changes two things (`AssociationConfig`; why: `docs/detector.md`): with `fusion="mean"` an
 object keeps the mean of its measurements' unit codes and the median of their centers instead of
 the most confident measurement's, and a measurement within `same_place_m` of an object (measured
-horizontally) joins it whatever the codes say.
+horizontally) joins it whatever the codes say. A measurement that joins no object by these rules
+joins an alike object within `revisit_m` that was not measured in the same frame: the odometry
+drifts between two visits of a place, more than `distance_m` on real sequences.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import numpy as np
 
 from ndfa.change.config import AssociationConfig
 from ndfa.change.tree import ObjectTree
-from ndfa.core.conventions import horizontal
+from ndfa.core.conventions import UP_AXIS, horizontal
 
 
 @dataclass(frozen=True)
@@ -48,6 +50,16 @@ class SessionObject:
     instance_ids: tuple[int, ...] = ()  # mask ids of the measurements it took, in order of first use
     code_sum: np.ndarray | None = None   # sum of the unit codes of its measurements ("mean" fusion)
     centers: list[np.ndarray] | None = None  # centers of its measurements ("mean" fusion)
+
+    @property
+    def center_scatter_m(self) -> float:
+        """RMS horizontal distance of its measurements' centers from its center: how far its position
+        wandered while it was seen (the odometry's drift, a real object's view-dependent center);
+        0 when the measurements are not kept ("best" fusion)."""
+        if not self.centers:
+            return 0.0
+        offsets = horizontal(np.array(self.centers)) - horizontal(self.center_world)
+        return float(np.sqrt(np.mean(np.sum(offsets**2, axis=-1))))
 
 
 @dataclass(frozen=True)
@@ -82,14 +94,18 @@ class SessionMap:
     def __len__(self) -> int:
         return len(self.objects)
 
-    def neighbourhood(self, point: np.ndarray) -> list[int]:
-        """Object ids around `point`, sorted (so that everything downstream is deterministic)."""
-        return sorted(self.tree.neighbourhood(point))
+    def neighbourhood(self, point: np.ndarray, margin: float = 0.0) -> list[int]:
+        """Object ids around `point` (`ObjectTree.neighbourhood`), sorted (so that everything
+        downstream is deterministic)."""
+        return sorted(self.tree.neighbourhood(point, margin))
 
     def update(self, m: Measurement) -> Association:
         c = self.config
-        candidates = self.neighbourhood(m.center_world)
+        # Every object that could take the measurement, also across a cell's edge.
+        reach = max(c.distance_m, c.same_place_m, c.revisit_m) if c.across_cells else 0.0
+        candidates = self.neighbourhood(m.center_world, reach)
         best, best_distance, best_similarity = None, np.inf, np.nan
+        revisit, revisit_distance, revisit_similarity = None, np.inf, np.nan
         for object_id in candidates:
             obj = self.objects[object_id]
             distance = float(np.linalg.norm(obj.center_world - m.center_world))
@@ -98,6 +114,14 @@ class SessionMap:
             same = horizontal_distance < c.same_place_m or (distance < c.distance_m and similarity > c.shape_similarity)
             if same and distance < best_distance:
                 best, best_distance, best_similarity = obj, distance, similarity
+            # The same object seen again after the odometry drifted: near, alike, and not seen in
+            # this frame (two objects measured in one frame are two objects).
+            seen_again = (horizontal_distance < c.revisit_m and abs(obj.center_world[UP_AXIS] - m.center_world[UP_AXIS]) < c.revisit_m
+                          and similarity > c.shape_similarity and obj.last_frame != m.frame_index)
+            if seen_again and distance < revisit_distance:
+                revisit, revisit_distance, revisit_similarity = obj, distance, similarity
+        if best is None and revisit is not None:
+            best, best_distance, best_similarity = revisit, revisit_distance, revisit_similarity
         if best is None:
             object_id = len(self.objects)
             self.objects[object_id] = SessionObject(

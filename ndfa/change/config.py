@@ -22,6 +22,8 @@ class AssociationConfig:
     shape_similarity: float = 0.7     # delta_s: smallest cosine similarity of two codes of one object (paper 0.9)
     same_place_m: float = 0.03        # a measurement this close (horizontally) to an object is that object; 0: off
     fusion: Fusion = "mean"           # an object's code and center: its measurements' "mean" (median center) or the "best"
+    revisit_m: float = 0.12           # an alike object this close, not measured in the same frame, takes it (drift); 0: off
+    across_cells: bool = True         # candidates also from the cells across an edge within reach; False: the cell only
 
     def __post_init__(self) -> None:
         if self.fusion not in ("best", "mean"):
@@ -53,6 +55,13 @@ class DecisionConfig:
     edge_m: float = 0.03               # delta_e: largest difference of two corresponding graph edges
     fallback_distance_m: float = 0.05  # a lone object is unchanged this close to its shape match
     in_place_m: float = 0.05           # no edge agrees, yet unchanged this close to its shape match; 0: off
+    # The two position tests above widen by this many times the two objects' combined center
+    # scatter (`SessionObject.center_scatter_m`): about 0.5 cm in simulation, 4 cm on a real sequence
+    # with estimated poses (docs/detector.md). 0: fixed distances (paper).
+    scatter_factor: float = 1.0
+    # T_rel errs by centimetres where the odometry drifted: a target object registered this close to
+    # a source cell's edge is compared with the objects across it too. 0: the cell it lands in (paper).
+    cell_margin_m: float = 0.05
     min_measurements: int = 3          # an object is tested (and reported) only from this many measurements
     confirm_measurements: int = 8      # a "changed" verdict on fewer measurements waits for more views
     # A source object counts as looked at by the target (and so "removed" when never matched) when a
@@ -77,9 +86,11 @@ class DetectorConfig:
         values the paper does not give (the RANSAC inlier distance and the lone-object distance)."""
         return cls(
             association=AssociationConfig(tree_length_m=1.2, distance_m=0.02, shape_similarity=0.9, same_place_m=0.0,
-                                          fusion="best"),
+                                          fusion="best", revisit_m=0.0, across_cells=False),
             registration=RegistrationConfig(pairs=6, candidates=1, inlier_m=0.05, min_inliers=0, enough_inliers=0,
                                             retry_frames=1, seed=0),
-            decision=DecisionConfig(edge_m=0.03, fallback_distance_m=0.05, in_place_m=0.0, min_measurements=1,
+            decision=DecisionConfig(edge_m=0.03, fallback_distance_m=0.05, in_place_m=0.0, scatter_factor=0.0,
+                                    cell_margin_m=0.0,
+                                    min_measurements=1,
                                     confirm_measurements=1, observed_height_m=0.0),
         )

@@ -148,18 +148,20 @@ class ChangeDetector:
         transform = self.registration.transform
         rotation = transform[:3, :3]
         center_source = apply(transform, obj.center_world[None])[0]
-        source_ids = self.source.neighbourhood(center_source)
+        margin = self.config.decision.cell_margin_m
+        region = self.source.tree.region(center_source, margin)
+        source_ids = sorted(region.objects())
         self.observed.update(self._looked_at(center_source, source_ids))
         similarity = {s: float(cosine_similarity(obj.shape_code, self.source.objects[s].shape_code)) for s in source_ids}
         shape_similarity = self.config.association.shape_similarity
         verdict = shape_verdict(source_ids, similarity, shape_similarity)
         if verdict is None:  # something around it looks like O: the local graphs decide
-            # O's target neighbours: those in the same source cell (why: `docs/detector.md`)
-            cell = self.source.tree.cell_at(center_source)
-            target_ids = [] if cell is None else self.registrar.target_objects_in(cell)
+            # O's target neighbours: those in the same source cells (why: `docs/detector.md`), where
+            # T_rel may have put them (a source neighbour by an edge's target counterpart is one too)
+            target_ids = self.registrar.target_objects_in(region, margin)
             target_graph = local_graph(object_id, target_ids, self.target.objects)
             verdict = graph_verdict(target_graph, center_source, source_ids, similarity, self.source.objects, rotation,
-                                    shape_similarity, self.config.decision)
+                                    shape_similarity, self.config.decision, obj.center_scatter_m)
         verdict = self.policy.settle(object_id, obj.n_measurements, verdict, final)
         events: list[Event] = [
             graph_event(frame_index, c, center_source, self.source.objects[c.result.source_id].center_world, rotation)

@@ -24,7 +24,7 @@ import numpy as np
 from ndfa.change.associate import Association, SessionMap, cosine_similarity
 from ndfa.change.config import RegistrationConfig
 from ndfa.change.register import Registration, RegistrationPrior, apply, ransac_registration, verify_prior
-from ndfa.change.tree import Cell, in_cell
+from ndfa.change.tree import Region
 from ndfa.core.events import RegistrationEvent
 
 
@@ -93,9 +93,10 @@ class Registrar:
         assert self.registration is not None
         return self.centers.get(self.registration.transform, self.target)
 
-    def target_objects_in(self, cell: Cell) -> list[int]:
-        """Target objects whose registered centers fall in `cell` (of the source's tree); needs T_rel."""
-        return np.flatnonzero(in_cell(cell, self.registered_centers())).tolist()
+    def target_objects_in(self, region: Region, margin: float = 0.0) -> list[int]:
+        """Target objects whose registered centers fall in `region` (of the source's tree) grown by
+        `margin`; needs T_rel."""
+        return np.flatnonzero(region.contains(self.registered_centers(), margin)).tolist()
 
     def shape_pairs(self) -> list[tuple[int, int]]:
         """(target, source) candidate pairs: each target object's most similar source objects above delta_s."""

@@ -13,6 +13,11 @@ paper's ordering, left.max < parent.min, presumes disjoint intervals but does no
 center within l/2 of an existing node is handled; clipping keeps "the first center decides" and
 leaves no point in two nodes).
 
+A point near a cell's edge may belong to the cell across it: a measurement's center is noisy, and a
+target object's center carries T_rel's error into the source world. Queries take a `margin`: the
+region they look in is every cell that the square of half-side `margin` around the point touches
+(the cell itself when the margin is 0, the paper's rule).
+
 The tree is kept as a sorted array of interval bounds searched by bisection: the implicit form
 of a perfectly balanced binary search tree, so a point query costs O(log n) in the number of
 nodes whatever the insertion order. An insertion shifts the array (O(n) memmove), which is
@@ -63,6 +68,12 @@ class IntervalTree:
             return self._nodes[i]
         return None
 
+    def overlapping(self, low: float, high: float) -> tuple[IntervalNode, ...]:
+        """The nodes that share a point with [low, high], in axis order."""
+        first = max(bisect.bisect_right(self._lows, low) - 1, 0)
+        last = bisect.bisect_right(self._lows, high)
+        return tuple(n for n in self._nodes[first:last] if n.high >= low)
+
     def find_or_create(self, t: float) -> IntervalNode:
         """The node holding `t`, created (and clipped to its neighbours) if there is none."""
         node = self.find(t)
@@ -81,6 +92,31 @@ class IntervalTree:
 
 
 Cell = tuple[IntervalNode, IntervalNode]  # (T_x node, T_y node): about l x l of ground
+
+
+@dataclass(frozen=True)
+class Region:
+    """Cells of one tree around a point: every pair of a T_x node in `x` and a T_y node in `y`."""
+
+    x: tuple[IntervalNode, ...]
+    y: tuple[IntervalNode, ...]
+
+    def objects(self) -> set[int]:
+        """Ids of the objects in the region (each object sits in one T_x and one T_y node)."""
+        in_x: set[int] = set().union(*(n.objects for n in self.x))
+        return in_x.intersection(set().union(*(n.objects for n in self.y)))
+
+    def contains(self, points: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """Which of `points` (N, 3) lie in the region grown by `margin` on every side (a tree of
+        another session may never have held them): (N,) bool."""
+        x, y = points[:, X], points[:, Y]
+        in_x = np.zeros(len(points), dtype=bool)
+        in_y = np.zeros(len(points), dtype=bool)
+        for node in self.x:
+            in_x |= (x >= node.low - margin) & (x <= node.high + margin)
+        for node in self.y:
+            in_y |= (y >= node.low - margin) & (y <= node.high + margin)
+        return in_x & in_y
 
 
 class ObjectTree:
@@ -108,28 +144,16 @@ class ObjectTree:
             for node in cell:
                 node.objects.discard(object_id)
 
-    def cell_at(self, point: np.ndarray) -> Cell | None:
-        """The (T_x, T_y) nodes that `point` falls in, or None where either axis has no node."""
-        node_x, node_y = self.x.find(float(point[X])), self.y.find(float(point[Y]))
-        if node_x is None or node_y is None:
-            return None
-        return node_x, node_y
+    def region(self, point: np.ndarray, margin: float = 0.0) -> Region:
+        """The cells within `margin` of `point` (horizontally, per axis): see the module docstring."""
+        x, y = float(point[X]), float(point[Y])
+        return Region(self.x.overlapping(x - margin, x + margin), self.y.overlapping(y - margin, y + margin))
 
-    def neighbourhood(self, point: np.ndarray) -> set[int]:
-        """Ids of the objects in both the T_x and the T_y node that `point` falls in (empty if none)."""
-        cell = self.cell_at(point)
-        if cell is None:
-            return set()
-        small, large = sorted((cell[0].objects, cell[1].objects), key=len)
-        return {i for i in small if i in large}
+    def neighbourhood(self, point: np.ndarray, margin: float = 0.0) -> set[int]:
+        """Ids of the objects in both a T_x and a T_y node within `margin` of `point` (empty if none);
+        with margin 0, the objects of the cell `point` falls in."""
+        return self.region(point, margin).objects()
 
     def cell(self, object_id: int) -> Cell:
         """The (T_x, T_y) nodes that hold `object_id`."""
         return self._cells[object_id]
-
-
-def in_cell(cell: Cell, points: np.ndarray) -> np.ndarray:
-    """Which of `points` (N, 3) lie in `cell` (a tree of another session may never have held them): (N,) bool."""
-    node_x, node_y = cell
-    x, y = points[:, X], points[:, Y]
-    return (x >= node_x.low) & (x <= node_x.high) & (y >= node_y.low) & (y <= node_y.high)

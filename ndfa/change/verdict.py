@@ -65,11 +65,14 @@ def graph_verdict(
     rotation: np.ndarray,
     shape_similarity: float,
     decision: DecisionConfig,
+    target_scatter_m: float = 0.0,
 ) -> Verdict:
     """O's local graph (`target_graph`, over its target neighbours) against the graph of each shape
     match among `source_ids` (its source neighbourhood; `similarity`: to O, by source id).
 
     center_source: T_rel t_O; rotation: T_rel's rotation (target-world vectors -> source world).
+    target_scatter_m: O's center scatter, which with its match's widens the position tests
+    (`DecisionConfig.scatter_factor`).
     Undecided when O has no target neighbour while the source neighbourhood has company (the lone
     test would judge it on T_rel's absolute accuracy alone), and when no graph agrees while O has
     fewer target neighbours than its match has source neighbours (the one that stayed may not
@@ -80,9 +83,12 @@ def graph_verdict(
     partner_id = None
     for source_id in sorted(matches, key=lambda s: -similarity[s]):
         source_graph = local_graph(source_id, source_ids, source_objects)
-        distance = float(np.linalg.norm(center_source - source_objects[source_id].center_world))
+        partner = source_objects[source_id]
+        distance = float(np.linalg.norm(center_source - partner.center_world))
+        slack = decision.scatter_factor * float(np.hypot(target_scatter_m, partner.center_scatter_m))
+        in_place_m = decision.in_place_m + slack if decision.in_place_m > 0 else 0.0
         result = compare_graphs(target_graph, source_graph, similarity[source_id], distance, rotation,
-                                shape_similarity, decision.edge_m, decision.fallback_distance_m, decision.in_place_m)
+                                shape_similarity, decision.edge_m, decision.fallback_distance_m + slack, in_place_m)
         comparisons.append(Comparison(result, target_graph, source_graph))
         if result.consistent:
             partner_id = source_id
