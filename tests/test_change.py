@@ -508,3 +508,26 @@ def test_the_registrar_keeps_registered_centers_until_an_object_or_T_rel_changes
     registrar.registration = Registration(np.eye(4), np.arange(4), 0.0, 4, 1)  # a new T_rel: every row anew
     np.testing.assert_allclose(registrar.registered_centers(),
                                [[9, 9, 9], [0.31, 0, 0.8], [0, 0.3, 0.8]], atol=1e-12)
+
+
+@pytest.mark.parametrize("margin, reported", [(0.0, {2}), (0.05, set())])
+def test_a_target_object_registered_across_a_cell_edge_meets_its_source_self(margin, reported):
+    """Source: mug 1 at x = 0 makes the cell [-0.6, 0.6], mugs 2 and 3 start the next one at 0.62.
+    Target: nothing moved, but the target's odometry drifted by 6 cm while it looked at mug 2, which
+    puts mug 2 into mug 1's cell after registration."""
+    from ndfa.change.register import RegistrationPrior
+
+    codes = {i: _code(300 + i) for i in (1, 2, 3)}
+    source = {1: [0.0, 0.0, 0.8], 2: [0.62, 0.0, 0.8], 3: [0.9, 0.1, 0.8]}
+    target = dict(source) | {2: [0.56, 0.0, 0.8]}
+    detector = ChangeDetector(DetectorConfig(decision=DecisionConfig(cell_margin_m=margin)))
+    detector.add_registration_prior(RegistrationPrior("shared world", np.eye(4)))
+    for frame in range(4):
+        detector.add_source([Measurement(frame, i, codes[i], np.array(c), 0.7) for i, c in source.items()])
+    events = []
+    for frame in range(10, 20):
+        events += detector.add_target([Measurement(frame, i, codes[i], np.array(c), 0.7) for i, c in target.items()])
+    events += detector.finish()
+    assert detector.registration is not None
+    changed = {e.instance_ids[0] for e in events if getattr(e, "kind", "unchanged") in ("added", "moved")}
+    assert changed == reported
