@@ -61,7 +61,9 @@ def _input_warnings(monitor, poses: str, source: Path, out: Path) -> list[str]:
     if report.untrackable is not None:
         out.unlink(missing_ok=True)
         raise NdfaError(f"{source}: {report.untrackable}; nothing written")
-    return report.warnings()
+    from ndfa.trajectory.session import UNTRACKED_POSES
+
+    return report.warnings(untracked_poses=UNTRACKED_POSES)
 
 
 def _estimate_session_poses(out: Path, poses: str) -> None:

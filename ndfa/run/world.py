@@ -4,10 +4,10 @@ The core works on frames with camera poses in a z-up world (`ndfa.core.conventio
 
 - **poses**: the recording's own; or, for one without any (a raw sensor recording, meta
   `"poses": "none"`), estimated over the whole session by RGB-D odometry with loop closure
-  (`ndfa.trajectory.rgbd`; depth-only KISS-ICP when it has no colour). The frames are checked on
-  the way (`ndfa.trajectory.checks`): time gaps, frames without depth (their poses interpolated
-  between the tracked frames, not extrapolated) and flat views become `notes`, which name the frames; a session none
-  of whose frames can be tracked stops with one line.
+  (`ndfa.trajectory.session`: rgbd odometry; depth-only KISS-ICP when it has no colour). The
+  frames are checked on the way: time gaps, frames without depth (their poses interpolated between
+  the tracked frames) and flat views become `notes`, which name the frames; a session none of whose
+  frames can be tracked stops with one line.
 - **up**: a synthetic recording says its world is z-up and is taken at its word (unless its poses
   were estimated: odometry's world starts at the first camera). Any other is
   checked: gravity is taken from the IMU when the importer recorded its still readings (a bag with
@@ -202,45 +202,17 @@ def _pose_quality(estimate: dict[int, np.ndarray], truth: dict[int, np.ndarray])
 
 
 def _estimate_poses(reader: RecordingReader) -> tuple[dict[int, np.ndarray], str, list[str], dict[int, np.ndarray]]:
-    """Every frame's pose by odometry over the whole session, the method, and warnings about the
-    input (`ndfa.trajectory.checks`). The poses of frames without usable depth are interpolated
-    between the tracked frames around them, not taken from the odometry (which can only extrapolate
-    there); the odometry still sees them, except before the first frame with depth, so that its
-    motion model carries on across them (re-acquiring after a hole went better so than restarting
-    from the last tracked frame: docs/input_checks.md). A session none of whose frames can be
-    tracked stops with one line naming the file. Also returns the frames' true poses (those it has)."""
-    from ndfa.trajectory.checks import InputMonitor, fill_untracked
-    from ndfa.trajectory.rewrite import choose_method
+    """Every frame's pose by odometry over the whole session (`ndfa.trajectory.session`), how they
+    were estimated, warnings about the input, and the frames' true poses (those it has)."""
+    from ndfa.trajectory.session import UNTRACKED_POSES, choose_method, estimate_session_poses
 
-    monitor = InputMonitor()
-    fed: list[int] = []  # positions (in the session) of the frames given to the odometry
     truth: dict[int, np.ndarray] = {}
 
-    def frames():
-        for position, frame in enumerate(reader.frames()):
-            if frame.pose_world_camera_true is not None:
-                truth[frame.index] = frame.pose_world_camera_true
-            if monitor.observe(frame).has_depth or fed:
-                fed.append(position)
-                yield frame
+    def keep_truth(frame: Frame) -> None:
+        if frame.pose_world_camera_true is not None:
+            truth[frame.index] = frame.pose_world_camera_true
 
-    uses_colour = choose_method(reader) == "rgbd"
-    if uses_colour:
-        from ndfa.trajectory.rgbd import estimate_rgbd_poses
-
-        estimate, how = estimate_rgbd_poses(frames()), "estimated (rgbd odometry, loop-closed)"
-    else:
-        from ndfa.trajectory.kiss import DepthOdometry, OdometryConfig
-
-        odometry = DepthOdometry(OdometryConfig())
-        estimate, how = [odometry.update(frame) for frame in frames()], "estimated (kiss-icp, depth only)"
-    report = monitor.report(uses_colour)
-    report.raise_if_untrackable(reader.path)
-    if not monitor.checks:
-        return {}, how, [], truth
-    poses: list[np.ndarray | None] = [None] * len(monitor.checks)
-    for position, pose in zip(fed, estimate, strict=True):
-        poses[position] = pose if monitor.checks[position].has_depth else None
-    filled = fill_untracked([check.timestamp for check in monitor.checks], poses)
-    notes = report.warnings(untracked_poses="interpolated between the tracked frames around them")
-    return {check.index: pose for check, pose in zip(monitor.checks, filled, strict=True)}, how, notes, truth
+    session = estimate_session_poses(reader.frames(), choose_method(next(iter(reader.frames(stop=1)), None)),
+                                     reader.path, on_frame=keep_truth)
+    notes = session.input_report.warnings(untracked_poses=UNTRACKED_POSES) if session.poses else []
+    return dict(zip(session.indices, session.poses, strict=True)), f"estimated ({session.describe_method()})", notes, truth

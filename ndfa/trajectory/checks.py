@@ -16,9 +16,8 @@ Three kinds of input defeat odometry without it failing outright:
 wide), `InputMonitor.report()` judges the session. A session none of whose frames can be tracked
 (no usable depth anywhere, or only flat untextured views) is `InputReport.untrackable`; callers
 stop there with one line naming the file. The poses of frames without depth are not the odometry's
-extrapolation where the caller can help it: `ndfa detect` interpolates them between the tracked
-frames around them (`fill_untracked`); `ndfa poses` and the importers say in the warning that theirs
-are the odometry's guess.
+extrapolation: every estimate of a session's poses (`ndfa.trajectory.session`) interpolates them
+between the tracked frames around them (`fill_untracked`).
 
 Pure: frames in, a report out (no file I/O). docs/input_checks.md shows the warnings.
 """

@@ -16,6 +16,7 @@ every frame) replaces them in the same file.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,10 +27,11 @@ from ndfa.core.errors import TrajectoryError
 from ndfa.core.progress import Progress
 from ndfa.io.atomic import Staged
 from ndfa.io.recording import RecordingReader, RecordingWriter
-from ndfa.trajectory.checks import check_recording
-from ndfa.trajectory.kiss import DepthOdometry, OdometryConfig
+from ndfa.trajectory.checks import InputWarning
+from ndfa.trajectory.kiss import OdometryConfig
 from ndfa.trajectory.metrics import AbsoluteError, RelativeError, absolute_trajectory_error, relative_pose_error
 from ndfa.trajectory.rgbd import RgbdOdometry, RgbdOdometryConfig
+from ndfa.trajectory.session import UNTRACKED_POSES, choose_method, estimate_session_poses
 
 METHODS = ("estimate", "rgbd", "kiss-icp")
 
@@ -102,14 +104,15 @@ def rewrite_poses(recording_in: str | Path, recording_out: str | Path, method: s
                   rgbd_config: RgbdOdometryConfig = RgbdOdometryConfig(), given_poses_are_true: bool = True,
                   check_input: bool = True) -> PoseReport:
     """Estimate the camera poses of `recording_in` with `method` and write `recording_out`: the same
-    recording with /tf replaced by the estimate (see the module docstring). kiss-icp: one pass, one
-    frame in memory at a time. rgbd: a pass to estimate (keeping the keyframes' subsampled images),
-    loop closure, and a pass to write. The output appears only when complete. Returns the `PoseReport`.
+    recording with /tf replaced by the estimate (see the module docstring). A pass to estimate
+    (`ndfa.trajectory.session`, as `ndfa detect` does), then a pass to write. The output appears
+    only when complete. Returns the `PoseReport`.
 
     given_poses_are_true: where a frame has no true pose, its given pose becomes the true one (and
     the errors are taken against it); False when the given poses are placeholders (an import that
-    estimates its poses), so that only real true poses are kept and scored. check_input: run the
-    input checks (`ndfa.trajectory.checks`) first; False where the caller already has."""
+    estimates its poses), so that only real true poses are kept and scored. check_input: warn
+    (`InputWarning`) about the input checks' findings; False where the caller already has. A
+    recording none of whose frames can be tracked always stops with one line."""
     recording_in, recording_out = Path(recording_in), Path(recording_out)
     if method not in METHODS:
         raise TrajectoryError(f"unknown pose method {method!r}; expected one of {', '.join(METHODS)}")
@@ -117,72 +120,42 @@ def rewrite_poses(recording_in: str | Path, recording_out: str | Path, method: s
         raise TrajectoryError(f"{recording_out}: the output must not replace the input recording")
     reader = RecordingReader(recording_in)
     if method == "estimate":
-        method = choose_method(reader)
-    if check_input:
-        check_recording(reader, uses_colour=method == "rgbd")  # InputWarnings; one line when nothing can be tracked
-    if method == "rgbd":
-        return _rewrite_rgbd(reader, recording_in, recording_out, rgbd_config, on_progress, given_poses_are_true)
-    meta = _output_meta(reader.meta, method, config)
-
-    odometry = DepthOdometry(config)
-    timestamps, estimate, reference = [], [], []
-    truth_kinds: set[str] = set()
-    with RecordingWriter(recording_out, meta) as writer:
-        if reader.ground_truth is not None:
-            writer.write_ground_truth(reader.ground_truth)
-        for frame in reader.frames():
-            pose = odometry.update(frame)
-            true_pose = _true_pose(frame, given_poses_are_true, truth_kinds)
-            writer.write_frame(dataclasses.replace(frame, pose_world_camera=pose, pose_world_camera_true=true_pose))
-            timestamps.append(frame.timestamp)
-            estimate.append(pose)
-            reference.append(true_pose)
-            if on_progress is not None:
-                on_progress(len(estimate), len(reader))
-
-    report = PoseReport(recording_in, recording_out, method, config, frames=len(estimate),
-                        truth=" and ".join(sorted(truth_kinds)) or "none", ms_per_frame=odometry.ms_per_frame,
-                        starved_frames=odometry.starved_frames, refinements_rejected=odometry.refinements_rejected,
-                        terms=["point-to-plane"] * len(estimate), timestamps=np.array(timestamps), estimate=np.array(estimate).reshape(-1, 4, 4))
-    _add_errors(report, estimate, reference)
-    return report
-
-
-def choose_method(reader: RecordingReader) -> str:
-    """"rgbd" when the recording's first frame has colour, otherwise "kiss-icp"."""
-    first = next(iter(reader.frames(0, 1)), None)
-    return "rgbd" if first is not None and first.rgb is not None else "kiss-icp"
-
-
-def _rewrite_rgbd(reader: RecordingReader, recording_in: Path, recording_out: Path, config: RgbdOdometryConfig,
-                  on_progress: Progress | None, given_poses_are_true: bool) -> PoseReport:
-    """`rewrite_poses` with the RGB-D odometry: estimate over the whole session (loop closure needs
-    it), then write the copy."""
-    odometry = RgbdOdometry(config)
-    timestamps, reference = [], []
-    truth_kinds: set[str] = set()
+        method = choose_method(next(iter(reader.frames(stop=1)), None))
     total = 2 * len(reader)
-    for frame in reader.frames():
-        odometry.update(frame)
-        timestamps.append(frame.timestamp)
+    reference: list[np.ndarray | None] = []
+    truth_kinds: set[str] = set()
+
+    def read(frame) -> None:
         reference.append(_true_pose(frame, given_poses_are_true, truth_kinds))
         if on_progress is not None:
-            on_progress(len(timestamps), total)
-    estimate = odometry.finish()
-    with RecordingWriter(recording_out, _output_meta(reader.meta, "rgbd", config)) as writer:
+            on_progress(len(reference), total)
+
+    session = estimate_session_poses(reader.frames(), method, recording_in, config, rgbd_config, on_frame=read)
+    if check_input:
+        for line in session.input_report.warnings(untracked_poses=UNTRACKED_POSES):
+            warnings.warn(f"{recording_in}: {line}", InputWarning, stacklevel=2)
+    used_config = rgbd_config if method == "rgbd" else config
+    with RecordingWriter(recording_out, _output_meta(reader.meta, method, used_config)) as writer:
         if reader.ground_truth is not None:
             writer.write_ground_truth(reader.ground_truth)
-        for written, (frame, pose, true_pose) in enumerate(zip(reader.frames(), estimate, reference), start=1):
+        for written, (frame, pose, true_pose) in enumerate(zip(reader.frames(), session.poses, reference, strict=True),
+                                                           start=1):
             writer.write_frame(dataclasses.replace(frame, pose_world_camera=pose, pose_world_camera_true=true_pose))
             if on_progress is not None:
-                on_progress(len(timestamps) + written, total)
-    report = PoseReport(recording_in, recording_out, "rgbd", config, frames=len(estimate),
+                on_progress(len(reference) + written, total)
+
+    odometry = session.odometry
+    report = PoseReport(recording_in, recording_out, method, used_config, frames=len(session.poses),
                         truth=" and ".join(sorted(truth_kinds)) or "none", ms_per_frame=odometry.ms_per_frame,
-                        starved_frames=odometry.starved_frames, refinements_rejected=odometry.rejected_frames,
-                        terms=list(odometry.terms), degenerate_frames=odometry.degenerate_frames,
-                        keyframes=len(odometry.keyframes), loop_closures=odometry.loop_closures,
-                        timestamps=np.array(timestamps), estimate=np.array(estimate).reshape(-1, 4, 4))
-    _add_errors(report, estimate, reference)
+                        starved_frames=odometry.starved_frames, refinements_rejected=0,
+                        timestamps=np.array(session.timestamps), estimate=np.array(session.poses).reshape(-1, 4, 4))
+    if isinstance(odometry, RgbdOdometry):
+        report.refinements_rejected, report.terms = odometry.rejected_frames, list(odometry.terms)
+        report.degenerate_frames, report.keyframes = odometry.degenerate_frames, len(odometry.keyframes)
+        report.loop_closures = odometry.loop_closures
+    else:
+        report.refinements_rejected, report.terms = odometry.refinements_rejected, ["point-to-plane"] * odometry.frames
+    _add_errors(report, session.poses, reference)
     return report
 
 

@@ -543,11 +543,3 @@ def _choose_term(degenerate: bool, textured: bool) -> str:
 
 def _angle_deg(rotation: np.ndarray) -> float:
     return math.degrees(math.acos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))
-
-
-def estimate_rgbd_poses(frames, config: RgbdOdometryConfig = RgbdOdometryConfig()) -> list[np.ndarray]:
-    """Every frame's (4, 4) camera-to-world pose, loop-closed (frames: an iterable, in time order)."""
-    odometry = RgbdOdometry(config)
-    for frame in frames:
-        odometry.update(frame)
-    return odometry.finish()

@@ -1,0 +1,100 @@
+"""One session's camera poses from its images: the input checks, the odometry and the frames it
+could not track, in one pass over the frames.
+
+`ndfa detect` (on a recording without poses), `ndfa poses` and the importers' `--poses` all
+estimate a session here, so that they give the same pose to every frame:
+
+- every frame is checked on the way (`ndfa.trajectory.checks`); a session none of whose frames can
+  be tracked stops with one line naming the source;
+- the odometry sees the frames from the first one with usable depth on; it still sees later frames
+  without depth, so that its motion model carries on across them (re-acquiring after a hole went
+  better so than restarting from the last tracked frame: docs/input_checks.md);
+- the poses of frames without usable depth are interpolated between the tracked frames around them
+  (`fill_untracked`), not the odometry's extrapolation.
+
+Methods: "rgbd" (colour and depth, loop-closed over the whole session, rgbd.py) and "kiss-icp"
+(depth alone, kiss.py); `choose_method` picks rgbd when a recording has colour.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+
+import numpy as np
+
+from ndfa.core.frame import Frame
+from ndfa.trajectory.checks import InputCheckConfig, InputMonitor, InputReport, fill_untracked
+from ndfa.trajectory.kiss import DepthOdometry, OdometryConfig
+from ndfa.trajectory.rgbd import RgbdOdometry, RgbdOdometryConfig
+
+SESSION_METHODS = ("rgbd", "kiss-icp")
+UNTRACKED_POSES = "interpolated between the tracked frames around them"  # what the warnings say of them
+
+
+@dataclass
+class SessionPoses:
+    """A session's estimated poses, frame by frame, with what the odometry and the checks found.
+
+    poses: (4, 4) camera-to-world per frame, in the frames' order; timestamps, indices: theirs.
+    odometry: the estimator after the session (its counters: keyframes, loops, ms per frame, ...).
+    input_report: the input checks' findings (`InputReport.warnings(UNTRACKED_POSES)`).
+    """
+
+    method: str
+    poses: list[np.ndarray]
+    timestamps: list[float]
+    indices: list[int]
+    odometry: RgbdOdometry | DepthOdometry
+    input_report: InputReport
+
+    def describe_method(self) -> str:
+        return "rgbd odometry, loop-closed" if self.method == "rgbd" else "kiss-icp, depth only"
+
+
+def choose_method(first_frame: Frame | None) -> str:
+    """"rgbd" when the session's first frame has colour, otherwise "kiss-icp"."""
+    return "rgbd" if first_frame is not None and first_frame.rgb is not None else "kiss-icp"
+
+
+def estimate_session_poses(frames: Iterable[Frame], method: str, source: object,
+                           kiss_config: OdometryConfig = OdometryConfig(),
+                           rgbd_config: RgbdOdometryConfig = RgbdOdometryConfig(),
+                           check_config: InputCheckConfig = InputCheckConfig(),
+                           on_frame: Callable[[Frame], None] | None = None) -> SessionPoses:
+    """Estimate every frame's pose (see the module docstring). `source` names the session in the
+    one-line error when nothing can be tracked; `on_frame` sees each frame as it is read."""
+    if method not in SESSION_METHODS:
+        raise ValueError(f"method must be one of {SESSION_METHODS}, got {method!r}")
+    monitor = InputMonitor(check_config)
+    fed: list[int] = []  # positions (in the session) of the frames given to the odometry
+    timestamps: list[float] = []
+    indices: list[int] = []
+
+    def tracked_frames() -> Iterable[Frame]:
+        for position, frame in enumerate(frames):
+            if on_frame is not None:
+                on_frame(frame)
+            timestamps.append(frame.timestamp)
+            indices.append(frame.index)
+            if monitor.observe(frame).has_depth or fed:
+                fed.append(position)
+                yield frame
+
+    odometry: RgbdOdometry | DepthOdometry
+    if method == "rgbd":
+        odometry = RgbdOdometry(rgbd_config)
+        for frame in tracked_frames():
+            odometry.update(frame)
+        estimate = odometry.finish()
+    else:
+        odometry = DepthOdometry(kiss_config)
+        estimate = [odometry.update(frame) for frame in tracked_frames()]
+    report = monitor.report(uses_colour=method == "rgbd")
+    if not monitor.checks:
+        return SessionPoses(method, [], [], [], odometry, report)
+    report.raise_if_untrackable(source)
+    poses: list[np.ndarray | None] = [None] * len(monitor.checks)
+    for position, pose in zip(fed, estimate, strict=True):
+        poses[position] = pose if monitor.checks[position].has_depth else None
+    return SessionPoses(method, fill_untracked(timestamps, poses), timestamps, indices, odometry, report)
