@@ -108,6 +108,8 @@ def detect_command(
                                on_alignment=lambda a: err_console.print(f"registration prior: {a.describe()}",
                                                                         highlight=False))
     err_console.print(result.describe_registration(), highlight=False)
+    for warning in empty_result_warnings(result):
+        err_console.print(f"[yellow]warning:[/yellow] {warning}", highlight=False, soft_wrap=True)
 
     table = Table(title="changes")
     for column in ("kind", "session", "object", "frame", "position (source world)", "masks"):
@@ -135,6 +137,20 @@ def detect_command(
     for path in (log, tables, json_out):
         if path is not None:
             console.print(f"wrote {path}")
+
+
+def empty_result_warnings(result) -> list[str]:  # noqa: ANN001 (DetectionResult: imported lazily)
+    """One line each on why a run could decide nothing (it would otherwise end in a quiet empty
+    table): a session without objects, and why (`run_detection` finds it out), or two sessions
+    that share no objects to register them by, and what is still reported then."""
+    lines = [note for note in result.notes if " has no objects: " in note]
+    if not lines and result.registration is None:
+        source, target = result.objects["source"], result.objects["target"]
+        lines.append(f"the source and the target share no objects: none of the {target} target objects matched "
+                     f"one of the {source} source objects in shape and place often enough to register the "
+                     f"sessions, so no target object was tested; reported: {len(result.changes)} change(s) "
+                     "decided from the source alone, and each session's objects in --tables and --json")
+    return lines
 
 
 @app.command("segment")

@@ -188,7 +188,8 @@ def ingest_sim_command(
     if mesh_dir is not None:
         from ndfa.sim.mesh_io import load_mug_dir
 
-        user_models = load_mug_dir(mesh_dir, up=mesh_up)
+        user_models = load_mug_dir(mesh_dir, up=mesh_up, on_note=lambda note: err_console.print(
+            f"note: {note}", highlight=False, soft_wrap=True))
 
     with progress_bar(transient=False) as progress:
         summaries = ingest_sim(config, out, models=user_models, on_progress=bar_per_label(progress, "rendering "))
