@@ -100,7 +100,7 @@ def check_output_path(path: Path, option: str, kind: str | None) -> None:
     where = f"{option} {path}"
     try:
         mode = path.stat().st_mode  # follows links: a link to /dev/null is a device too
-    except FileNotFoundError:
+    except (FileNotFoundError, NotADirectoryError):  # nothing there yet (a file in the way: below)
         mode = None
     except OSError as error:
         raise OptionError(f"{where}: cannot be used as an output ({error.strerror or error})") from None

@@ -30,7 +30,8 @@ def detect_command(
                                           callback=output_dir),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the summary (scores, timings, changes) as JSON.",
                                             callback=output_file),
-    weights: Optional[Path] = typer.Option(None, help="NDF checkpoint (default: the shipped weights).", callback=checkpoint),
+    weights: Optional[Path] = typer.Option(None, help="NDF checkpoint (default: the shipped weights).",
+                                           callback=checkpoint),
     frame_step: int = typer.Option(1, help="Use every N-th frame of both recordings.", callback=at_least_one),
     no_images: bool = typer.Option(False, "--no-images", help="Leave depth/colour/mask images out of the .rrd (smaller)."),
     association_distance: Optional[float] = typer.Option(
@@ -186,7 +187,8 @@ def eval_command(
                                                 callback=in_range(gt=0, le=1)),
     tsdf_voxel: Optional[float] = typer.Option(None, help="PMT: submap voxel size, metres (default: TSDFConfig.voxel_m; "
                                                "PMT's small-object default: 0.02).", callback=positive),
-    frame_step: int = typer.Option(1, help="Use every N-th frame of both recordings, for all methods.", callback=at_least_one),
+    frame_step: int = typer.Option(1, help="Use every N-th frame of both recordings, for all methods.",
+                                   callback=at_least_one),
     sweep: Optional[str] = typer.Option(None, help="Instead of SOURCE TARGET: sweep an axis of synthetic scenes: "
                                         "drift | noise | objects | overlap."),
     values: Optional[str] = typer.Option(None, help="Sweep: comma-separated values of the axis."),

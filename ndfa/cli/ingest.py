@@ -125,7 +125,8 @@ def ingest_sim_command(
                                                 callback=non_negative),
     offset: Optional[float] = typer.Option(None, help="Target pose offset: max translation per axis, metres.",
                                            callback=non_negative),
-    offset_yaw: Optional[float] = typer.Option(None, help="Target pose offset: max yaw, degrees.", callback=non_negative),
+    offset_yaw: Optional[float] = typer.Option(None, help="Target pose offset: max yaw, degrees.",
+                                               callback=non_negative),
     drift: Optional[float] = typer.Option(None, help="Target drift: random-walk translation step std, metres/frame.",
                                           callback=non_negative),
     drift_yaw: Optional[float] = typer.Option(None, help="Target drift: random-walk yaw step std, degrees/frame.",
@@ -275,7 +276,8 @@ def ingest_tum_command(
 @ingest_app.command("bag")
 def ingest_bag_command(
     bag: Path = typer.Argument(..., help="A ROS1 .bag file or a ROS2 bag directory (sqlite3 or mcap)."),
-    out: Optional[Path] = typer.Option(None, "--out", "-o", help="The recording to write (.mcap).", callback=output_file),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="The recording to write (.mcap).",
+                                       callback=output_file),
     list_only: bool = typer.Option(False, "--list", help="List the bag's topics and the role each would get; write nothing."),
     rgb_topic: Optional[str] = typer.Option(None, help="Colour images (Image or CompressedImage)."),
     depth_topic: Optional[str] = typer.Option(None, help="Depth images (16UC1 mm, 32FC1 m, or compressedDepth)."),
