@@ -66,11 +66,10 @@ def at_least(low: float) -> Callback:
     return in_range(ge=low)
 
 
-finite = in_range()
 positive = in_range(gt=0)          # lengths, scales, rates
 non_negative = in_range(ge=0)      # weights, noise levels, counts that may be zero
 fraction = in_range(ge=0, le=1)    # shares
-at_least_one = at_least(1)               # frame steps, strides, threads, workers
+at_least_one = at_least(1)      # frame steps, strides, threads, workers
 
 
 def output_file(param: typer.CallbackParam, value: Path | None) -> Path | None:
