@@ -54,6 +54,8 @@ class Staged:
         try:
             self.folder.mkdir()
         except OSError as error:
+            if not make_parents:
+                raise  # the caller asked for the OSError, to say it its own way (the recording writer)
             raise OutputError(f"{self.path}: cannot write in {self.path.parent} ({error.strerror or error})") from None
         self.temporary = self.folder / self.path.name
 
