@@ -61,8 +61,11 @@ def main() -> None:
     except Exception as error:  # usage errors arrive here in non-standalone mode
         # typer >= 0.29 vendors its own click (typer.BadParameter is not a click.ClickException):
         # recognise both by what they can do.
-        if callable(getattr(error, "show", None)) and isinstance(getattr(error, "exit_code", None), int):
-            error.show()
+        if callable(getattr(error, "format_message", None)) and isinstance(getattr(error, "exit_code", None), int):
+            # One line, like ndfa's own errors, with where to read more instead of the usage block.
+            context = getattr(error, "ctx", None)
+            hint = f" (see '{context.command_path} --help')" if getattr(context, "command_path", None) else ""
+            err_console.print(f"[red]error:[/red] {error.format_message()}{hint}", highlight=False, soft_wrap=True)
             sys.exit(error.exit_code)
         raise
 

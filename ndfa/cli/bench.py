@@ -9,18 +9,20 @@ import typer
 from rich.table import Table
 
 from ndfa.cli.app import app, console
+from ndfa.cli.checks import at_least_one, checkpoint
 
 
 @app.command("bench")
 def bench_command(
     what: str = typer.Argument("sim", help="What to time: sim (render, noise, write, read), ndf (encoding) "
                                             "or detect (the target pass, and the detection step's growth)."),
-    frames: int = typer.Option(60, help="sim: frames to time."),
-    weights: Optional[Path] = typer.Option(None, help="ndf: checkpoint to time (default: the shipped weights)."),
+    frames: int = typer.Option(60, help="sim: frames to time.", callback=at_least_one),
+    weights: Optional[Path] = typer.Option(None, help="ndf: checkpoint to time (default: the shipped weights).",
+                                           callback=checkpoint),
     source: Path = typer.Option(Path("recordings/sample/source.mcap"), help="detect: source recording."),
     target: Path = typer.Option(Path("recordings/sample/target.mcap"), help="detect: target recording."),
     recording: Path = typer.Option(Path("out/paper/target.mcap"), help="segment: recording with ground-truth masks."),
-    step: int = typer.Option(1, help="segment: use every N-th frame."),
+    step: int = typer.Option(1, help="segment: use every N-th frame.", callback=at_least_one),
 ) -> None:
     """Time each stage of a pipeline and print milliseconds."""
     from ndfa.eval.bench import bench_detect, bench_detection_scaling, bench_ndf, bench_sim

@@ -11,6 +11,7 @@ from rich.table import Table
 
 from ndfa.change.detector import DetectorConfig
 from ndfa.cli.app import app, bar_per_label, console, err_console, progress_bar
+from ndfa.cli.checks import at_least_one, checkpoint, in_range, output_dir, output_file, positive
 from ndfa.core.errors import NdfaError
 from ndfa.trajectory.kiss import OdometryConfig
 
@@ -23,21 +24,28 @@ _DETECTOR, _ODOMETRY = DetectorConfig(), OdometryConfig()
 def detect_command(
     source: Path = typer.Argument(..., help="Source session recording (.mcap)."),
     target: Path = typer.Argument(..., help="Target session recording (.mcap)."),
-    log: Optional[Path] = typer.Option(None, help="Write every intermediate to this Rerun file (.rrd)."),
-    tables: Optional[Path] = typer.Option(None, help="Write the Polars tables (parquet) into this directory."),
-    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the summary (scores, timings, changes) as JSON."),
-    weights: Optional[Path] = typer.Option(None, help="NDF checkpoint (default: the shipped weights)."),
-    frame_step: int = typer.Option(1, help="Use every N-th frame of both recordings."),
+    log: Optional[Path] = typer.Option(None, help="Write every intermediate to this Rerun file (.rrd).",
+                                       callback=output_file),
+    tables: Optional[Path] = typer.Option(None, help="Write the Polars tables (parquet) into this directory.",
+                                          callback=output_dir),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Write the summary (scores, timings, changes) as JSON.",
+                                            callback=output_file),
+    weights: Optional[Path] = typer.Option(None, help="NDF checkpoint (default: the shipped weights).",
+                                           callback=checkpoint),
+    frame_step: int = typer.Option(1, help="Use every N-th frame of both recordings.", callback=at_least_one),
     no_images: bool = typer.Option(False, "--no-images", help="Leave depth/colour/mask images out of the .rrd (smaller)."),
     association_distance: Optional[float] = typer.Option(
-        None, help=f"delta_d, metres (default {_DETECTOR.association.distance_m})."),
+        None, help=f"delta_d, metres (default {_DETECTOR.association.distance_m}).", callback=positive),
     shape_similarity: Optional[float] = typer.Option(
-        None, help=f"delta_s (default {_DETECTOR.association.shape_similarity}; the paper: 0.9)."),
-    edge_distance: Optional[float] = typer.Option(None, help=f"delta_e, metres (default {_DETECTOR.decision.edge_m}, the paper's)."),
+        None, help=f"delta_s (default {_DETECTOR.association.shape_similarity}; the paper: 0.9).",
+        callback=in_range(ge=-1, le=1)),  # a cosine similarity
+    edge_distance: Optional[float] = typer.Option(
+        None, help=f"delta_e, metres (default {_DETECTOR.decision.edge_m}, the paper's).", callback=positive),
     paper_parameters: bool = typer.Option(False, "--paper-parameters", help="Start from the paper's own detector "
                                           "parameters (DetectorConfig.paper(); docs/detector.md) instead of ndfa's."),
     tree_length: Optional[float] = typer.Option(
-        None, help=f"Interval length l of the object trees, metres (default {_DETECTOR.association.tree_length_m})."),
+        None, help=f"Interval length l of the object trees, metres (default {_DETECTOR.association.tree_length_m}).",
+        callback=positive),
     up: str = typer.Option("auto", help="World up: auto (a synthetic recording's z, otherwise estimated from the "
                                         "support planes and levelled if tilted) | estimate (always) | z (trust "
                                         "the recording: its world is z-up)."),
@@ -52,7 +60,7 @@ def detect_command(
                                      "scene clouds whatever the poses)."),
     threads: Optional[int] = typer.Option(None, help="Torch CPU threads for the NDF (default: torch's, one per core). "
                                                      "1 when other jobs share the cores: oversubscribed, 2 threads "
-                                                     "ran ~10x slower than 1."),
+                                                     "ran ~10x slower than 1.", callback=at_least_one),
 ) -> None:
     """Detect added, removed and moved objects between two recordings (the paper's method)."""
     import json
@@ -61,8 +69,6 @@ def detect_command(
     if threads is not None:
         import torch
 
-        if threads < 1:
-            raise typer.BadParameter(f"--threads must be >= 1, got {threads}")
         torch.set_num_threads(threads)
 
     from ndfa.eval.scoring import changed_instances
@@ -76,8 +82,6 @@ def detect_command(
                        association=replace(defaults.association, **{k: v for k, v in association.items() if v is not None}),
                        decision=replace(defaults.decision, **({} if edge_distance is None else {"edge_m": edge_distance})))
     config = PipelineConfig(detector=detector, weights=weights)
-    if frame_step < 1:
-        raise typer.BadParameter(f"--frame-step must be >= 1, got {frame_step}")
     from ndfa.run.world import POSE_MODES, UP_MODES
 
     if up not in UP_MODES:
@@ -105,6 +109,8 @@ def detect_command(
                                on_alignment=lambda a: err_console.print(f"registration prior: {a.describe()}",
                                                                         highlight=False))
     err_console.print(result.describe_registration(), highlight=False)
+    for warning in empty_result_warnings(result):
+        err_console.print(f"[yellow]warning:[/yellow] {warning}", highlight=False, soft_wrap=True)
 
     table = Table(title="changes")
     for column in ("kind", "session", "object", "frame", "position (source world)", "masks"):
@@ -134,13 +140,28 @@ def detect_command(
             console.print(f"wrote {path}")
 
 
+def empty_result_warnings(result) -> list[str]:  # noqa: ANN001 (DetectionResult: imported lazily)
+    """One line each on why a run could decide nothing (it would otherwise end in a quiet empty
+    table): a session without objects, and why (`run_detection` finds it out), or two sessions
+    that share no objects to register them by, and what is still reported then."""
+    lines = [note for note in result.notes if " has no objects: " in note]
+    if not lines and result.registration is None:
+        source, target = result.objects["source"], result.objects["target"]
+        lines.append(f"the source and the target share no objects: none of the {target} target objects matched "
+                     f"one of the {source} source objects in shape and place often enough to register the "
+                     f"sessions, so no target object was tested; reported: {len(result.changes)} change(s) "
+                     "decided from the source alone, and each session's objects in --tables and --json")
+    return lines
+
+
 @app.command("segment")
 def segment_command(
     recording: Path = typer.Argument(..., help="An ndfa recording (.mcap)."),
-    out: Path = typer.Option(..., "--out", "-o", help="The copy to write (.mcap)."),
+    out: Path = typer.Option(..., "--out", "-o", help="The copy to write (.mcap).", callback=output_file),
     keep_truth: bool = typer.Option(False, "--keep-truth", help="Evaluation only: relabel each segment with the "
                                     "ground-truth instance it overlaps with IoU >= 0.5 (else 60000 + label)."),
-    stride: Optional[int] = typer.Option(None, help="Sample every N-th pixel along each axis (default: width // 320)."),
+    stride: Optional[int] = typer.Option(None, help="Sample every N-th pixel along each axis (default: width // 320).",
+                                         callback=at_least_one),
 ) -> None:
     """Copy a recording with its instance masks replaced by the geometric segmentation (planes + DBSCAN)."""
     from ndfa.perception.segmentation import SegmentationConfig
@@ -157,20 +178,26 @@ def segment_command(
 def eval_command(
     source: Optional[Path] = typer.Argument(None, help="Source session recording (.mcap), with instance masks."),
     target: Optional[Path] = typer.Argument(None, help="Target session recording (.mcap), with masks and ground truth."),
-    out: Path = typer.Option(..., "--out", "-o", help="Directory for table.parquet and table.md (sweep: sweep.parquet, sweep_AXIS.png)."),
-    nn_distance: Optional[float] = typer.Option(None, help="NN: d, metres (default: NNConfig.distance_m, the paper's)."),
+    out: Path = typer.Option(..., "--out", "-o", help="Directory for table.parquet and table.md (sweep: sweep.parquet, sweep_AXIS.png).",
+                             callback=output_dir),
+    nn_distance: Optional[float] = typer.Option(None, help="NN: d, metres (default: NNConfig.distance_m, the paper's).",
+                                                callback=positive),
     nn_fraction: Optional[float] = typer.Option(None, help="NN: r, share of change points that makes a view changed "
-                                                "(default: NNConfig.changed_fraction, the paper's)."),
+                                                "(default: NNConfig.changed_fraction, the paper's).",
+                                                callback=in_range(gt=0, le=1)),
     tsdf_voxel: Optional[float] = typer.Option(None, help="PMT: submap voxel size, metres (default: TSDFConfig.voxel_m; "
-                                               "PMT's small-object default: 0.02)."),
-    frame_step: int = typer.Option(1, help="Use every N-th frame of both recordings, for all methods."),
+                                               "PMT's small-object default: 0.02).", callback=positive),
+    frame_step: int = typer.Option(1, help="Use every N-th frame of both recordings, for all methods.",
+                                   callback=at_least_one),
     sweep: Optional[str] = typer.Option(None, help="Instead of SOURCE TARGET: sweep an axis of synthetic scenes: "
                                         "drift | noise | objects | overlap."),
     values: Optional[str] = typer.Option(None, help="Sweep: comma-separated values of the axis."),
     seeds: str = typer.Option("0-4", help="Sweep: seeds, N, LO-HI or a comma list."),
     preset: str = typer.Option("sample", help="Sweep: scene preset of every cell (sample | paper | random)."),
-    step: Optional[float] = typer.Option(None, help="Sweep: camera travel between frames, metres (preset's default)."),
-    workers: Optional[int] = typer.Option(None, help="Sweep: cells in parallel (default: CPU count; 1 = in process)."),
+    step: Optional[float] = typer.Option(None, help="Sweep: camera travel between frames, metres (preset's default).",
+                                         callback=positive),
+    workers: Optional[int] = typer.Option(None, help="Sweep: cells in parallel (default: CPU count; 1 = in process).",
+                                          callback=at_least_one),
     address: Optional[str] = typer.Option(None, help="Sweep: Ray cluster address (needs the ndfa cluster extra: Ray)."),
     ray: Optional[bool] = typer.Option(None, "--ray/--no-ray", help="Sweep: use Ray (default: when installed)."),
 ) -> None:
@@ -188,8 +215,6 @@ def eval_command(
     from ndfa.eval.baselines.tsdf import TSDFConfig
     from ndfa.eval.table import evaluate_methods, write_table
 
-    if frame_step < 1:
-        raise typer.BadParameter(f"--frame-step must be >= 1, got {frame_step}")
     nn_overrides = {"distance_m": nn_distance, "changed_fraction": nn_fraction}
     nn = NNConfig(**{k: v for k, v in nn_overrides.items() if v is not None})
     tsdf = TSDFConfig(**({} if tsdf_voxel is None else {"voxel_m": tsdf_voxel}))
@@ -222,8 +247,6 @@ def _eval_sweep(axis: str, values: Optional[str], seeds: str, preset: str, step:
 
     if values is None:
         raise typer.BadParameter("--sweep needs --values, e.g. --values 0,0.001,0.002")
-    if workers is not None and workers < 1:
-        raise typer.BadParameter(f"--workers must be >= 1, got {workers}")
     spec = spec_from_text(axis, values, seeds, preset, step)
 
     def on_cell(cell, error, done, total) -> None:
@@ -256,13 +279,17 @@ def _eval_sweep(axis: str, values: Optional[str], seeds: str, preset: str, step:
 @app.command("poses")
 def poses_command(
     recording: Path = typer.Argument(..., help="An ndfa recording (.mcap)."),
-    out: Path = typer.Option(..., "--out", "-o", help="The copy with estimated poses (.mcap)."),
+    out: Path = typer.Option(..., "--out", "-o", help="The copy with estimated poses (.mcap).", callback=output_file),
     method: str = typer.Option("estimate", help="estimate (rgbd with colour, else kiss-icp) | rgbd | kiss-icp."),
-    tum_out: Optional[Path] = typer.Option(None, help="Also write the estimate as a TUM trajectory file (evo)."),
-    voxel_size: Optional[float] = typer.Option(None, help=f"KISS-ICP map voxel, metres (default {_ODOMETRY.voxel_size_m})."),
-    max_range: Optional[float] = typer.Option(None, help=f"Farthest point used, metres (default {_ODOMETRY.max_range_m})."),
+    tum_out: Optional[Path] = typer.Option(None, help="Also write the estimate as a TUM trajectory file (evo).",
+                                           callback=output_file),
+    voxel_size: Optional[float] = typer.Option(None, help=f"KISS-ICP map voxel, metres (default {_ODOMETRY.voxel_size_m}).",
+                                               callback=positive),
+    max_range: Optional[float] = typer.Option(None, help=f"Farthest point used, metres (default {_ODOMETRY.max_range_m}).",
+                                              callback=positive),
     stride: Optional[int] = typer.Option(
-        None, help=f"Depth averaged over STRIDE x STRIDE pixel blocks (default {_ODOMETRY.pixel_stride})."),
+        None, help=f"Depth averaged over STRIDE x STRIDE pixel blocks (default {_ODOMETRY.pixel_stride}).",
+        callback=at_least_one),
     no_refine: bool = typer.Option(False, "--no-refine", help="KISS-ICP alone, without the point-to-plane refinement."),
 ) -> None:
     """Estimate camera poses from colour and depth, write a copy of the recording with them, and print ATE/RPE."""

@@ -12,6 +12,17 @@ from rich.progress import Progress, TextColumn
 from rich.table import Table
 
 from ndfa.cli.app import app, bar_per_label, console, err_console, progress_bar
+from ndfa.cli.checks import (
+    at_least,
+    at_least_one,
+    in_range,
+    input_dir,
+    non_negative,
+    output_dir,
+    output_file,
+    output_path,
+    positive,
+)
 from ndfa.core.errors import NdfaError
 from ndfa.io.ingest import MAX_DT_S
 from ndfa.io.ingest.tum_layout import DEFAULT_INTRINSICS, DEPTH_SCALE, INTRINSICS_PRESETS
@@ -25,9 +36,12 @@ app.add_typer(ingest_app, name="ingest")
 def _parse_range(text: str, what: str) -> tuple[int, int]:
     try:
         lo, _, hi = text.partition("-")
-        return int(lo), int(hi or lo)
+        low, high = int(lo), int(hi or lo)
     except ValueError:
         raise typer.BadParameter(f"{what} must be N or LO-HI, got {text!r}") from None
+    if not 0 <= low <= high:
+        raise typer.BadParameter(f"{what} must be N or LO-HI with 0 <= LO <= HI, got {text!r}")
+    return low, high
 
 
 def _pose_estimator(poses: str):
@@ -89,36 +103,47 @@ def _estimate_session_poses(out: Path, poses: str) -> None:
 
 @ingest_app.command("sim")
 def ingest_sim_command(
-    out: Path = typer.Option(..., "--out", "-o", help="Output directory for source.mcap and target.mcap."),
+    out: Path = typer.Option(..., "--out", "-o", help="Output directory for source.mcap and target.mcap.",
+                             callback=output_dir),
     preset: str = typer.Option("paper", help="paper | sample | random."),
-    seed: int = typer.Option(0, help="Seed of everything random in the scene."),
-    mesh_dir: Optional[Path] = typer.Option(None, help="Place these OBJ/PLY/STL mug meshes instead of procedural ones."),
-    mesh_up: str = typer.Option("z", help="Up axis of the --mesh-dir meshes: z or y."),
+    seed: int = typer.Option(0, help="Seed of everything random in the scene.", callback=at_least(0)),
+    mesh_dir: Optional[Path] = typer.Option(None, help="Place these OBJ/PLY/STL/GLB mug meshes instead of procedural "
+                                             "ones (units and up axis guessed unless --mesh-up is given).",
+                                             callback=input_dir),
+    mesh_up: str = typer.Option("auto", help="Up axis of the --mesh-dir meshes: auto (guessed per mesh, with a note) | z | y."),
     tables: Optional[str] = typer.Option(None, help="Table grid as ROWSxCOLS, e.g. 2x4."),
     mugs_per_table: Optional[str] = typer.Option(None, help="Mugs per table in the source, N or LO-HI."),
-    models: Optional[int] = typer.Option(None, help="Number of distinct procedural mug models."),
-    added: Optional[int] = typer.Option(None, help="Mugs added in the target."),
-    removed: Optional[int] = typer.Option(None, help="Mugs removed in the target."),
-    moved: Optional[int] = typer.Option(None, help="Mugs moved in the target."),
-    switched: Optional[int] = typer.Option(None, help="Mugs that switch places (an even number)."),
+    models: Optional[int] = typer.Option(None, help="Number of distinct procedural mug models.", callback=at_least_one),
+    added: Optional[int] = typer.Option(None, help="Mugs added in the target.", callback=non_negative),
+    removed: Optional[int] = typer.Option(None, help="Mugs removed in the target.", callback=non_negative),
+    moved: Optional[int] = typer.Option(None, help="Mugs moved in the target.", callback=non_negative),
+    switched: Optional[int] = typer.Option(None, help="Mugs that switch places (an even number).",
+                                           callback=non_negative),
     source_route: Optional[str] = typer.Option(None, help="perimeter | corridor | weave | circles."),
     target_route: Optional[str] = typer.Option(None, help="perimeter | corridor | weave | circles."),
-    step: Optional[float] = typer.Option(None, help="Camera travel between frames, metres."),
+    step: Optional[float] = typer.Option(None, help="Camera travel between frames, metres.", callback=positive),
     noise: Optional[bool] = typer.Option(None, "--noise/--no-noise", help="Depth sensor noise on or off."),
-    noise_scale: Optional[float] = typer.Option(None, help="Depth noise std as a multiple of the default sensor's."),
-    offset: Optional[float] = typer.Option(None, help="Target pose offset: max translation per axis, metres."),
-    offset_yaw: Optional[float] = typer.Option(None, help="Target pose offset: max yaw, degrees."),
-    drift: Optional[float] = typer.Option(None, help="Target drift: random-walk translation step std, metres/frame."),
-    drift_yaw: Optional[float] = typer.Option(None, help="Target drift: random-walk yaw step std, degrees/frame."),
+    noise_scale: Optional[float] = typer.Option(None, help="Depth noise std as a multiple of the default sensor's.",
+                                                callback=non_negative),
+    offset: Optional[float] = typer.Option(None, help="Target pose offset: max translation per axis, metres.",
+                                           callback=non_negative),
+    offset_yaw: Optional[float] = typer.Option(None, help="Target pose offset: max yaw, degrees.",
+                                               callback=non_negative),
+    drift: Optional[float] = typer.Option(None, help="Target drift: random-walk translation step std, metres/frame.",
+                                          callback=non_negative),
+    drift_yaw: Optional[float] = typer.Option(None, help="Target drift: random-walk yaw step std, degrees/frame.",
+                                              callback=non_negative),
     textures: bool = typer.Option(False, "--textures", help="Procedural colour texture on walls, floor and table tops."),
     clutter: int = typer.Option(0, help="Non-mug objects per table (boxes, books, bowls, bottles); static, listed "
-                                        "as clutter in the ground truth."),
+                                        "as clutter in the ground truth.", callback=non_negative),
     raw: bool = typer.Option(False, "--raw", help="Record as a sensor does: no instance masks, no camera poses "
                                                   "(/tf); the true poses stay in the ground truth."),
     world_tilt: float = typer.Option(0.0, help="Tilt the recorded world frame this many degrees away from z-up "
-                                               "(random roll/pitch axis from the seed)."),
+                                               "(random roll/pitch axis from the seed).",
+                                   callback=in_range(gt=-90, lt=90)),
     max_turn: Optional[float] = typer.Option(None, help="Most the camera turns between frames, degrees; 0: unlimited "
-                                                        f"(default: {RAW_MAX_TURN_DEG:g} with --raw, else unlimited)."),
+                                                        f"(default: {RAW_MAX_TURN_DEG:g} with --raw, else unlimited).",
+                                            callback=in_range(ge=0, le=180)),
 ) -> None:
     """Render a synthetic source/target pair of recordings with ground truth."""
     from ndfa.io.ingest.synthetic import check_output_dir, ingest_sim
@@ -129,8 +154,8 @@ def ingest_sim_command(
     overrides: dict = {}
     if tables is not None:
         rows, _, cols = tables.lower().partition("x")
-        if not (rows.isdigit() and cols.isdigit()):
-            raise typer.BadParameter(f"--tables must be ROWSxCOLS, got {tables!r}")
+        if not (rows.isdigit() and cols.isdigit() and int(rows) >= 1 and int(cols) >= 1):
+            raise typer.BadParameter(f"--tables must be ROWSxCOLS (each at least 1), got {tables!r}")
         overrides.update(table_rows=int(rows), table_cols=int(cols), total_mugs=None)
     if mugs_per_table is not None:
         overrides.update(mugs_per_table=_parse_range(mugs_per_table, "--mugs-per-table"), total_mugs=None)
@@ -166,7 +191,8 @@ def ingest_sim_command(
     if mesh_dir is not None:
         from ndfa.sim.mesh_io import load_mug_dir
 
-        user_models = load_mug_dir(mesh_dir, up=mesh_up)
+        user_models = load_mug_dir(mesh_dir, up=mesh_up, on_note=lambda note: err_console.print(
+            f"note: {note}", highlight=False, soft_wrap=True))
 
     with progress_bar(transient=False) as progress:
         summaries = ingest_sim(config, out, models=user_models, on_progress=bar_per_label(progress, "rendering "))
@@ -191,20 +217,23 @@ def _parse_intrinsics(text: Optional[str]) -> object:
         values = ()
     if len(values) != 4:
         raise NdfaError(f"--intrinsics must be {', '.join(INTRINSICS_PRESETS)} or fx,fy,cx,cy, got {text!r}")
+    if not (np.all(np.isfinite(values)) and values[0] > 0 and values[1] > 0):
+        raise NdfaError(f"--intrinsics: fx and fy must be finite and > 0, cx and cy finite, got {text!r}")
     return values
 
 
 @ingest_app.command("tum")
 def ingest_tum_command(
     folder: Path = typer.Argument(..., help="A TUM RGB-D folder (rgb.txt, depth.txt, groundtruth.txt, rgb/, depth/)."),
-    out: Path = typer.Option(..., "--out", "-o", help="The recording to write (.mcap)."),
+    out: Path = typer.Option(..., "--out", "-o", help="The recording to write (.mcap).", callback=output_file),
     intrinsics: Optional[str] = typer.Option(None, help=f"{_PRESETS} | fx,fy,cx,cy (default: the folder's "
                                              "calibration.txt, else TUM's ROS default "
                                              f"{','.join(f'{v:g}' for v in DEFAULT_INTRINSICS)})."),
-    depth_scale: float = typer.Option(DEPTH_SCALE, help="Depth PNG units per metre (TUM: 5000)."),
+    depth_scale: float = typer.Option(DEPTH_SCALE, help="Depth PNG units per metre (TUM: 5000).", callback=positive),
     masks: Optional[Path] = typer.Option(None, help="Instance masks: 16-bit PNGs named as the depth PNGs, 0 = none "
-                                                    "(default: the folder's masks/ if any)."),
-    max_dt: float = typer.Option(MAX_DT_S, help="Largest rgb-depth timestamp difference to pair them, seconds."),
+                                                    "(default: the folder's masks/ if any).", callback=input_dir),
+    max_dt: float = typer.Option(MAX_DT_S, help="Largest rgb-depth timestamp difference to pair them, seconds.",
+                                 callback=positive),
     poses: str = typer.Option("given", help="given (groundtruth.txt) | estimate | rgbd | kiss-icp (estimated; "
                                             "groundtruth.txt, if any, is kept as the true poses)."),
     session: Optional[str] = typer.Option(None, help="Session name (default: the folder's name)."),
@@ -249,7 +278,8 @@ def ingest_tum_command(
 @ingest_app.command("bag")
 def ingest_bag_command(
     bag: Path = typer.Argument(..., help="A ROS1 .bag file or a ROS2 bag directory (sqlite3 or mcap)."),
-    out: Optional[Path] = typer.Option(None, "--out", "-o", help="The recording to write (.mcap)."),
+    out: Optional[Path] = typer.Option(None, "--out", "-o", help="The recording to write (.mcap).",
+                                       callback=output_file),
     list_only: bool = typer.Option(False, "--list", help="List the bag's topics and the role each would get; write nothing."),
     rgb_topic: Optional[str] = typer.Option(None, help="Colour images (Image or CompressedImage)."),
     depth_topic: Optional[str] = typer.Option(None, help="Depth images (16UC1 mm, 32FC1 m, or compressedDepth)."),
@@ -259,7 +289,8 @@ def ingest_bag_command(
                                                         "(default: tf when the bag has it)."),
     world_frame: Optional[str] = typer.Option(None, help="tf frame of the world (default: map, odom or world)."),
     camera_frame: Optional[str] = typer.Option(None, help="tf frame of the camera (default: the depth images' frame_id)."),
-    max_dt: float = typer.Option(MAX_DT_S, help="Largest depth-colour (and depth-mask) stamp difference, seconds."),
+    max_dt: float = typer.Option(MAX_DT_S, help="Largest depth-colour (and depth-mask) stamp difference, seconds.",
+                                 callback=positive),
     poses: str = typer.Option("given", help="given (from the bag) | estimate | rgbd | kiss-icp (estimated)."),
     imu_topic: Optional[str] = typer.Option(None, help="sensor_msgs/Imu topic whose still readings give world up "
                                                        "(default: the bag's one Imu topic, if any)."),
@@ -316,8 +347,9 @@ app.add_typer(export_app, name="export")
 @export_app.command("tum")
 def export_tum_command(
     recording: Path = typer.Argument(..., help="An ndfa recording (.mcap)."),
-    out: Path = typer.Option(..., "--out", "-o", help="The TUM folder to create (must not exist, or be empty)."),
-    depth_scale: float = typer.Option(DEPTH_SCALE, help="Depth PNG units per metre (TUM: 5000)."),
+    out: Path = typer.Option(..., "--out", "-o", help="The TUM folder to create (must not exist, or be empty).",
+                             callback=output_dir),
+    depth_scale: float = typer.Option(DEPTH_SCALE, help="Depth PNG units per metre (TUM: 5000).", callback=positive),
 ) -> None:
     """Write a recording as a TUM RGB-D folder (plus calibration.txt, masks/ and ground truth)."""
     from ndfa.io.export.tum import export_tum
@@ -337,7 +369,8 @@ def export_tum_command(
 @export_app.command("bag")
 def export_bag_command(
     recording: Path = typer.Argument(..., help="An ndfa recording (.mcap)."),
-    out: Path = typer.Option(..., "--out", "-o", help="The bag to create: a .bag file, or a directory with --ros2."),
+    out: Path = typer.Option(..., "--out", "-o", help="The bag to create: a .bag file, or a directory with --ros2.",
+                             callback=output_path),
     ros2: bool = typer.Option(False, "--ros2", help="Write a ROS2 bag (directory) instead of a ROS1 .bag."),
     storage: str = typer.Option("sqlite3", help="ROS2 storage: sqlite3 | mcap."),
     compressed: bool = typer.Option(False, "--compressed", help="Colour as CompressedImage, depth as compressedDepth PNG."),

@@ -10,38 +10,62 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from ndfa.cli.app import app, console, err_console
+from ndfa.cli.checks import (
+    at_least,
+    at_least_one,
+    checkpoint,
+    fraction,
+    in_range,
+    non_negative,
+    output_dir,
+    output_file,
+    positive,
+)
 
 
 @app.command("train")
 def train_command(
-    out: Path = typer.Option(Path("out/ndf"), "--out", "-o", help="Run directory: checkpoint.pt, metrics.parquet, config.json."),
-    steps: int = typer.Option(8000, help="Optimizer steps."),
-    train_mugs: int = typer.Option(400, help="Train-split mugs to render views of."),
-    views_per_mug: int = typer.Option(24, help="Rendered views per training mug."),
-    batch_mugs: int = typer.Option(16, help="Mugs per batch (two views each)."),
-    alpha: float = typer.Option(0.01, help="Weight of the batch-hard shape loss (paper: 0.01)."),
-    shape_margin: Optional[float] = typer.Option(None, help="Hinge margin of the shape loss (default: the paper's form)."),
+    out: Path = typer.Option(Path("out/ndf"), "--out", "-o", help="Run directory: checkpoint.pt, metrics.parquet, config.json.",
+                             callback=output_dir),
+    steps: int = typer.Option(8000, help="Optimizer steps.", callback=at_least_one),
+    train_mugs: int = typer.Option(400, help="Train-split mugs to render views of.", callback=at_least_one),
+    views_per_mug: int = typer.Option(24, help="Rendered views per training mug.", callback=at_least_one),
+    batch_mugs: int = typer.Option(16, help="Mugs per batch (two views each).", callback=at_least(2)),
+    alpha: float = typer.Option(0.01, help="Weight of the batch-hard shape loss (paper: 0.01).", callback=non_negative),
+    shape_margin: Optional[float] = typer.Option(None, help="Hinge margin of the shape loss (default: the paper's form).",
+                                                 callback=non_negative),
     code_head: str = typer.Option("gram", help="Shape code: gram (invariants of z) or norms (the paper's |z_i|)."),
     pooling: str = typer.Option("mean", help="Encoder pooling over points: max (VN max-pool) or mean (NDF's)."),
     decoder: str = typer.Option("dots", help="Occupancy decoder: frame (queries in a frame made from z) or dots (x . z_j only)."),
-    lr: float = typer.Option(6e-4, help="Adam learning rate (paper: 6e-4)."),
-    lr_final: float = typer.Option(1.0, help="Cosine-decay lr to this fraction of --lr by the last step (1: constant)."),
-    init: Optional[Path] = typer.Option(None, help="Start from these weights (e.g. the shipped ones) with a fresh optimizer."),
+    lr: float = typer.Option(6e-4, help="Adam learning rate (paper: 6e-4).", callback=positive),
+    lr_final: float = typer.Option(1.0, help="Cosine-decay lr to this fraction of --lr by the last step (1: constant).",
+                                   callback=fraction),
+    init: Optional[Path] = typer.Option(None, help="Start from these weights (e.g. the shipped ones) with a fresh optimizer.",
+                                        callback=checkpoint),
     train_only: str = typer.Option("all", help="all, or refit only a fresh code_head or decoder on the --init model's frozen encoder."),
-    proxy_weight: float = typer.Option(0.0, help="Weight of the proxy identity loss on the shape codes (0: off)."),
-    param_weight: float = typer.Option(0.0, help="Weight of the mugs' shape-parameter regression from the codes (0: off)."),
-    local_points: int = typer.Option(0, help="Nearest input points each query of the frame decoder sees (0: none)."),
-    frame_weight: float = typer.Option(1.0, help="Weight of the frame loss: the frame decoder's axes vs the true pose (0: off)."),
+    proxy_weight: float = typer.Option(0.0, help="Weight of the proxy identity loss on the shape codes (0: off).",
+                                       callback=non_negative),
+    param_weight: float = typer.Option(0.0, help="Weight of the mugs' shape-parameter regression from the codes (0: off).",
+                                       callback=non_negative),
+    local_points: int = typer.Option(0, help="Nearest input points each query of the frame decoder sees (0: none).",
+                                     callback=non_negative),
+    frame_weight: float = typer.Option(1.0, help="Weight of the frame loss: the frame decoder's axes vs the true pose (0: off).",
+                                       callback=non_negative),
     up_cue: bool = typer.Option(False, help="The encoder also gets world up in the camera frame (from the pose)."),
     view_cue: bool = typer.Option(False, help="The encoder also gets the direction from the camera to the view."),
     center_head: str = typer.Option("linear", help="Center head: linear (one VN-linear channel) or gated (z weighted by its invariants)."),
-    up_tilt: float = typer.Option(3.0, help="With --up-cue: random tilt of the true up per training view, degrees."),
-    gram_eps: float = typer.Option(1e-10, help="Epsilon of the batch norm on the Gram invariants (see NDFConfig)."),
-    seed: int = typer.Option(0, help="Seed of the views, the batches and the initial weights."),
-    threads: int = typer.Option(2, help="Torch CPU threads (1 when another job shares the cores)."),
+    up_tilt: float = typer.Option(3.0, help="With --up-cue: random tilt of the true up per training view, degrees.",
+                                  callback=in_range(ge=0, lt=90)),
+    gram_eps: float = typer.Option(1e-10, help="Epsilon of the batch norm on the Gram invariants (see NDFConfig).",
+                                   callback=positive),
+    seed: int = typer.Option(0, help="Seed of the views, the batches and the initial weights.", callback=at_least(0)),
+    threads: int = typer.Option(2, help="Torch CPU threads (1 when another job shares the cores).",
+                                callback=at_least_one),
     resume: bool = typer.Option(False, help="Continue from OUT/checkpoint.pt."),
-    data_dir: Optional[Path] = typer.Option(None, help="Cache of rendered views (default OUT/data)."),
-    log: Optional[Path] = typer.Option(None, help="Also log the metrics to this Rerun file (.rrd)."),
+    data_dir: Optional[Path] = typer.Option(None, help="Cache of rendered views (default OUT/data).",
+                                            callback=output_dir),
+    log: Optional[Path] = typer.Option(None, help="Also log the metrics to this Rerun file (.rrd).",
+                                       callback=output_file),
 ) -> None:
     """Train the NDF on rendered partial views of train-split procedural mugs (CPU)."""
     from ndfa.ndf.config import NDFConfig
@@ -92,8 +116,9 @@ def train_command(
 
 @app.command("ndf-export")
 def ndf_export_command(
-    checkpoint: Path = typer.Argument(..., help="A training checkpoint (RUN/checkpoint.pt)."),
-    to: Optional[Path] = typer.Option(None, help="Destination (default: the package's shipped weights)."),
+    checkpoint: Path = typer.Argument(..., help="A training checkpoint (RUN/checkpoint.pt).", callback=checkpoint),
+    to: Optional[Path] = typer.Option(None, help="Destination (default: the package's shipped weights).",
+                                      callback=output_file),
 ) -> None:
     """Strip a training checkpoint to the weights the package ships and loads by default."""
     from ndfa.ndf.encoder import DEFAULT_WEIGHTS
@@ -106,14 +131,18 @@ def ndf_export_command(
 
 @app.command("ndf-eval")
 def ndf_eval_command(
-    weights: list[Path] = typer.Option(None, "--weights", "-w", help="Checkpoint(s) to evaluate (default: the shipped weights)."),
-    out: Path = typer.Option(Path("out/ndf-eval"), "--out", "-o", help="Directory for summary.parquet and views.parquet."),
-    mugs: int = typer.Option(20, help="Held-out test-split mugs."),
-    views_per_mug: int = typer.Option(50, help="Partial views per mug."),
-    seed: int = typer.Option(0, help="Seed of the test views."),
-    v0: float = typer.Option(0.5, help="Occupancy threshold of the reconstruction (the IoU is also swept over a few)."),
+    weights: list[Path] = typer.Option(None, "--weights", "-w", help="Checkpoint(s) to evaluate (default: the shipped weights).",
+                                       callback=checkpoint),
+    out: Path = typer.Option(Path("out/ndf-eval"), "--out", "-o", help="Directory for summary.parquet and views.parquet.",
+                             callback=output_dir),
+    mugs: int = typer.Option(20, help="Held-out test-split mugs.", callback=at_least_one),
+    views_per_mug: int = typer.Option(50, help="Partial views per mug.", callback=at_least_one),
+    seed: int = typer.Option(0, help="Seed of the test views.", callback=at_least(0)),
+    v0: float = typer.Option(0.5, help="Occupancy threshold of the reconstruction (the IoU is also swept over a few).",
+                             callback=in_range(gt=0, lt=1)),
     split: str = typer.Option("test", help="Mug split: test (held out), or train to tune on validation mugs the run did not fit."),
-    first_mug: int = typer.Option(0, help="Index of the first mug in the split (e.g. 1000: the validation mugs after 1,000 training ones)."),
+    first_mug: int = typer.Option(0, help="Index of the first mug in the split (e.g. 1000: the validation mugs after 1,000 training ones).",
+                                  callback=at_least(0)),
 ) -> None:
     """Model quality on unseen test-split mugs: center error, shape-code retrieval, IoU."""
     import polars as pl

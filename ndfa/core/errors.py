@@ -33,3 +33,11 @@ class TrajectoryError(NdfaError):
 
 class ExportError(NdfaError):
     """A recording cannot be written out in another format (a ROS bag, a TUM folder)."""
+
+
+class OptionError(NdfaError):
+    """A command-line option's value is out of its range, or names an output path that cannot be written."""
+
+
+class OutputError(NdfaError):
+    """An output cannot be written where asked (a directory or special file in the way, no writable folder)."""

@@ -1,0 +1,152 @@
+"""Options and output paths checked where they enter: as typer callbacks, before a command does any work.
+
+A bad value must fail in one line naming the option and the value (an `OptionError`, exit 2),
+not after minutes of rendering or detection, and not deep inside as a traceback. So each numeric
+option declares its range once, beside its help text (`callback=positive`, `callback=at_least(1)`),
+and each output path declares what it must be (`callback=output_file`, `callback=output_dir`).
+
+Numbers: NaN and infinity are refused everywhere (no option of ndfa means anything with them);
+the bounds say what else is meaningless (a zero interval length, a negative count).
+
+Output paths, checked for what can be known before the run (the atomic writer, `ndfa.io.atomic`,
+checks again when it renames):
+- a file option may not name a directory, and no output may name a special file (a device node,
+  FIFO or socket): the rename would replace it;
+- the folder that would hold it must be writable; folders that do not exist yet are made by the
+  writer (`--log out/run.rrd` in a fresh checkout), so the nearest existing one is what is tested,
+  and it must be a folder.
+"""
+
+from __future__ import annotations
+
+import math
+import stat
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from ndfa.core.errors import OptionError
+
+Callback = Callable[[typer.CallbackParam, Any], Any]
+
+
+def option_name(param: typer.CallbackParam) -> str:
+    """How the user wrote the option: its longest flag (`--tree-length`), or the argument's name."""
+    flags = [flag for flag in param.opts if flag.startswith("-")]
+    return max(flags, key=len) if flags else (param.name or "value").upper()
+
+
+def in_range(*, gt: float | None = None, ge: float | None = None, lt: float | None = None,
+             le: float | None = None) -> Callback:
+    """A callback that lets a value (each value of a list; None: not given) through when it is a
+    finite number within the bounds, and otherwise fails naming the option and the value."""
+    bounds = [(">", gt), (">=", ge), ("<", lt), ("<=", le)]
+    tests = {">": float.__gt__, ">=": float.__ge__, "<": float.__lt__, "<=": float.__le__}
+    wanted = " and ".join(f"{sign} {bound:g}" for sign, bound in bounds if bound is not None)
+
+    def check(param: typer.CallbackParam, value: Any) -> Any:
+        for number in value if isinstance(value, (list, tuple)) else [value]:
+            if number is None:
+                continue
+            ok = math.isfinite(number) and all(tests[sign](float(number), float(bound))
+                                               for sign, bound in bounds if bound is not None)
+            if not ok:
+                must = (wanted or "finite") if isinstance(number, int) else "a finite number" + (f" {wanted}" if wanted else "")
+                raise OptionError(f"{option_name(param)} must be {must}, got {number!r}")
+        return value
+
+    return check
+
+
+def at_least(low: float) -> Callback:
+    """`in_range(ge=low)`: counts, strides, seeds."""
+    return in_range(ge=low)
+
+
+positive = in_range(gt=0)          # lengths, scales, rates
+non_negative = in_range(ge=0)      # weights, noise levels, counts that may be zero
+fraction = in_range(ge=0, le=1)    # shares
+at_least_one = at_least(1)      # frame steps, strides, threads, workers
+
+
+def output_file(param: typer.CallbackParam, value: Path | None) -> Path | None:
+    """A callback for an option naming a file to write: not a directory, not a special file, and
+    in a folder that is, or can be made, writable."""
+    if value is not None:
+        check_output_path(value, option_name(param), kind="file")
+    return value
+
+
+def output_dir(param: typer.CallbackParam, value: Path | None) -> Path | None:
+    """A callback for an option naming a folder to write into (made if missing)."""
+    if value is not None:
+        check_output_path(value, option_name(param), kind="folder")
+    return value
+
+
+def output_path(param: typer.CallbackParam, value: Path | None) -> Path | None:
+    """A callback for an output that is a file or a folder depending on other options (`export bag`)."""
+    if value is not None:
+        check_output_path(value, option_name(param), kind=None)
+    return value
+
+
+def check_output_path(path: Path, option: str, kind: str | None) -> None:
+    """Raise OptionError when `path` cannot be written as a `kind` ("file", "folder", None: either)."""
+    where = f"{option} {path}"
+    try:
+        mode = path.stat().st_mode  # follows links: a link to /dev/null is a device too
+    except (FileNotFoundError, NotADirectoryError):  # nothing there yet (a file in the way: below)
+        mode = None
+    except OSError as error:
+        raise OptionError(f"{where}: cannot be used as an output ({error.strerror or error})") from None
+    if mode is not None:
+        if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+            raise OptionError(f"{where}: is a special file (device, FIFO or socket), not a {kind or 'file'}; "
+                              "refusing to replace it")
+        if kind == "file" and stat.S_ISDIR(mode):
+            raise OptionError(f"{where}: is a directory, expected a file")
+        if kind == "folder" and not stat.S_ISDIR(mode):
+            raise OptionError(f"{where}: is a file, expected a directory")
+    folder = path if mode is not None and stat.S_ISDIR(mode) else path.absolute().parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    if not folder.is_dir():
+        raise OptionError(f"{where}: {folder} is not a directory, so nothing can be written under it")
+    try:  # os.access says yes to root even on a read-only filesystem: write a probe instead
+        with tempfile.TemporaryFile(dir=folder, prefix=".ndfa-write-test-"):
+            pass
+    except OSError as error:
+        raise OptionError(f"{where}: cannot write in {folder} ({error.strerror or error})") from None
+
+
+def input_file(param: typer.CallbackParam, value: Path | None) -> Path | None:
+    """A callback for an option naming a file to read (a checkpoint, a recording): it exists and
+    is a regular file."""
+    for path in value if isinstance(value, (list, tuple)) else [value]:
+        if path is not None and not path.is_file():
+            problem = "is a directory" if path.is_dir() else "is not a regular file" if path.exists() else "no such file"
+            raise OptionError(f"{option_name(param)} {path}: {problem}")
+    return value
+
+
+def input_dir(param: typer.CallbackParam, value: Path | None) -> Path | None:
+    """A callback for an option naming a folder to read."""
+    if value is not None and not value.is_dir():
+        raise OptionError(f"{option_name(param)} {value}: {'not a directory' if value.exists() else 'no such directory'}")
+    return value
+
+
+def checkpoint(param: typer.CallbackParam, value: Path | None) -> Path | None:
+    """A callback for `--weights`: the file is loaded once here (a fraction of a second), so that a
+    file that is no ndfa checkpoint fails before the recordings are read, not after."""
+    input_file(param, value)
+    for path in value if isinstance(value, (list, tuple)) else [value]:
+        if path is not None:
+            from ndfa.ndf.checkpoint import load_model
+
+            load_model(path)
+    return value
