@@ -30,6 +30,7 @@ import polars as pl
 import pytest
 
 from ndfa.eval.sweep import SweepSpec, load_results, run_sweep
+from ndfa.eval.sweep_ray import LOST_CELL_RESUBMITS
 
 pytest.importorskip("ray", reason="Ray is not installed: the cluster extra (pip install 'ndfa[cluster]')")
 pytestmark = [pytest.mark.slow,
@@ -118,13 +119,19 @@ class Cluster:
         return pids[0]
 
 
-@pytest.fixture
-def cluster(monkeypatch: pytest.MonkeyPatch) -> Iterator[Cluster]:
+@pytest.fixture(scope="module")
+def cluster() -> Iterator[Cluster]:
+    """Head and worker node for this module's tests (the first kills the worker node)."""
     # A short folder under /tmp: Ray's unix socket paths inside it must stay under 108 characters.
     root = Path(tempfile.mkdtemp(prefix="ndfa-ray-", dir="/tmp"))
     head, worker = root / "head", root / "worker"
-    for name, value in NO_TOKEN.items():
-        monkeypatch.setenv(name, value)
+    with pytest.MonkeyPatch.context() as monkeypatch:
+        for name, value in NO_TOKEN.items():
+            monkeypatch.setenv(name, value)
+        yield from _start_cluster(root, head, worker)
+
+
+def _start_cluster(root: Path, head: Path, worker: Path) -> Iterator[Cluster]:
     try:
         port, dashboard = _free_ports(2)
         _ray_start(head, "--head", f"--port={port}", "--include-dashboard=false", f"--dashboard-port={dashboard}")
@@ -221,3 +228,27 @@ def test_sweep_survives_a_killed_worker_node(cluster: Cluster, tmp_path: Path):
     assert _events(log) == events
     assert again.table.sort(["cell_id", "method"]).equals(run.table.sort(["cell_id", "method"]))
     assert pl.read_parquet(out / "sweep.parquet").height == 18
+
+
+@pytest.mark.timeout(120)
+def test_a_cell_that_keeps_killing_its_worker_fails_alone(cluster: Cluster, tmp_path: Path):
+    spec = SweepSpec("drift", ("0", "0.002", "0.004"), (0,))
+
+    def deadly_cell(cell, workdir, threads):
+        """0.002 kills the Ray worker running it (as a segfault in a native library would); the others
+        return made-up rows at once."""
+        import os
+        import signal
+
+        if cell.value == "0.002":
+            os.kill(os.getpid(), signal.SIGKILL)
+        return [{"cell_id": cell.key, "preset": cell.preset, "axis": cell.axis, "value": cell.value, "x": cell.x,
+                 "seed": cell.seed, "step_m": cell.step_m, "method": "NN", "tp": 1, "fp": 0, "fn": 0,
+                 "precision": 1.0, "recall": 1.0, "f1": 1.0, "seconds": 0.0, "render_seconds": 0.0}]
+
+    run = run_sweep(spec, tmp_path, address=cluster.address, compute=deadly_cell)
+    deadly = spec.cells()[1].key
+    assert list(run.failed) == [deadly] and run.failed[deadly].startswith(f"lost {LOST_CELL_RESUBMITS + 1} times")
+    assert "WorkerCrashedError" in run.failed[deadly] and list(run.lost) == [deadly]
+    assert run.computed == 2 and sorted(run.table["value"]) == ["0", "0.004"]
+    assert load_results(tmp_path / "sweep.parquet")["cell_id"].to_list() == [c.key for c in spec.cells()[::2]]

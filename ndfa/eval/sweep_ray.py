@@ -31,10 +31,11 @@ def _run(run_one: Callable[[Cell], CellResult], cell: Cell) -> CellResult:
     return run_one(cell)
 
 
-def _one_line(error: BaseException, limit: int = 240) -> str:
-    """Ray's messages run to several lines of advice; the first names what happened."""
+def _one_line(error: BaseException, limit: int = 200) -> str:
+    """Ray's messages run to several sentences of advice; the first names what happened."""
     lines = str(error).strip().splitlines()
-    text = f"{type(error).__name__}: {lines[0] if lines else ''}".strip()
+    first = lines[0].split(". ")[0].rstrip(".") if lines else ""
+    text = f"{type(error).__name__}: {first}"
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
