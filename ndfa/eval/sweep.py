@@ -175,8 +175,9 @@ def cell_config(cell: Cell):
 
 
 def run_cell(cell: Cell, workdir: Path, threads: int | None = None) -> list[dict]:
-    """Render the cell's scene into a temporary directory under `workdir`, evaluate the three
-    methods on it and return one row per method. The recordings are deleted afterwards."""
+    """Render the cell's scene into a temporary directory under `workdir` (on a cluster node that
+    cannot make it: the node's temporary folder), evaluate the three methods on it and return one row
+    per method. The recordings are deleted afterwards."""
     from ndfa.eval.table import evaluate_methods
     from ndfa.io.ingest.synthetic import ingest_sim
 
@@ -185,9 +186,11 @@ def run_cell(cell: Cell, workdir: Path, threads: int | None = None) -> list[dict
 
         torch.set_num_threads(max(1, threads))
     config = cell_config(cell)
-    workdir = Path(workdir)
-    workdir.mkdir(parents=True, exist_ok=True)
-    scratch = Path(tempfile.mkdtemp(prefix="cell-", dir=workdir))
+    try:
+        Path(workdir).mkdir(parents=True, exist_ok=True)
+        scratch = Path(tempfile.mkdtemp(prefix="cell-", dir=workdir))
+    except OSError:  # a cluster node that cannot make the driver's folder: its own temporary folder
+        scratch = Path(tempfile.mkdtemp(prefix="ndfa-cell-"))
     try:
         started = time.perf_counter()
         ingest_sim(config, scratch / "pair")
@@ -262,7 +265,7 @@ def run_sweep(spec: SweepSpec, out: Path, workers: int | None = None, address: s
     cells = spec.cells()
     pending = [c for c in cells if c.key not in done]
     skipped = len(cells) - len(pending)
-    workdir = out / ".cells"
+    workdir = out.resolve() / ".cells"  # absolute: Ray workers do not share this process's working directory
     cpus = os.cpu_count() or 1
     workers = max(1, min(workers or cpus, max(1, len(pending))))
     threads = max(1, cpus // workers)

@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 
 LOST_CELL_RESUBMITS = 3  # a cell whose worker or node died is run again this many times before it counts as failed
 
-CellResult = tuple["Cell", "list[dict] | None", "str | None"]
+CellResult = tuple["Cell", "list[dict[str, Any]] | None", "str | None"]
 
 
 def _run(run_one: Callable[[Cell], CellResult], cell: Cell) -> CellResult:
@@ -75,7 +75,7 @@ def connect(address: str | None) -> bool:
 
 
 def run_cells_on_ray(cells: Sequence[Cell], run_one: Callable[[Cell], CellResult],
-                     collect: Callable[[Cell, "list[dict] | None", "str | None"], None],
+                     collect: Callable[[Cell, "list[dict[str, Any]] | None", "str | None"], None],
                      address: str | None = None, resubmits: int = LOST_CELL_RESUBMITS) -> dict[str, str]:
     """Run `run_one(cell)` for every cell on Ray and hand each result to `collect` as it arrives.
 
