@@ -25,7 +25,9 @@ if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
     "$VENV/bin/pip" install -q --upgrade pip
     # The pinned CPU build first: a looser spec would pull a multi-GB CUDA build.
     "$VENV/bin/pip" install -q torch==2.13.0
-    "$VENV/bin/pip" install -q -e '.[dev]'
+    # dev: the test and lint tools; cluster: Ray, so that `make test` also runs the sweep's
+    # fault test on a real two-node cluster (tests/test_sweep_cluster.py).
+    "$VENV/bin/pip" install -q -e '.[dev,cluster]'
     touch "$stamp"
 fi
 echo "[setup] ready: $VENV/bin/ndfa"

@@ -1,5 +1,8 @@
 """`ndfa eval --sweep`: cells, resume, the results file and the plot (a tiny sample scene, in process)."""
 
+import os
+import signal
+import socket
 from pathlib import Path
 
 import polars as pl
@@ -98,6 +101,42 @@ def test_ray_required_but_missing(tmp_path: Path):
             run_sweep(SweepSpec("drift", ("0",), (0,)), tmp_path, address="ray://nowhere:10001")
     else:
         pytest.skip("Ray is installed")
+
+
+def test_no_cluster_at_the_address(tmp_path: Path):
+    """An address where nothing listens: one line at once (ray.init alone would retry for minutes)."""
+    pytest.importorskip("ray")
+    with socket.socket() as s:  # a port that was free a moment ago
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with pytest.raises(SweepError, match=f"no Ray cluster answers at 127.0.0.1:{port}"):
+        run_sweep(SweepSpec("drift", ("0",), (0,)), tmp_path, address=f"127.0.0.1:{port}")
+
+
+def made_up_rows(cell) -> list[dict]:
+    return [{"cell_id": cell.key, "preset": cell.preset, "axis": cell.axis, "value": cell.value, "x": cell.x,
+             "seed": cell.seed, "step_m": cell.step_m, "method": "NN", "tp": 1, "fp": 0, "fn": 0, "precision": 1.0,
+             "recall": 1.0, "f1": 1.0, "seconds": 0.0, "render_seconds": 0.0}]
+
+
+def kills_its_process_on_0_004(cell, workdir, threads) -> list[dict]:
+    """A cell whose process dies (as under the OOM killer) for one value; made-up rows for the others."""
+    if cell.value == "0.004":
+        os.kill(os.getpid(), signal.SIGKILL)
+    return made_up_rows(cell)
+
+
+@pytest.mark.timeout(120)
+def test_a_dead_pool_process_is_one_line_and_the_rerun_resumes(tmp_path: Path):
+    spec = SweepSpec("drift", ("0", "0.004"), (0,))
+    with pytest.raises(SweepError, match="a sweep worker process died .* run the sweep again"):
+        run_sweep(spec, tmp_path, workers=2, use_ray=False, compute=kills_its_process_on_0_004)
+    saved = load_results(tmp_path / "sweep.parquet")["cell_id"].to_list()
+    assert set(saved) <= {spec.cells()[0].key}  # only whole cells, and not the one that died
+    assert not (tmp_path / ".cells").exists()
+    again = run_sweep(spec, tmp_path, workers=1, use_ray=False, compute=lambda cell, workdir, threads: made_up_rows(cell))
+    assert again.computed == 2 - len(saved) and again.skipped == len(saved)
+    assert again.table["cell_id"].to_list() == [c.key for c in spec.cells()]
 
 
 @pytest.mark.slow

@@ -6,15 +6,18 @@ independent task: render the pair of recordings for the cell into a temporary di
 `ndfa.eval.table.evaluate_methods` on it, return one row per method, delete the recordings.
 
 Cells run on Ray when it is installed and wanted (`pip install ndfa[cluster]`; `ray.init()` on
-the local cores, or `address=` for a cluster), otherwise in a local process pool (or in this
-process with `workers=1`). Results are keyed by the cell's parameters (`cell_id`) and appended
-to `DIR/sweep.parquet` as each cell finishes (written atomically), so an interrupted sweep
-resumes where it stopped and never recomputes a finished cell. `ndfa.eval.plots` draws a sweep.
+the local cores, or `address=` for a cluster; a cell lost with its worker or node is run again,
+see `ndfa.eval.sweep_ray`), otherwise in a local process pool (or in this process with
+`workers=1`). Results are keyed by the cell's parameters (`cell_id`) and appended to
+`DIR/sweep.parquet` by this process as each cell finishes (written atomically, once per cell), so
+an interrupted sweep resumes where it stopped and never recomputes a finished cell.
+`ndfa.eval.plots` draws a sweep; docs/sweeps.md tells how to run one on a cluster.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import os
 import shutil
 import tempfile
@@ -172,8 +175,9 @@ def cell_config(cell: Cell):
 
 
 def run_cell(cell: Cell, workdir: Path, threads: int | None = None) -> list[dict]:
-    """Render the cell's scene into a temporary directory under `workdir`, evaluate the three
-    methods on it and return one row per method. The recordings are deleted afterwards."""
+    """Render the cell's scene into a temporary directory under `workdir` (on a cluster node that
+    cannot make it: the node's temporary folder), evaluate the three methods on it and return one row
+    per method. The recordings are deleted afterwards."""
     from ndfa.eval.table import evaluate_methods
     from ndfa.io.ingest.synthetic import ingest_sim
 
@@ -182,9 +186,11 @@ def run_cell(cell: Cell, workdir: Path, threads: int | None = None) -> list[dict
 
         torch.set_num_threads(max(1, threads))
     config = cell_config(cell)
-    workdir = Path(workdir)
-    workdir.mkdir(parents=True, exist_ok=True)
-    scratch = Path(tempfile.mkdtemp(prefix="cell-", dir=workdir))
+    try:
+        Path(workdir).mkdir(parents=True, exist_ok=True)
+        scratch = Path(tempfile.mkdtemp(prefix="cell-", dir=workdir))
+    except OSError:  # a cluster node that cannot make the driver's folder: its own temporary folder
+        scratch = Path(tempfile.mkdtemp(prefix="ndfa-cell-"))
     try:
         started = time.perf_counter()
         ingest_sim(config, scratch / "pair")
@@ -202,9 +208,13 @@ def run_cell(cell: Cell, workdir: Path, threads: int | None = None) -> list[dict
     return rows
 
 
-def _run_cell_safely(cell: Cell, workdir: Path, threads: int | None) -> tuple[Cell, list[dict] | None, str | None]:
+ComputeCell = Callable[[Cell, Path, "int | None"], list[dict]]  # run_cell's signature
+
+
+def _run_cell_safely(cell: Cell, workdir: Path, threads: int | None,
+                     compute: ComputeCell | None = None) -> tuple[Cell, list[dict] | None, str | None]:
     try:
-        return cell, run_cell(cell, workdir, threads), None
+        return cell, (compute or run_cell)(cell, workdir, threads), None
     except Exception as error:  # noqa: BLE001 -- reported per cell, the other cells go on
         return cell, None, f"{type(error).__name__}: {error}"
 
@@ -234,14 +244,17 @@ class SweepRun:
     failed: dict[str, str]     # cell key -> error
     backend: str               # "ray", "processes" or "in-process"
     seconds: float
+    lost: dict[str, str] = dataclasses.field(default_factory=dict)  # Ray: cells whose worker or node died, run again
 
 
 def run_sweep(spec: SweepSpec, out: Path, workers: int | None = None, address: str | None = None,
-              use_ray: bool | None = None, on_cell: Callable[[Cell, str | None, int, int], None] | None = None) -> SweepRun:
+              use_ray: bool | None = None, on_cell: Callable[[Cell, str | None, int, int], None] | None = None,
+              compute: ComputeCell | None = None) -> SweepRun:
     """Run the spec's unfinished cells, appending each cell's rows to `out/sweep.parquet` as it finishes.
 
     use_ray: None = Ray when importable (always when `address` is given), True = require it, False = never.
     workers: parallel cells for the process pool (default: the CPU count; 1 = in this process).
+    compute: what computes one cell (default `run_cell`); it must be picklable for Ray and the pool.
     """
     started = time.perf_counter()
     out = Path(out)
@@ -252,7 +265,7 @@ def run_sweep(spec: SweepSpec, out: Path, workers: int | None = None, address: s
     cells = spec.cells()
     pending = [c for c in cells if c.key not in done]
     skipped = len(cells) - len(pending)
-    workdir = out / ".cells"
+    workdir = out.resolve() / ".cells"  # absolute: Ray workers do not share this process's working directory
     cpus = os.cpu_count() or 1
     workers = max(1, min(workers or cpus, max(1, len(pending))))
     threads = max(1, cpus // workers)
@@ -269,49 +282,59 @@ def run_sweep(spec: SweepSpec, out: Path, workers: int | None = None, address: s
     backend = "ray" if ray is not None else ("processes" if workers > 1 else "in-process")
 
     failed: dict[str, str] = {}
+    lost: dict[str, str] = {}
     finished = 0
 
     def collect(cell: Cell, rows: list[dict] | None, error: str | None) -> None:
         nonlocal results, finished
+        if cell.key in done or cell.key in failed:
+            return  # a cell reported twice (its first run was thought lost) enters the results once
         finished += 1
         if error is not None:
             failed[cell.key] = error
         else:
             results = pl.concat([results, pl.DataFrame(rows, schema=SCHEMA)])
             write_parquet(results, path)
+            done.add(cell.key)
         if on_cell is not None:
             on_cell(cell, error, finished, len(pending))
 
-    if not pending:
-        pass
-    elif ray is not None:
-        started_ray = not ray.is_initialized()
-        if started_ray:
-            ray.init(address=address, log_to_driver=False)
-        try:
-            remote = ray.remote(num_cpus=1)(_run_cell_safely)
-            futures = [remote.remote(c, workdir, 1) for c in pending]
-            while futures:
-                ready, futures = ray.wait(futures, num_returns=1)
-                collect(*ray.get(ready[0]))
-        finally:
-            if started_ray:
-                ray.shutdown()
-    elif workers == 1:
-        for c in pending:
-            collect(*_run_cell_safely(c, workdir, None))
-    else:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor, as_completed
+    try:
+        if not pending:
+            pass
+        elif ray is not None:
+            from ndfa.eval.sweep_ray import run_cells_on_ray
 
-        with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = [pool.submit(_run_cell_safely, c, workdir, threads) for c in pending]
-            for future in as_completed(futures):
-                collect(*future.result())
-    shutil.rmtree(workdir, ignore_errors=True)
+            run_one = functools.partial(_run_cell_safely, workdir=workdir, threads=1, compute=compute)
+            lost = run_cells_on_ray(pending, run_one, collect, address)
+        elif workers == 1:
+            for c in pending:
+                collect(*_run_cell_safely(c, workdir, None, compute))
+        else:
+            _run_in_pool(pending, workdir, workers, threads, compute, collect, path)
+    finally:
+        shutil.rmtree(workdir, ignore_errors=True)
     keys = [c.key for c in cells]
     table = results.filter(pl.col("cell_id").is_in(keys)).sort(["x", "seed", "method"])
-    return SweepRun(table, len(pending) - len(failed), skipped, failed, backend, time.perf_counter() - started)
+    return SweepRun(table, len(pending) - len(failed), skipped, failed, backend, time.perf_counter() - started, lost)
+
+
+def _run_in_pool(cells: list[Cell], workdir: Path, workers: int, threads: int, compute: ComputeCell | None,
+                 collect: Callable[[Cell, list[dict] | None, str | None], None], path: Path) -> None:
+    """The cells in a local pool of spawned processes. A pool whose process dies (killed, out of memory)
+    cannot go on: the cells finished so far are saved, and the error says to run again to resume."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures.process import BrokenProcessPool
+
+    with ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = [pool.submit(_run_cell_safely, c, workdir, threads, compute) for c in cells]
+        try:
+            for future in as_completed(futures):
+                collect(*future.result())
+        except BrokenProcessPool:
+            raise SweepError(f"a sweep worker process died (killed or out of memory); the cells finished so far "
+                             f"are saved in {path}: run the sweep again to compute the rest") from None
 
 
 def aggregate(table: pl.DataFrame) -> pl.DataFrame:
