@@ -67,3 +67,21 @@ def test_redkitchen_start_against_end_registers_by_the_shared_world_and_reports_
     for session, centers in result.object_centers.items():
         for mug in (PATTERNED_MUG, WHITE_MUG):
             assert np.min(np.linalg.norm(centers[:, :2] - mug, axis=1)) < NEAR_M, (session, mug)
+
+
+@pytest.mark.skipif(not REDKITCHEN.is_dir(), reason=f"the 7-Scenes redkitchen sequence is not at {REDKITCHEN} "
+                    "(../shared absent)")
+def test_redkitchen_start_against_end_with_estimated_poses_reports_no_change(tmp_path):
+    # The same slices, each session's poses from its own rgbd odometry: the worlds are no longer
+    # shared, the scene alignment proposes T_rel, and the mugs verify it.
+    source = _write_slice(tmp_path / "first.mcap", range(126, 166, 2), "first")
+    target = _write_slice(tmp_path / "last.mcap", range(460, 500, 2), "last")
+    result = run_detection(source, target, poses="estimate")
+    assert result.worlds["source"].poses is not None and result.worlds["target"].poses is not None
+    assert result.registration is not None and result.registration["inliers"] >= 2
+    assert result.changes == []
+    # Both mugs are objects of each session: two well-measured objects the mugs' 0.99 m apart.
+    for session, centers in result.object_centers.items():
+        mugs = centers[result.object_measurements[session] >= 5, :2]
+        assert len(mugs) == 2, (session, centers)
+        assert abs(np.linalg.norm(mugs[0] - mugs[1]) - 0.99) < 0.05, (session, mugs)
