@@ -95,7 +95,8 @@ class OnnxRuntime:
 
 
 def onnxruntime_available() -> bool:
-    return importlib.util.find_spec("onnxruntime") is not None
+    """ONNX Runtime and onnx (which torch's exporter needs to write the graphs) are installed."""
+    return all(importlib.util.find_spec(name) is not None for name in ("onnxruntime", "onnx"))
 
 
 def make_runtime(model: NDFModel, n_points: int, runtime: str = "auto", threads: int = 1) -> NDFRuntime:
@@ -107,6 +108,6 @@ def make_runtime(model: NDFModel, n_points: int, runtime: str = "auto", threads:
     if runtime == "torch" or (runtime == "auto" and not onnxruntime_available()):
         return TorchRuntime(model)
     if not onnxruntime_available():
-        raise ModelError("the NDF runtime onnxruntime is not installed (pip install onnxruntime), "
-                         "or choose the torch runtime")
+        raise ModelError("the NDF runtime onnxruntime needs the packages onnxruntime and onnx "
+                         "(pip install onnxruntime onnx), or choose the torch runtime")
     return OnnxRuntime(model, n_points, threads)
