@@ -13,6 +13,7 @@ centers within 0.2 mm; on the rendered views here cosine >= 0.9993. The tests al
 import numpy as np
 import pytest
 import torch
+
 from ndfa.core.errors import ModelError
 from ndfa.core.geometry import invert_pose
 from ndfa.ndf.encoder import EncoderConfig, NDFEncoder

@@ -30,11 +30,12 @@ from __future__ import annotations
 
 import io
 import warnings
+from typing import Any
 
 import torch
 from torch import nn
 
-from ndfa.ndf.decoder import DECODER_GAIN, object_frame
+from ndfa.ndf.decoder import DECODER_GAIN, ResnetBlockFC, object_frame
 from ndfa.ndf.model import NDFModel
 from ndfa.ndf.vn import EPS, VNLeakyReLU, VNResnetBlock
 
@@ -50,7 +51,8 @@ def _vn_relu(act: VNLeakyReLU, q: torch.Tensor) -> torch.Tensor:
     k = act.direction(q)
     dot = (q * k).sum(1, keepdim=True)
     k_norm_sq = (k * k).sum(1, keepdim=True)
-    return q + act.k_coefficient(dot, k_norm_sq) * k
+    out: torch.Tensor = q + act.k_coefficient(dot, k_norm_sq) * k
+    return out
 
 
 def _vn_block(block: VNResnetBlock, x: torch.Tensor) -> torch.Tensor:
@@ -83,6 +85,7 @@ class InferenceEncode(nn.Module):
             assert cues is not None  # up_cue implies the cues
             x = x + encoder.up_in(cues[..., :1]).unsqueeze(2)
         for context_linear, block in zip(encoder.context_linears, encoder.blocks):
+            assert isinstance(block, VNResnetBlock)
             x = _vn_block(block, x + context_linear(x.mean(2)).unsqueeze(2))
         z_channels = encoder.to_latent(x.mean(2))  # [B, 3, latent - cues]
         if cues is not None:
@@ -156,6 +159,7 @@ class InferenceOccupancy(nn.Module):
         batch, count, width = h.shape
         flat = h.reshape(-1, width)
         for block in decoder.blocks:
+            assert isinstance(block, ResnetBlockFC)
             flat = flat + block.linear_1(torch.relu(block.linear_0(torch.relu(flat))))
         logits = decoder.out(torch.relu(flat)).reshape(batch, count)
         return torch.sigmoid(logits)
@@ -184,6 +188,7 @@ def _export(module: nn.Module, args: tuple[torch.Tensor, ...], inputs: tuple[str
         # The TorchScript-based exporter: it traces this fixed graph in one pass (the torch.export
         # one needs onnxscript) and warns that it is deprecated and that traced shapes are constants.
         warnings.simplefilter("ignore")
-        torch.onnx.export(module.eval(), args, buffer, input_names=list(inputs), output_names=list(outputs),
+        target: Any = buffer  # a file object is accepted, though the annotation names paths only
+        torch.onnx.export(module.eval(), args, target, input_names=list(inputs), output_names=list(outputs),
                           dynamic_axes=dynamic_axes, opset_version=OPSET, dynamo=False)
     return buffer.getvalue()
