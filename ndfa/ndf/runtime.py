@@ -105,8 +105,12 @@ def make_runtime(model: NDFModel, n_points: int, runtime: str = "auto", threads:
         raise ModelError(f"unknown NDF runtime {runtime!r}; expected one of {RUNTIMES}")
     if threads < 1:
         raise ModelError(f"NDF runtime threads must be >= 1, got {threads}")
-    if runtime == "torch" or (runtime == "auto" and not onnxruntime_available()):
+    # The export covers mean pooling (the shipped weights'); a max-pooling model runs in torch.
+    exportable = model.config.pooling == "mean"
+    if runtime == "torch" or (runtime == "auto" and not (onnxruntime_available() and exportable)):
         return TorchRuntime(model)
+    if not exportable:
+        raise ModelError("the onnxruntime NDF runtime covers mean-pooling models only; choose the torch runtime")
     if not onnxruntime_available():
         raise ModelError("the NDF runtime onnxruntime needs the packages onnxruntime and onnx "
                          "(pip install onnxruntime onnx), or choose the torch runtime")
