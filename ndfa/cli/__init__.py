@@ -6,6 +6,7 @@ here, in the order `ndfa --help` lists them, is what registers them.
 """
 
 # isort: off
+from ndfa.cli import environment  # noqa: F401  (first: before anything imports torch)
 from ndfa.cli import ingest  # noqa: F401
 from ndfa.cli import ndf  # noqa: F401
 from ndfa.cli import detect  # noqa: F401

@@ -23,9 +23,14 @@ def bench_command(
     target: Path = typer.Option(Path("recordings/sample/target.mcap"), help="detect: target recording."),
     recording: Path = typer.Option(Path("out/paper/target.mcap"), help="segment: recording with ground-truth masks."),
     step: int = typer.Option(1, help="segment: use every N-th frame.", callback=at_least_one),
+    threads: int = typer.Option(1, help="detect: torch's and ONNX Runtime's CPU threads (docs/speed.md).",
+                                callback=at_least_one),
+    compare: bool = typer.Option(False, "--compare", help="detect: first the torch runtime (the before), then the "
+                                                          "default one, back to back."),
+    load: bool = typer.Option(False, "--load", help="detect: once more beside one busy process (while True: pass)."),
 ) -> None:
     """Time each stage of a pipeline and print milliseconds."""
-    from ndfa.eval.bench import bench_detect, bench_detection_scaling, bench_ndf, bench_sim
+    from ndfa.eval.bench import bench_detect_runs, bench_detection_scaling, bench_ndf, bench_sim
 
     if what == "segment":
         from ndfa.eval.segmentation import segmentation_recall
@@ -40,16 +45,26 @@ def bench_command(
                       f"{r.ms_per_frame:.1f} ms/frame ({r.cpu_ms_per_frame:.1f} ms CPU)")
         return
     if what == "detect":
-        result = bench_detect(source, target)
+        rows = bench_detect_runs(source, target, threads=threads, compare=compare, load=load)
+        first = rows[0]
         table = Table(title=f"ndfa bench detect: target pass of {target} (no sinks)",
-                      caption=f"{result['frames']} frames, {result['fps']:.1f} frames/s, {result['threads']} threads; "
-                              f"{result['machine']}")
-        table.add_column("stage")
-        table.add_column("ms / frame", justify="right")
-        for stage, ms in result["stage_ms"].items():
-            table.add_row(stage, f"{ms:.1f}")
-        table.add_row("total", f"{result['total_ms']:.1f}")
+                      caption=f"{first['frames']} frames, {threads} thread(s); {first['machine']}")
+        table.add_column("ms / frame")
+        for row in rows:
+            table.add_column(f"{row['label']} ({row['runtime']})", justify="right")
+        for stage in first["stage_ms"]:
+            table.add_row(stage, *(f"{row['stage_ms'].get(stage, 0.0):.1f}" for row in rows))
+        table.add_row("total", *(f"{row['total_ms']:.1f}" for row in rows))
+        table.add_row("frames/s", *(f"{row['fps']:.1f}" for row in rows))
+        table.add_row("CPU s (both passes)", *(f"{row['cpu_s']:.1f}" for row in rows))
+        table.add_row("TP / FP / FN", *("-" if row["score"] is None else "/".join(map(str, row["score"])) for row in rows))
         console.print(table)
+        default = next(row for row in rows if row["label"] == "default")
+        if compare:
+            console.print(f"speed-up of the target pass over torch: {default['fps'] / rows[0]['fps']:.2f}x "
+                          f"(encoding {rows[0]['stage_ms']['encoding'] / default['stage_ms']['encoding']:.2f}x)")
+        if load:
+            console.print(f"beside one busy process: {default['fps'] / rows[-1]['fps']:.2f}x slower")
         scaling = Table(title="detection step (tree, association, graphs) vs map size")
         scaling.add_column("objects", justify="right")
         scaling.add_column("median ms / frame (4 measurements)", justify="right")

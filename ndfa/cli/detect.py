@@ -58,9 +58,10 @@ def detect_command(
                                      "when poses were estimated) | objects (the paper's object pairs alone) | "
                                      "shared-world (both poses are in one world: trust it) | scene (align the "
                                      "scene clouds whatever the poses)."),
-    threads: Optional[int] = typer.Option(None, help="Torch CPU threads for the NDF (default: torch's, one per core). "
-                                                     "1 when other jobs share the cores: oversubscribed, 2 threads "
-                                                     "ran ~10x slower than 1.", callback=at_least_one),
+    threads: Optional[int] = typer.Option(None, help="CPU threads of the NDF's runtime (ONNX Runtime: default 1; "
+                                                     "torch: default one per core). 1 keeps the pass steady when "
+                                                     "other jobs share the cores (docs/speed.md).",
+                                          callback=at_least_one),
 ) -> None:
     """Detect added, removed and moved objects between two recordings (the paper's method)."""
     import json
@@ -73,7 +74,8 @@ def detect_command(
 
     from ndfa.eval.scoring import changed_instances
     from ndfa.io.recording import RecordingReader
-    from ndfa.pipeline import PipelineConfig
+    from ndfa.ndf.encoder import EncoderConfig
+    from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
     from ndfa.run.detect import run_detection
 
     association = {"distance_m": association_distance, "shape_similarity": shape_similarity, "tree_length_m": tree_length}
@@ -81,7 +83,11 @@ def detect_command(
     detector = replace(defaults,
                        association=replace(defaults.association, **{k: v for k, v in association.items() if v is not None}),
                        decision=replace(defaults.decision, **({} if edge_distance is None else {"edge_m": edge_distance})))
-    config = PipelineConfig(detector=detector, weights=weights)
+    config = PipelineConfig(detector=detector, weights=weights, encoder=EncoderConfig(threads=threads or 1))
+    pipeline = ChangeDetectionPipeline(config)
+    runtime = pipeline.encoder.runtime.name
+    err_console.print(f"NDF runtime: {runtime}" + (f", {threads or 1} thread(s)" if runtime == "onnxruntime" else ""),
+                      highlight=False)
     from ndfa.run.world import POSE_MODES, UP_MODES
 
     if up not in UP_MODES:
@@ -104,6 +110,7 @@ def detect_command(
         sinks.append(TableSink(tables, changed_instances(truth) if truth and "objects" in truth else None))
     with progress_bar() as progress:
         result = run_detection(source, target, config, sinks, frame_step=frame_step, on_frame=bar_per_label(progress),
+                               pipeline=pipeline,
                                up=up, poses=poses, registration=registration,
                                on_world=lambda world: err_console.print(f"world {world.describe()}", highlight=False),
                                on_alignment=lambda a: err_console.print(f"registration prior: {a.describe()}",
@@ -120,7 +127,7 @@ def detect_command(
         table.add_row(c.kind, c.session, str(c.object_id), str(c.frame_index),
                       " ".join(f"{v:+.2f}" for v in position), ",".join(map(str, c.instance_ids)))
     console.print(table)
-    summary = result.summary()
+    summary = result.summary() | {"ndf_runtime": runtime}
     line = f"objects: source {summary['objects_source']}, target {summary['objects_target']}; " \
            f"target pass {summary['fps']:.1f} frames/s (" + ", ".join(f"{k} {v:.1f} ms" for k, v in summary["stage_ms"].items()) + ")"
     console.print(line)

@@ -114,21 +114,52 @@ def bench_ndf(weights: Path | None = None, repeats: int = 30, points: int = 1000
     return result
 
 
-def bench_detect(source: Path, target: Path, threads: int = 2, frame_step: int = 1) -> dict:
+def bench_detect(source: Path, target: Path, threads: int = 1, frame_step: int = 1, runtime: str = "auto") -> dict:
     """The whole target pass without sinks: frames per second, and ms per frame of each stage
-    (reading = the pass's wall time minus the stages)."""
+    (reading = the pass's wall time minus the stages). `threads`: torch's and ONNX Runtime's;
+    `runtime`: the NDF's (`ndfa.ndf.runtime`)."""
     import torch
 
+    from ndfa.ndf.encoder import EncoderConfig
+    from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
     from ndfa.run.detect import run_detection
 
     torch.set_num_threads(threads)
-    result = run_detection(source, target, sinks=[], frame_step=frame_step)
+    config = PipelineConfig(encoder=EncoderConfig(runtime=runtime, threads=threads))
+    pipeline = ChangeDetectionPipeline(config)
+    cpu_started = time.process_time()
+    result = run_detection(source, target, config, sinks=[], frame_step=frame_step, pipeline=pipeline)
     per_frame_ms = result.seconds["target"] / result.frames["target"] * 1e3
     stages = dict(result.stage_ms)
     stages["reading"] = max(per_frame_ms - sum(stages.values()), 0.0)
     return {"fps": result.target_fps, "frames": result.frames["target"], "total_ms": per_frame_ms,
-            "stage_ms": stages, "threads": threads,
+            "stage_ms": stages, "threads": threads, "runtime": pipeline.encoder.runtime.name,
+            "cpu_s": time.process_time() - cpu_started,  # both passes, this process's CPU time
+            "score": None if result.score is None else (result.score.tp, result.score.fp, result.score.fn),
             "machine": f"{platform.processor() or platform.machine()}, {_cpu_count()} cores"}
+
+
+def bench_detect_runs(source: Path, target: Path, threads: int = 1, compare: bool = False, load: bool = False,
+                      frame_step: int = 1) -> list[dict]:
+    """`bench_detect` back to back in one process, each row labelled: with `compare` the torch
+    runtime first (the before), then the default one; with `load` the default runtime once more
+    beside one busy process (`python -c 'while True: pass'`, started here and stopped after),
+    the question being whether the pass keeps its speed when the machine is shared."""
+    rows = []
+    if compare:
+        rows.append({"label": "torch"} | bench_detect(source, target, threads, frame_step, runtime="torch"))
+    rows.append({"label": "default"} | bench_detect(source, target, threads, frame_step))
+    if load:
+        import subprocess
+        import sys
+
+        busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+        try:
+            rows.append({"label": "beside one busy process"} | bench_detect(source, target, threads, frame_step))
+        finally:
+            busy.kill()
+            busy.wait()
+    return rows
 
 
 def bench_detection_scaling(sizes: tuple[int, ...] = (40, 100, 1000, 10_000), frames: int = 50,

@@ -3,7 +3,8 @@ mean occupancy, reconstruction). Pure computation: no files are read here except
 
 Each observation is resampled to the model's point count, centred on its mean (the translation),
 encoded, and decoded on a grid around the predicted center; everything is moved to the world
-frame with the camera pose.
+frame with the camera pose. The network runs in ONNX Runtime when it is installed, else in torch
+(`ndfa.ndf.runtime`, `EncoderConfig.runtime`); `NDFEncoder.runtime.name` says which.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from ndfa.core.conventions import world_up
 from ndfa.core.errors import ModelError
 from ndfa.core.geometry import transform_points
 from ndfa.ndf.checkpoint import load_model
+from ndfa.ndf.runtime import make_runtime
 
 WEIGHTS_DIR = Path(__file__).parent / "weights"
 DEFAULT_WEIGHTS = WEIGHTS_DIR / "ndf_mugs.pt"
@@ -55,6 +57,13 @@ class EncoderConfig:
         occupancy (and the sinks show it): the grid is most of the encoding time, about 4.7x less
         than at `FINE_GRID_RESOLUTION`, which `ndfa ndf-eval` and the model card's reconstruction
         figures use.
+    runtime: where the network runs (`ndfa.ndf.runtime`): "auto" (ONNX Runtime when installed,
+        else torch), "onnxruntime" or "torch". ONNX Runtime took 2.1x less CPU per frame on the
+        `paper` scene (docs/speed.md); its codes and centers agree with torch's to float32
+        rounding (tests/test_ndf_runtime.py).
+    threads: ONNX Runtime's intra-op threads (torch's are process-wide: `torch.set_num_threads`).
+        1: the pass is then one thread and keeps its speed beside another busy process on a
+        2-core machine (docs/speed.md).
     """
 
     v0: float = 0.5                  # occupancy threshold of the reconstruction
@@ -63,6 +72,8 @@ class EncoderConfig:
     grid_half_extent_m: float = 0.11  # the grid spans +-this around the predicted center
     coarse_threshold: float = 0.05
     seed: int = 0                    # of the point resampling, so encoding is deterministic
+    runtime: str = "auto"
+    threads: int = 1
 
 
 class NDFEncoder:
@@ -76,6 +87,7 @@ class NDFEncoder:
         self.model.eval()
         self.n_points = int(extra.get("n_points", 400))
         self.config = config
+        self.runtime = make_runtime(self.model, self.n_points, config.runtime, config.threads)
         axis = np.linspace(-1.0, 1.0, config.grid_resolution, dtype=np.float32) * config.grid_half_extent_m
         self._grid = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
 
@@ -83,7 +95,6 @@ class NDFEncoder:
         """One observation: points [N, 3] in the camera frame, camera-to-world pose [4, 4]."""
         return self.encode_batch([points_camera], [pose_world_camera])[0]
 
-    @torch.inference_mode()
     def encode_batch(self, clouds: list[np.ndarray], poses_world_camera: list[np.ndarray]) -> list[ObjectCode]:
         """Several observations at once (faster per observation than one by one)."""
         if len(clouds) != len(poses_world_camera):
@@ -91,51 +102,57 @@ class NDFEncoder:
         if not clouds:
             return []
         points = np.stack([self.resample(_checked_cloud(c, i)) for i, c in enumerate(clouds)])
-        z, centred, centroids = self.latent(points, poses_world_camera)
-        codes = self.model.shape_code(z).numpy()
-        offsets = self.model.center_offset(z)
-        queries = offsets[:, None, :] + torch.from_numpy(self._grid)[None]  # around each predicted center
-        occupancy = self._grid_occupancy(z, queries, centred)
-        query_points = queries.numpy()
+        centred, up, centroids = self._inputs(points, poses_world_camera)
+        z, codes, offsets = self.runtime.encode(centred, up, centroids[:, 0].astype(np.float32))
+        query_points = offsets[:, None, :] + self._grid[None]  # around each predicted center
+        occupancy = self._grid_occupancy(z, query_points, centred)
 
         results = []
         for i, pose in enumerate(poses_world_camera):
             inside = occupancy[i] > self.config.v0
-            center_local = self._center(offsets[i].numpy(), query_points[i], occupancy[i], inside)
+            center_local = self._center(offsets[i], query_points[i], occupancy[i], inside)
             rotation = np.asarray(pose)[:3, :3]
             results.append(ObjectCode(
                 shape_code=codes[i],
                 center_world=transform_points(pose, (centroids[i, 0] + center_local)[None])[0],
-                z=z[i].numpy() @ rotation.T,
+                z=z[i] @ rotation.T,
                 mean_occupancy=float(occupancy[i][inside].mean()) if inside.any() else 0.0,
                 reconstruction=transform_points(pose, query_points[i][inside] + centroids[i, 0]),
             ))
         return results
 
+    @staticmethod
+    def _inputs(points: np.ndarray, poses_world_camera: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The network's inputs from resampled clouds `[B, n, 3]` (camera frame): the centred
+        clouds (float32), world up in each camera's frame `[B, 3]` (float32) and the centroids
+        `[B, 1, 3]` (float64; the view rays)."""
+        # Centre in float64: float32 points a few metres from the camera lose digits otherwise.
+        centroids = points.mean(axis=1, keepdims=True)
+        centred = (points - centroids).astype(np.float32)
+        # The cues: world up seen from each camera, and each view's direction from its camera.
+        up_world = world_up()  # the world is z-up by convention (`ndfa.core.conventions`)
+        up = np.stack([np.asarray(pose)[:3, :3].T @ up_world for pose in poses_world_camera]).astype(np.float32)
+        return centred, up, centroids
+
     @torch.inference_mode()
     def latent(self, points: np.ndarray, poses_world_camera: list[np.ndarray]) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
         """z `[B, k, 3]` of resampled clouds `[B, n, 3]` (camera frame), the centred clouds the
         model saw and their centroids `[B, 1, 3]` (float64)."""
-        # Centre in float64: float32 points a few metres from the camera lose digits otherwise.
-        centroids = points.mean(axis=1, keepdims=True)
-        centred = torch.from_numpy((points - centroids).astype(np.float32))
-        # The cues: world up seen from each camera, and each view's direction from its camera.
-        up_world = world_up()  # the world is z-up by convention (`ndfa.core.conventions`)
-        up = np.stack([np.asarray(pose)[:3, :3].T @ up_world for pose in poses_world_camera])
-        z = self.model.encode(centred, torch.from_numpy(up.astype(np.float32)),
+        centred, up, centroids = self._inputs(points, poses_world_camera)
+        z = self.model.encode(torch.from_numpy(centred), torch.from_numpy(up),
                               torch.from_numpy(centroids[:, 0].astype(np.float32)))
-        return z, centred, centroids
+        return z, torch.from_numpy(centred), centroids
 
-    def _grid_occupancy(self, z: torch.Tensor, queries: torch.Tensor, points: torch.Tensor) -> np.ndarray:
+    def _grid_occupancy(self, z: np.ndarray, queries: np.ndarray, points: np.ndarray) -> np.ndarray:
         """Occupancy `[B, G^3]` of the grid queries, decoded coarse to fine (see `EncoderConfig`)."""
         if self.config.coarse_threshold <= 0:
-            return torch.sigmoid(self.model.occupancy_logits(z, queries, points)).numpy()
+            return self.runtime.occupancy(z, queries, points)
         n = self.config.grid_resolution
         batch = len(queries)
         fine = np.arange(n ** 3).reshape(n, n, n)
         coarse = fine[::2, ::2, ::2].ravel()
         occupancy = np.zeros((batch, n ** 3), dtype=np.float32)
-        occupancy[:, coarse] = torch.sigmoid(self.model.occupancy_logits(z, queries[:, coarse], points)).numpy()
+        occupancy[:, coarse] = self.runtime.occupancy(z, np.ascontiguousarray(queries[:, coarse]), points)
         # Fine points within one coarse step of an occupied coarse point: dilate, then upsample
         # (fine index i lies between coarse i // 2 and i // 2 + 1).
         occupied = (occupancy[:, coarse] > self.config.coarse_threshold).reshape(batch, *fine[::2, ::2, ::2].shape)
@@ -152,8 +169,8 @@ class NDFEncoder:
         for b in range(batch):
             chosen = np.flatnonzero(near[b])
             index[b] = np.pad(chosen, (0, counts.max() - len(chosen)), mode="edge") if len(chosen) else coarse[0]
-        gathered = torch.gather(queries, 1, torch.from_numpy(index)[:, :, None].expand(-1, -1, 3))
-        values = torch.sigmoid(self.model.occupancy_logits(z, gathered, points)).numpy()
+        gathered = np.take_along_axis(queries, index[:, :, None], axis=1)
+        values = self.runtime.occupancy(z, gathered, points)
         for b in range(batch):
             occupancy[b, index[b, :counts[b]]] = values[b, :counts[b]]
         return occupancy
