@@ -252,7 +252,8 @@ def eval_command(
     for path in write_table(result, out):
         console.print(f"wrote {path}")
     if observations is not None:
-        _write_curves(result, observations, out, f"{source.name} -> {target.name}")
+        _write_curves(result, observations, out, f"{source.parent.name}/{source.name} -> "
+                                                      f"{target.parent.name}/{target.name}")
 
 
 def _write_curves(result, observations, out: Path, title: str) -> None:

@@ -138,7 +138,9 @@ def plot_pr_curves(curves: PRCurves, out_png: Path, title: str = "") -> Path:
     draw.rectangle([left, top, right, bottom], outline="black")
     draw.text(((left + right) / 2 - 15, bottom + 24), "recall", fill="black")
     draw.text((8, top - 16), "precision", fill="black")
-    for n, method in enumerate(curves.average_precision):
+    methods = list(curves.average_precision)
+    for method in reversed(methods):  # the first method (ndfa) drawn last, on top
+        n = methods.index(method)
         colour = COLOURS.get(method, (100, 100, 100))
         rows = curves.table.filter(pl.col("method") == method).sort("threshold", descending=True)
         points, recall = [], 0.0
