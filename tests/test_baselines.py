@@ -59,13 +59,17 @@ def test_nn_marks_the_moved_mug_and_not_the_one_that_stayed(scene):
     assert _changed(decisions) == {MOVES}
     assert decisions[0].kind == "changed" and "no source point within 2 mm" in decisions[0].reason
     assert max(baseline.unmatched_fractions[STAYS]) < 0.3 <= min(baseline.unmatched_fractions[MOVES])
+    scores = baseline.candidate_scores()  # reported iff the score reaches r
+    assert {i for i, s in scores.items() if s >= baseline.threshold} == {MOVES} and scores[STAYS] > 0
 
 
 def test_nn_reports_added_and_removed_mugs(scene):
     source, _ = scene
     target = _render({STAYS: (-0.12, 0.0), ADDED: (0.3, 0.1)}, np.linspace(-0.25, 0.25, 5))
-    decisions = run_baseline(NNBaseline(), source, target)
+    baseline = NNBaseline()
+    decisions = run_baseline(baseline, source, target)
     assert {(d.instance_id, d.kind) for d in decisions} == {(ADDED, "added"), (MOVES, "removed")}
+    assert {i for i, s in baseline.candidate_scores().items() if s >= 1.0} == {ADDED, MOVES}  # whatever r is
 
 
 def test_tsdf_marks_the_moved_mug_and_not_the_one_that_stayed(scene):
@@ -74,6 +78,8 @@ def test_tsdf_marks_the_moved_mug_and_not_the_one_that_stayed(scene):
     assert _changed(decisions) == {MOVES}
     assert ("source", STAYS) in baseline.persistent and ("target", STAYS) in baseline.persistent
     assert baseline.comparisons[("source", MOVES)].conflicting > 50
+    scores = baseline.candidate_scores()  # the peak conflict as a multiple of the fewest that conflict
+    assert {i for i, s in scores.items() if s >= baseline.threshold} == {MOVES} and 0 <= scores[STAYS] < 1
 
 
 def test_submap_lookup_reads_the_signed_distance_to_a_wall():
@@ -102,9 +108,9 @@ def test_baseline_parameters_are_checked():
         TSDFConfig(voxel_m=0.2, submap_length_m=0.32)
 
 
-def test_eval_prints_table_one_and_writes_it(tmp_path):
+def test_eval_prints_table_one_and_writes_it_with_precision_recall_curves(tmp_path):
     result = CliRunner().invoke(app, ["eval", str(SAMPLE / "source.mcap"), str(SAMPLE / "target.mcap"),
-                                      "--out", str(tmp_path)])
+                                      "--out", str(tmp_path), "--pr-curve"])
     assert result.exit_code == 0, result.output
     for method in ("NN", "PMT", "ndfa"):
         assert method in result.output
@@ -113,6 +119,20 @@ def test_eval_prints_table_one_and_writes_it(tmp_path):
     assert (table["tp"] + table["fn"]).to_list() == [5, 5, 5]  # the sample has five changed mugs
     assert {"precision", "recall", "seconds"} <= set(table.columns)
     assert (tmp_path / "table.md").read_text().startswith("| method |")
+    # --pr-curve: each method's threshold swept; at its default threshold each curve is its table row
+    curves = pl.read_parquet(tmp_path / "pr_curve.parquet")
+    assert curves.columns == ["method", "threshold", "default", "tp", "fp", "fn", "precision", "recall"]
+    defaults = curves.filter(pl.col("default")).sort("method")
+    assert defaults.select("method", "tp", "fp", "fn").rows() == table.sort("method").select(
+        "method", "tp", "fp", "fn").rows()
+    for method, rows in curves.group_by("method"):
+        rows = rows.sort("threshold", descending=True)
+        assert len(rows) > 1 and (rows["tp"] + rows["fn"]).unique().to_list() == [5]
+        assert rows["tp"].diff().drop_nulls().min() >= 0 and rows["fp"].diff().drop_nulls().min() >= 0
+    assert "AP" in result.output and "replay" not in result.output  # no note: the replay is the run
+    from PIL import Image
+
+    assert Image.open(tmp_path / "pr_curve.png").size[0] >= 400
 
 
 def _write(path: Path, frames: list[Frame], truth: dict | None) -> Path:

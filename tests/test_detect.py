@@ -58,6 +58,15 @@ def test_replaying_the_observations_table_reproduces_the_run(run):
     assert sorted((c.session, c.object_id, c.kind) for c in same.changes) == \
         sorted((c["session"], c["object"], c["kind"]) for c in summary["changes"])
     assert (same.score.tp, same.score.fp, same.score.fn) == (summary["tp"], summary["fp"], summary["fn"])
+    # thresholding the replay's decision scores at the detector's own 0.5 is the run's operating point;
+    # lower, recall can only grow
+    assert same.score_at(0.5) == same.score
+    assert same.score_at(0.0).tp >= same.score.tp and same.score_at(0.0).fp >= same.score.fp
+    decisions = pl.read_parquet(out / "tables" / "decisions.parquet")
+    assert decisions.filter(pl.col("score") >= 0.5)["kind"].unique().sort().to_list() == \
+        sorted({c["kind"] for c in summary["changes"]} | ({"added"} if "moved" in {c["kind"] for c in summary["changes"]}
+                                                          else set()))
+    assert (decisions.filter(pl.col("kind") == "unchanged")["score"] < 0.5).all()
     # another config gives another answer: without registration no target object is tested
     never_registered = replay(observations, DetectorConfig(registration=RegistrationConfig(min_inliers=1000)))
     assert never_registered.detector.registration is None

@@ -13,6 +13,10 @@ Read it top to bottom as the paper's loop:
                                  source objects observed but never matched; a changed target
                                  object that matches a removed one by shape is reported as moved
 
+Every decision carries a score in [0, 1] (`DecisionEvent.score`; `ndfa.change.verdict.decision_score`,
+`removal_score`): changes at least 0.5, "unchanged" below, so a threshold on it trades precision
+against recall without changing what the detector does at 0.5 (docs/scores.md).
+
 Pure numpy; every step returns events (`ndfa.core.events`) for the sinks. The parameters and why
 they differ from the paper's: `ndfa.change.config`, `docs/detector.md`.
 """
@@ -28,7 +32,7 @@ from ndfa.change.graph import local_graph
 from ndfa.change.policy import DecisionPolicy
 from ndfa.change.register import Registration, RegistrationPrior, apply
 from ndfa.change.registrar import Registrar
-from ndfa.change.verdict import graph_verdict, shape_verdict
+from ndfa.change.verdict import Verdict, decision_score, graph_verdict, removal_score, shape_verdict
 from ndfa.core.events import AssociationEvent, DecisionEvent, DecisionKind, Event, Session
 
 __all__ = ["ChangeDetector", "DetectorConfig", "reported_changes"]
@@ -43,6 +47,7 @@ class ChangeDetector:
         self.policy = DecisionPolicy(config.decision)
         self.changed: dict[int, DecisionEvent] = {}  # target object -> the decision that marked it
         self.observed: set[int] = set()    # source objects that were in a tested object's neighbourhood
+        self.observers: dict[int, set[int]] = {}  # source object -> the target objects tested around it
         self.matched: dict[int, int] = {}  # source object -> the target object first found consistent with it
         self._last_frame = -1
 
@@ -103,7 +108,8 @@ class ChangeDetector:
                 frame_index=before.frame_index, session="target", object_id=target_id, kind="moved",
                 reason=f"changed, and shape-matches removed source object {source_id}",
                 center_world=before.center_world, center_source=before.center_source, partner_id=source_id,
-                instance_ids=before.instance_ids, partner_instance_ids=self.source.objects[source_id].instance_ids))
+                instance_ids=before.instance_ids, partner_instance_ids=self.source.objects[source_id].instance_ids,
+                score=before.score))
         for source_id in removed:
             if source_id in moved_from.values():
                 continue
@@ -111,7 +117,7 @@ class ChangeDetector:
             events.append(DecisionEvent(
                 frame_index=self._last_frame, session="source", object_id=source_id, kind="removed",
                 reason="observed but never matched", center_world=obj.center_world, center_source=obj.center_world,
-                instance_ids=obj.instance_ids))
+                instance_ids=obj.instance_ids, score=removal_score(len(self.observers.get(source_id, ())))))
         return events
 
     # -- steps ----------------------------------------------------------------------------------
@@ -151,7 +157,10 @@ class ChangeDetector:
         margin = self.config.decision.cell_margin_m
         region = self.source.tree.region(center_source, margin)
         source_ids = sorted(region.objects())
-        self.observed.update(self._looked_at(center_source, source_ids))
+        looked_at = self._looked_at(center_source, source_ids)
+        self.observed.update(looked_at)
+        for source_id in looked_at:
+            self.observers.setdefault(source_id, set()).add(object_id)
         similarity = {s: float(cosine_similarity(obj.shape_code, self.source.objects[s].shape_code)) for s in source_ids}
         shape_similarity = self.config.association.shape_similarity
         verdict = shape_verdict(source_ids, similarity, shape_similarity)
@@ -169,19 +178,19 @@ class ChangeDetector:
         if verdict.kind == "unchanged":
             assert verdict.partner_id is not None  # an "unchanged" verdict names its partner
             self.matched.setdefault(verdict.partner_id, object_id)
-            return events + [self._decision(frame_index, object_id, "unchanged", verdict.reason, center_source,
-                                            verdict.partner_id)]
+            return events + [self._decision(frame_index, object_id, "unchanged", verdict, center_source)]
         if verdict.kind == "changed":
-            self.changed[object_id] = self._decision(frame_index, object_id, "added", verdict.reason, center_source)
+            self.changed[object_id] = self._decision(frame_index, object_id, "added", verdict, center_source)
             return events + [self.changed[object_id]]
         return events  # undecided: O waits (the policy holds it pending)
 
-    def _decision(self, frame_index: int, object_id: int, kind: DecisionKind, reason: str, center_source: np.ndarray,
-                  partner_id: int | None = None) -> DecisionEvent:
+    def _decision(self, frame_index: int, object_id: int, kind: DecisionKind, verdict: Verdict,
+                  center_source: np.ndarray) -> DecisionEvent:
         obj = self.target.objects[object_id]
-        return DecisionEvent(frame_index=frame_index, session="target", object_id=object_id, kind=kind, reason=reason,
-                             center_world=obj.center_world, center_source=center_source, partner_id=partner_id,
-                             instance_ids=obj.instance_ids)
+        return DecisionEvent(frame_index=frame_index, session="target", object_id=object_id, kind=kind,
+                             reason=verdict.reason, center_world=obj.center_world, center_source=center_source,
+                             partner_id=verdict.partner_id, instance_ids=obj.instance_ids,
+                             score=decision_score(verdict))
 
 
 def reported_changes(decisions: list[DecisionEvent]) -> list[DecisionEvent]:

@@ -207,11 +207,16 @@ def eval_command(
                                           callback=at_least_one),
     address: Optional[str] = typer.Option(None, help="Sweep: Ray cluster address (needs the ndfa cluster extra: Ray)."),
     ray: Optional[bool] = typer.Option(None, "--ray/--no-ray", help="Sweep: use Ray (default: when installed)."),
+    pr_curve: bool = typer.Option(False, "--pr-curve", help="Also sweep each method's decision threshold (ndfa's "
+                                  "score by replaying its observations, NN's r, PMT's conflict count): "
+                                  "DIR/pr_curve.parquet, DIR/pr_curve.png and the average precision per method."),
 ) -> None:
     """The paper's Table I: ndfa (given poses) and the NN and PMT baselines (true poses, ground-truth masks).
 
     With --sweep: precision/recall/F1 of the three methods over an axis of synthetic scenes and seeds."""
     if sweep is not None:
+        if pr_curve:
+            raise typer.BadParameter("--pr-curve needs SOURCE TARGET, not --sweep")
         if source is not None or target is not None:
             raise typer.BadParameter("--sweep renders its own scenes: give no SOURCE TARGET")
         _eval_sweep(sweep, values, seeds, preset, step, workers, address, ray, out)
@@ -225,8 +230,17 @@ def eval_command(
     nn_overrides = {"distance_m": nn_distance, "changed_fraction": nn_fraction}
     nn = NNConfig(**{k: v for k, v in nn_overrides.items() if v is not None})
     tsdf = TSDFConfig(**({} if tsdf_voxel is None else {"voxel_m": tsdf_voxel}))
-    with progress_bar() as progress:
-        result = evaluate_methods(source, target, nn, tsdf, frame_step=frame_step, on_frame=bar_per_label(progress))
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="ndfa-eval-") as scratch, progress_bar() as progress:
+        sinks = []
+        if pr_curve:  # ndfa's observations, for the replay; written only at the end, to scratch
+            from ndfa.log.table_sink import TableSink
+
+            sinks.append(TableSink(Path(scratch), flush_every=sys.maxsize))
+        result = evaluate_methods(source, target, nn, tsdf, frame_step=frame_step, on_frame=bar_per_label(progress),
+                                  sinks=sinks)
+        observations = sinks[0].tables()["observations"] if sinks else None
 
     table = Table(title=f"change detection, {source.name} -> {target.name} (object level)")
     for column in ("method", "poses", "TP", "FP", "FN", "precision", "recall", "seconds"):
@@ -243,6 +257,30 @@ def eval_command(
     for note in result.notes:
         console.print(f"note: {note}")
     for path in write_table(result, out):
+        console.print(f"wrote {path}")
+    if observations is not None:
+        _write_curves(result, observations, out, f"{source.parent.name}/{source.name} -> "
+                                                      f"{target.parent.name}/{target.name}")
+
+
+def _write_curves(result, observations, out: Path, title: str) -> None:
+    """`ndfa eval --pr-curve`: the precision/recall curves, their average precision, the files."""
+    import polars as pl
+
+    from ndfa.eval.pr_curve import evaluation_curves, write_pr_curves
+
+    curves = evaluation_curves(result, observations)
+    table = Table(title="average precision (object level)")
+    for column in ("method", "threshold swept", "default", "AP"):
+        table.add_column(column, justify="left" if column in ("method", "threshold swept") else "right")
+    swept = {"ndfa": "decision score", "NN": "r (change-point share)", "PMT": "k (x PMT's conflict count)"}
+    for method, ap in curves.average_precision.items():
+        default = curves.table.filter((pl.col("method") == method) & pl.col("default"))["threshold"][0]
+        table.add_row(method, swept.get(method, "score"), f"{default:g}", f"{ap:.3f}")
+    console.print(table)
+    for note in curves.notes:
+        console.print(f"note: {note}")
+    for path in write_pr_curves(curves, out, f"precision / recall, {title}"):
         console.print(f"wrote {path}")
 
 

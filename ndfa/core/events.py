@@ -20,6 +20,8 @@ GraphMode = Literal["graph", "in place", "fallback"]
 # Where a T_rel came from: RANSAC on shape-matched object pairs (the paper's), or a prior hypothesis
 # the pairs verified: the sessions' shared world, or the alignment of their scene clouds.
 RegistrationMethod = Literal["object pairs", "shared world", "scene alignment"]
+# The decision score at and above which the detector reports a change (`DecisionEvent.score`).
+CHANGE_SCORE = 0.5
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -117,6 +119,11 @@ class DecisionEvent:
     kind: "unchanged", "added" (changed in the target: new here), "removed" (a source object observed
     but never matched) or "moved" (a changed target object that matches a removed source object by
     shape; assigned at the end). A change is reported the first time it is found and never retracted.
+
+    score: how strongly the evidence says "changed", in [0, 1]; reported changes score at least
+    `CHANGE_SCORE` and "unchanged" decisions below it, so thresholding the scores at another value
+    trades precision against recall (`ndfa.change.verdict.decision_score`; docs/scores.md).
+    NaN for decisions made without a score.
     """
 
     frame_index: int
@@ -129,6 +136,7 @@ class DecisionEvent:
     partner_id: int | None = None            # the source object it matched or moved from
     instance_ids: tuple[int, ...] = ()       # mask ids of the object's measurements
     partner_instance_ids: tuple[int, ...] = ()  # a move's source object's mask ids (it is reported with it)
+    score: float = float("nan")
 
     @property
     def reported_instances(self) -> tuple[int, ...]:

@@ -52,6 +52,9 @@ class EvalResult:
     visible: dict[str, set[int]]
     unscored_ids: tuple[int, ...]
     notes: list[str] = field(default_factory=list)
+    truth: dict = field(default_factory=dict)          # the target's ground truth, as `score` takes it
+    baselines: dict = field(default_factory=dict)      # name -> the baseline after its run (`ndfa.eval.pr_curve`)
+    detection: object | None = None                   # ndfa's DetectionResult
 
     def frame(self) -> pl.DataFrame:
         return pl.DataFrame([{
@@ -100,9 +103,10 @@ def visible_instances(frame: Frame, config: ObservationConfig = ObservationConfi
 
 
 def evaluate_methods(source: Path, target: Path, nn: NNConfig = NNConfig(), tsdf: TSDFConfig = TSDFConfig(),
-                     frame_step: int = 1, on_frame: LabelledProgress | None = None) -> EvalResult:
+                     frame_step: int = 1, on_frame: LabelledProgress | None = None, sinks: list = ()) -> EvalResult:
     """Run ndfa, NN and PMT on the pair and score them alike. `on_frame(label, done, total)` follows
-    each method's pass over each session, labelled "METHOD SESSION" (e.g. "NN source")."""
+    each method's pass over each session, labelled "METHOD SESSION" (e.g. "NN source"); `sinks`
+    hear ndfa's run (as `ndfa detect`'s)."""
     from ndfa.pipeline import PipelineConfig
     from ndfa.run.detect import run_detection
 
@@ -111,7 +115,8 @@ def evaluate_methods(source: Path, target: Path, nn: NNConfig = NNConfig(), tsdf
     reported: dict[str, list[int]] = {}
     seconds: dict[str, float] = {}
 
-    for baseline in (NNBaseline(nn), TSDFBaseline(tsdf)):
+    baselines = {"NN": NNBaseline(nn), "PMT": TSDFBaseline(tsdf)}
+    for baseline in baselines.values():
         started = time.perf_counter()
         source_frames = _frames(source_reader, "source", baseline.name, frame_step, visible, on_frame)
         target_frames = _frames(target_reader, "target", baseline.name, frame_step, visible, on_frame)
@@ -121,7 +126,8 @@ def evaluate_methods(source: Path, target: Path, nn: NNConfig = NNConfig(), tsdf
 
     started = time.perf_counter()
     progress = None if on_frame is None else (lambda session, done, total: on_frame(f"ndfa {session}", done, total))
-    detection = run_detection(Path(source), Path(target), PipelineConfig(), frame_step=frame_step, on_frame=progress)
+    detection = run_detection(Path(source), Path(target), PipelineConfig(), sinks=list(sinks), frame_step=frame_step,
+                              on_frame=progress)
     seconds["ndfa"] = time.perf_counter() - started
     reported["ndfa"] = [i for change in detection.changes for i in change.reported_instances]
 
@@ -137,7 +143,7 @@ def evaluate_methods(source: Path, target: Path, nn: NNConfig = NNConfig(), tsdf
                      "its visible sets come from its observations")
     if unscored:
         notes.append(f"unscored (not visible where their change would show): {', '.join(map(str, unscored))}")
-    return EvalResult(rows, visible, unscored, notes + detection.notes)
+    return EvalResult(rows, visible, unscored, notes + detection.notes, truth, baselines, detection)
 
 
 def write_table(result: EvalResult, out: Path) -> tuple[Path, Path]:

@@ -147,9 +147,10 @@ class RerunSink:
         position = e.center_source if e.center_source is not None else e.center_world
         if e.kind != "unchanged":
             self.rec.log(f"decisions/{e.session}_{e.object_id}", rr.Points3D(
-                [position], colors=KIND_COLORS[e.kind], radii=0.03, labels=[f"{e.kind} {e.session[0]}{e.object_id}"]))
+                [position], colors=KIND_COLORS[e.kind], radii=0.03,
+                labels=[f"{e.kind} {e.session[0]}{e.object_id} {e.score:.2f}"]))
         self.rec.log("decisions/log", rr.TextLog(
-            f"frame {e.frame_index}: {e.session} object {e.object_id} {e.kind}: {e.reason}",
+            f"frame {e.frame_index}: {e.session} object {e.object_id} {e.kind} (score {e.score:.2f}): {e.reason}",
             level="INFO" if e.kind == "unchanged" else "WARN"))
 
     def _TimingEvent(self, e: TimingEvent) -> None:

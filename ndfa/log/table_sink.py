@@ -7,8 +7,9 @@
     registration.parquet   every registration attempt, with T_rel when found
     graphs.parquet         every local-graph comparison, one row per compared edge pair (or one
                            row without an edge for a fallback comparison)
-    decisions.parquet      every change test and the final removals/moves, with the ground-truth
-                           change of the object's mask when the recordings carry it
+    decisions.parquet      every change test and the final removals/moves, with its score (>= 0.5:
+                           a change; docs/scores.md) and the ground-truth change of the object's
+                           mask when the recordings carry it
     timings.parquet        ms per stage per frame
 
 Vectors are list columns (center_x/y/z as plain columns for easy filtering). The tables are
@@ -99,7 +100,7 @@ class TableSink:
             self.rows["decisions"].append({
                 "frame": event.frame_index, "session": event.session, "object_id": event.object_id, "kind": event.kind,
                 "reason": event.reason, **_xyz("position", position), "partner_id": event.partner_id,
-                "instance_ids": list(event.instance_ids),
+                "instance_ids": list(event.instance_ids), "score": event.score,
                 "truth": self._truth(event.instance_ids[0]) if event.instance_ids else None})
         elif isinstance(event, TimingEvent):
             self.rows["timings"].append({"session": event.session, "frame": event.frame_index} | event.stage_ms)

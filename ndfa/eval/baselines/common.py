@@ -42,9 +42,19 @@ class BaselineDecision:
 
 
 class Baseline(Protocol):
-    """A change detector fed one session after the other, like ndfa's pipeline."""
+    """A change detector fed one session after the other, like ndfa's pipeline.
+
+    After a run, `candidate_scores()` gives every object it judged (by instance id) the baseline's
+    own continuous score, on the scale of its threshold: the object is reported exactly when its
+    score is at least the threshold (`threshold`, the configured one), so other thresholds give
+    its precision/recall curve (`ndfa.eval.pr_curve`).
+    """
 
     name: str
+
+    @property
+    def threshold(self) -> float: ...
+    def candidate_scores(self) -> dict[int, float]: ...
 
     def add_source(self, frame: Frame) -> None: ...
     def end_source(self) -> None: ...

@@ -96,6 +96,7 @@ class NNBaseline:
     _decided: set[int] = field(default_factory=set)
     _seen_in_target: set[int] = field(default_factory=set)
     _place_seen_empty: dict[int, tuple[int, float]] = field(default_factory=dict)  # id -> (frame, fraction)
+    _not_by_fraction: set[int] = field(default_factory=set)  # added and removed: reported whatever r is
     _last_target_frame: int = 0
 
     def add_source(self, frame: Frame) -> None:
@@ -128,6 +129,7 @@ class NNBaseline:
             if instance_id not in self._trees:
                 if instance_id not in self._decided:
                     self._decided.add(instance_id)
+                    self._not_by_fraction.add(instance_id)
                     decisions.append(BaselineDecision("target", frame.index, instance_id, "added",
                                                       "no source object has this instance id"))
                 continue
@@ -149,12 +151,25 @@ class NNBaseline:
                 self._place_seen_empty[instance_id] = (frame.index, fraction)
         return decisions
 
+    @property
+    def threshold(self) -> float:
+        return self.config.changed_fraction
+
+    def candidate_scores(self) -> dict[int, float]:
+        """Instance id -> NN's own score: the largest share of change points among the object's
+        target views (it is reported iff that reaches r, since its first view that does reports
+        it); 1 for an added or removed object, which no r withholds. Exact for every r: every
+        view's share is computed whatever was decided."""
+        scores = {i: max(fractions) for i, fractions in self.unmatched_fractions.items()}
+        return scores | {i: 1.0 for i in self._not_by_fraction}
+
     def finish(self) -> list[BaselineDecision]:
         decisions = []
         for instance_id, (frame_index, fraction) in sorted(self._place_seen_empty.items()):
             if instance_id in self._seen_in_target or instance_id in self._decided:
                 continue
             self._decided.add(instance_id)
+            self._not_by_fraction.add(instance_id)
             decisions.append(BaselineDecision(
                 "source", self._last_target_frame, instance_id, "removed",
                 f"never in the target, whose frame {frame_index} saw through {fraction:.0%} of its place"))

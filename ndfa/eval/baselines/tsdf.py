@@ -222,6 +222,8 @@ class TSDFBaseline:
     target_submaps: dict[int, Submap] = field(default_factory=dict)
     persistent: set[tuple[str, int]] = field(default_factory=set)
     comparisons: dict[tuple[str, int], Comparison] = field(default_factory=dict)
+    peak_conflict: dict[tuple[str, int], float] = field(default_factory=dict)  # see `candidate_scores`
+    _added: set[int] = field(default_factory=set)
     _source_views: list[DepthView] = field(default_factory=list)
     _target_free: dict[int, Submap] = field(default_factory=dict)  # target free space at source submaps
     _source_free: dict[int, Submap] = field(default_factory=dict)  # source free space at target submaps
@@ -248,6 +250,7 @@ class TSDFBaseline:
         for instance_id in self._integrate_objects(view, require_masks(frame, "target"), self.target_submaps):
             if instance_id not in self.source_submaps:
                 self._decided.add(("target", instance_id))
+                self._added.add(instance_id)
                 decisions.append(BaselineDecision("target", frame.index, instance_id, "added",
                                                   "no source submap has this instance id"))
             else:
@@ -265,6 +268,21 @@ class TSDFBaseline:
 
     def finish(self) -> list[BaselineDecision]:
         return self._check(self._last_target_frame)
+
+    @property
+    def threshold(self) -> float:
+        return 1.0
+
+    def candidate_scores(self) -> dict[int, float]:
+        """Instance id -> PMT's own score: the most conflicting points any check found (of its
+        source or its target submap), as a multiple of the fewest that make a conflict
+        (floor(max(50, 10% of the points)) + 1): reported iff it reaches 1, and at threshold k when
+        k times that many conflict. Infinite for an added object (no source submap). Above k = 1
+        it is a lower bound: a submap is not checked again after its conflict was reported."""
+        scores: dict[int, float] = {}
+        for (_, instance_id), peak in self.peak_conflict.items():
+            scores[instance_id] = max(scores.get(instance_id, 0.0), peak)
+        return scores | {i: float("inf") for i in self._added}
 
     def _integrate_objects(self, view: DepthView, mask: np.ndarray, submaps: dict[int, Submap]) -> list[int]:
         """Integrate each instance's depth into its submap; the ids of the submaps created."""
@@ -330,6 +348,9 @@ class TSDFBaseline:
         key = (session, instance_id)
         self.comparisons[key] = comparison
         needed = max(self.config.min_points, self.config.min_fraction * comparison.points)
+        # conflicting > needed <=> conflicting >= floor(needed) + 1 (a count): the score reaches 1 there
+        share = comparison.conflicting / (np.floor(needed) + 1)
+        self.peak_conflict[key] = max(self.peak_conflict.get(key, 0.0), float(share))
         if comparison.matched > needed:
             self.persistent.add(key)
         if comparison.conflicting <= needed or key in self._decided:
