@@ -9,6 +9,7 @@ here, in the order `ndfa --help` lists them, is what registers them.
 from ndfa.cli import ingest  # noqa: F401
 from ndfa.cli import ndf  # noqa: F401
 from ndfa.cli import detect  # noqa: F401
+from ndfa.cli import view  # noqa: F401
 from ndfa.cli import bench  # noqa: F401
 # isort: on
 from ndfa.cli.app import app, main
