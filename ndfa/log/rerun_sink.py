@@ -61,14 +61,14 @@ def detection_blueprint() -> rrb.Blueprint:
     with its masks (target first: its frames make the decisions), the decisions log, and the
     per-stage timings.
 
-    The world view leaves out the depth images (as back-projected clouds of the whole room they
-    bury the objects), the masks (they belong to the image) and everything that is not 3-D; the
-    tree cells are there but hidden (the eye icon shows them): as floor-high boxes they cover the
-    objects they group."""
+    The world view leaves out the cameras (their depth, as back-projected clouds of the whole room,
+    buries the objects, and the frustums, metres away, shrink the view the viewer fits to them;
+    the image view shows what the camera sees) and everything that is not 3-D; the tree cells are
+    there but hidden (the eye icon shows them): as floor-high boxes they cover the objects they group."""
     world = rrb.Spatial3DView(
         name="world (source frame): objects, tree cells and changes", origin="/",
-        contents=["+ /**", *(f"- /{session}/camera/{image}" for session in SESSION_COLORS for image in ("depth", "instances")),
-                  "- /timings/**", "- /decisions/log", "- /registration/log"],  # filters: no wildcard mid-path
+        contents=["+ /**", *(f"- /{session}/camera/**" for session in SESSION_COLORS),
+                  "- /timings/**", "- /decisions/log", "- /registration/log"],
         overrides={f"/{session}/tree/cells": rrb.EntityBehavior(visible=False) for session in SESSION_COLORS})
     cameras = rrb.Tabs(*(rrb.Spatial2DView(name=f"{session} camera: colour and masks", origin=f"/{session}/camera",
                                           contents=["+ $origin/**", "- $origin/depth"])
