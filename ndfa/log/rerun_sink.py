@@ -66,7 +66,7 @@ def detection_blueprint() -> rrb.Blueprint:
     the image view shows what the camera sees) and everything that is not 3-D; the tree cells are
     there but hidden (the eye icon shows them): as floor-high boxes they cover the objects they group."""
     world = rrb.Spatial3DView(
-        name="world (source frame): objects, tree cells and changes", origin="/",
+        name="world (source frame): objects and changes", origin="/",
         contents=["+ /**", *(f"- /{session}/camera/**" for session in SESSION_COLORS),
                   "- /timings/**", "- /decisions/log", "- /registration/log"],
         overrides={f"/{session}/tree/cells": rrb.EntityBehavior(visible=False) for session in SESSION_COLORS})
