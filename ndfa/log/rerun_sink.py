@@ -56,10 +56,14 @@ TABLE_HEIGHT_BOX_M = 0.3  # height of the tree-cell boxes drawn around the objec
 OBJECT_POINTS = 300  # points kept of an object's fullest view: enough to see a mug, small in the file
 
 
-def detection_blueprint() -> rrb.Blueprint:
+def detection_blueprint(places: np.ndarray | None = None) -> rrb.Blueprint:
     """The layout a run opens in: the 3-D world large on the left; on the right the camera image
     with its masks (target first: its frames make the decisions), the decisions log, and the
     per-stage timings.
+
+    places: (N, 3) points the world view's eye should take in (the objects and the changes, in the
+    source world); without them the viewer fits its eye to what it has drawn when the view opens,
+    which in a slowly streaming browser is the first few objects.
 
     The world view leaves out the cameras (their depth, as back-projected clouds of the whole room,
     buries the objects, and the frustums, metres away, shrink the view the viewer fits to them;
@@ -69,7 +73,8 @@ def detection_blueprint() -> rrb.Blueprint:
         name="world (source frame): objects and changes", origin="/",
         contents=["+ /**", *(f"- /{session}/camera/**" for session in SESSION_COLORS),
                   "- /timings/**", "- /decisions/log", "- /registration/log"],
-        overrides={f"/{session}/tree/cells": rrb.EntityBehavior(visible=False) for session in SESSION_COLORS})
+        overrides={f"/{session}/tree/cells": rrb.EntityBehavior(visible=False) for session in SESSION_COLORS},
+        eye_controls=None if places is None or not len(places) else eye_on(places))
     cameras = rrb.Tabs(*(rrb.Spatial2DView(name=f"{session} camera: colour and masks", origin=f"/{session}/camera",
                                           contents=["+ $origin/**", "- $origin/depth"])
                          for session in ("target", "source")))
@@ -79,6 +84,15 @@ def detection_blueprint() -> rrb.Blueprint:
     return rrb.Blueprint(
         rrb.Horizontal(world, rrb.Vertical(cameras, decisions, timings, row_shares=[3, 2, 2]), column_shares=[2, 1]),
         rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"), rrb.TimePanel(state="collapsed"))
+
+
+def eye_on(places: np.ndarray) -> rrb.EyeControls3D:
+    """An orbiting eye above and in front of the places' box (z is up, as logged at `/`), far
+    enough to take all of it in."""
+    low, high = places.min(axis=0), places.max(axis=0)
+    center, size = (low + high) / 2, max(float(np.linalg.norm(high - low)), 1.0)
+    return rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, look_target=center, eye_up=(0.0, 0.0, 1.0),
+                             position=center + size * np.array([-0.3, -0.7, 0.65]))
 
 
 class RerunSink:
@@ -95,6 +109,7 @@ class RerunSink:
         self._observation_entities: dict[str, set[str]] = {"source": set(), "target": set()}
         self._frame_clouds: dict[tuple[str, int], np.ndarray] = {}  # this frame's partial cloud per mask id
         self._object_view_size: dict[tuple[str, int], int] = {}  # points in each object's fullest view
+        self._places: dict[str, np.ndarray] = {}  # source objects and changes, in the source world: the eye's
 
     def log(self, event: Event) -> None:
         handler = getattr(self, "_" + type(event).__name__, None)
@@ -102,6 +117,10 @@ class RerunSink:
             handler(event)
 
     def close(self) -> None:
+        if self._places:
+            # The same layout again, its eye now on the whole scene: the viewer takes the last one sent.
+            self.rec.send_blueprint(detection_blueprint(np.stack(list(self._places.values()))),
+                                    make_active=True, make_default=True)
         self.rec.flush()
         self.rec.disconnect()
         self._staged.commit()
@@ -143,6 +162,8 @@ class RerunSink:
 
     def _AssociationEvent(self, e: AssociationEvent) -> None:
         entity = f"{e.session}/objects/{e.object_id}"
+        if e.session == "source":
+            self._places[entity] = np.asarray(e.center_world, dtype=float)
         self.rec.log(entity, rr.Points3D([e.center_world], colors=SESSION_COLORS[e.session], radii=0.01,
                                          labels=[f"{e.session[0]}{e.object_id}"], show_labels=False))
         self.rec.log(f"{entity}/shape_code", rr.BarChart(np.asarray(e.shape_code, dtype=np.float32)))
@@ -193,6 +214,7 @@ class RerunSink:
     def _DecisionEvent(self, e: DecisionEvent) -> None:
         position = e.center_source if e.center_source is not None else e.center_world
         if e.kind != "unchanged":
+            self._places[f"decisions/{e.session}_{e.object_id}"] = np.asarray(position, dtype=float)
             self.rec.log(f"decisions/{e.session}_{e.object_id}", rr.Points3D(
                 [position], colors=KIND_COLORS[e.kind], radii=0.03, labels=[f"{e.kind} {e.session[0]}{e.object_id}"]))
         self.rec.log("decisions/log", rr.TextLog(
