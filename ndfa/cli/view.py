@@ -59,8 +59,9 @@ def _quiet_env() -> dict[str, str]:
 
 
 def open_native(rrd: Path) -> None:
-    """The desktop viewer. Without a display it cannot start (winit's error, which Rerun reports and
-    then exits as if all went well); so look before starting it, and read its error if it fails."""
+    """The desktop viewer. Without a display it cannot start: Rerun prints winit's error, several
+    lines long, and nothing says what to do instead; so look before starting it, and turn its error,
+    if it fails, into one line that does."""
     hint = f"use `ndfa view {rrd} --web` and open the URL it prints"
     if sys.platform.startswith("linux") and not any(os.environ.get(name) for name in
                                                      ("DISPLAY", "WAYLAND_DISPLAY", "WAYLAND_SOCKET")):
