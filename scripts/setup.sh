@@ -15,6 +15,15 @@ if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
     DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq libusb-1.0-0 libgomp1 >/dev/null
 fi
 
+# The web viewer's test (tests/test_viewer.py) opens `ndfa view --web` in Debian's Chromium, driven
+# by Playwright (the dev extra) with its own executable_path: no browser download.
+if [ ! -x /usr/bin/chromium ]; then
+    echo "[setup] installing chromium (the web viewer's test)"
+    SUDO=""; [ "$(id -u)" -ne 0 ] && SUDO="sudo"
+    $SUDO apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq chromium >/dev/null
+fi
+
 if [ ! -x "$VENV/bin/python" ]; then
     echo "[setup] creating $VENV"
     "$PYTHON" -m venv "$VENV"

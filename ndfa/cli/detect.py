@@ -1,8 +1,7 @@
-"""`ndfa detect`, `ndfa segment`, `ndfa eval`, `ndfa poses` and `ndfa view`: the method and its evaluation."""
+"""`ndfa detect`, `ndfa segment`, `ndfa eval` and `ndfa poses`: the method and its evaluation."""
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Optional
 
@@ -12,7 +11,6 @@ from rich.table import Table
 from ndfa.change.detector import DetectorConfig
 from ndfa.cli.app import app, bar_per_label, console, err_console, progress_bar
 from ndfa.cli.checks import at_least_one, checkpoint, in_range, output_dir, output_file, positive
-from ndfa.core.errors import NdfaError
 from ndfa.trajectory.kiss import OdometryConfig
 
 # The help quotes the configs' defaults: DetectorConfig and OdometryConfig import without torch or
@@ -357,15 +355,3 @@ def poses_command(
     for path in (out, tum_out):
         if path is not None:
             console.print(f"wrote {path}")
-
-
-@app.command("view")
-def view_command(rrd: Path = typer.Argument(..., help="A Rerun recording written by `ndfa detect --log`.")) -> None:
-    """Open a .rrd in the Rerun viewer."""
-    import shutil
-    import subprocess
-
-    if not rrd.is_file():
-        raise NdfaError(f"{rrd}: no such file")
-    viewer = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
-    raise typer.Exit(subprocess.call([viewer, str(rrd)]))

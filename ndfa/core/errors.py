@@ -41,3 +41,7 @@ class OptionError(NdfaError):
 
 class OutputError(NdfaError):
     """An output cannot be written where asked (a directory or special file in the way, no writable folder)."""
+
+
+class ViewerError(NdfaError):
+    """A recording cannot be shown: no display for the desktop viewer, or the web viewer cannot serve."""

@@ -4,13 +4,21 @@ Entity layout (world frame: the source's; `target/` is placed into it with T_rel
 
     {session}/camera                  pose (Transform3D) + Pinhole; depth, color, instances under it
     {session}/observations/{id}       the cleaned partial cloud and the NDF reconstruction of mask id
-    {session}/objects/{object}        object center (labelled) and its shape code (BarChart)
+    {session}/objects/{object}        object center (labelled) and its shape code (BarChart); under
+                                      points/ its fullest view so far (the largest partial cloud of
+                                      its measurements, at most OBJECT_POINTS points), so that the
+                                      world view shows every object, not only the current frame's
     {session}/tree                    occupied tree cells (l x l boxes) and the interval nodes
     registration                      inlier center pairs, as lines, and the T_rel text
     graphs/{object}                   target object's edges (green: consistent, red: not) and its
                                       shape match's source edges (blue), in the source world
     decisions                         changes as labelled points, and a text log of every decision
     timings/{stage}                   ms per frame
+
+The file carries its own layout (`detection_blueprint`), so that `rerun out.rrd`, `ndfa view` and
+`ndfa view --web` open on the question the run answers: what changed, and where. Labels are drawn
+only on the reported changes; every other label (mask ids, object ids, cell counts) is kept in the
+data and shown on hover, since a dozen of them on one table pile up into an unreadable smudge.
 
 Timelines: `frame` (the frame index within its session) and `step` (frames processed so far,
 source then target), so that each decision sits at the target frame that made it.
@@ -27,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 import rerun as rr
+import rerun.blueprint as rrb
 
 from ndfa.core.events import (
     AssociationEvent,
@@ -44,6 +53,46 @@ from ndfa.io.atomic import Staged
 KIND_COLORS = {"added": (230, 60, 60), "removed": (240, 160, 30), "moved": (170, 80, 230), "unchanged": (90, 200, 90)}
 SESSION_COLORS = {"source": (80, 140, 255), "target": (255, 120, 80)}
 TABLE_HEIGHT_BOX_M = 0.3  # height of the tree-cell boxes drawn around the objects
+OBJECT_POINTS = 300  # points kept of an object's fullest view: enough to see a mug, small in the file
+
+
+def detection_blueprint(places: np.ndarray | None = None) -> rrb.Blueprint:
+    """The layout a run opens in: the 3-D world large on the left; on the right the camera image
+    with its masks (target first: its frames make the decisions), the decisions log, and the
+    per-stage timings.
+
+    places: (N, 3) points the world view's eye should take in (the objects and the changes, in the
+    source world); without them the viewer fits its eye to what it has drawn when the view opens,
+    which in a slowly streaming browser is the first few objects.
+
+    The world view leaves out the cameras (their depth, as back-projected clouds of the whole room,
+    buries the objects, and the frustums, metres away, shrink the view the viewer fits to them;
+    the image view shows what the camera sees) and everything that is not 3-D; the tree cells are
+    there but hidden (the eye icon shows them): as floor-high boxes they cover the objects they group."""
+    world = rrb.Spatial3DView(
+        name="world (source frame): objects and changes", origin="/",
+        contents=["+ /**", *(f"- /{session}/camera/**" for session in SESSION_COLORS),
+                  "- /timings/**", "- /decisions/log", "- /registration/log"],
+        overrides={f"/{session}/tree/cells": rrb.EntityBehavior(visible=False) for session in SESSION_COLORS},
+        eye_controls=None if places is None or not len(places) else eye_on(places))
+    cameras = rrb.Tabs(*(rrb.Spatial2DView(name=f"{session} camera: colour and masks", origin=f"/{session}/camera",
+                                          contents=["+ $origin/**", "- $origin/depth"])
+                         for session in ("target", "source")))
+    decisions = rrb.TextLogView(name="decisions and registration", origin="/",
+                                contents=["+ /decisions/log", "+ /registration/log"])
+    timings = rrb.TimeSeriesView(name="ms per frame, by stage", origin="/timings")
+    return rrb.Blueprint(
+        rrb.Horizontal(world, rrb.Vertical(cameras, decisions, timings, row_shares=[3, 2, 2]), column_shares=[2, 1]),
+        rrb.BlueprintPanel(state="collapsed"), rrb.SelectionPanel(state="collapsed"), rrb.TimePanel(state="collapsed"))
+
+
+def eye_on(places: np.ndarray) -> rrb.EyeControls3D:
+    """An orbiting eye above and in front of the places' box (z is up, as logged at `/`), far
+    enough to take all of it in."""
+    low, high = places.min(axis=0), places.max(axis=0)
+    center, size = (low + high) / 2, max(float(np.linalg.norm(high - low)), 1.0)
+    return rrb.EyeControls3D(kind=rrb.Eye3DKind.Orbital, look_target=center, eye_up=(0.0, 0.0, 1.0),
+                             position=center + size * np.array([-0.3, -0.7, 0.65]))
 
 
 class RerunSink:
@@ -53,9 +102,14 @@ class RerunSink:
         self.rec = rr.RecordingStream("ndfa_detect")
         self._staged = Staged(self.path)  # makes the folder: `--log out/run.rrd` in a fresh checkout
         self.rec.save(str(self._staged.temporary))
+        # Active as well as default: a viewer that remembers an older layout of this app shows this one.
+        self.rec.send_blueprint(detection_blueprint(), make_active=True, make_default=True)
         self.rec.log("/", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
         self._step = 0
         self._observation_entities: dict[str, set[str]] = {"source": set(), "target": set()}
+        self._frame_clouds: dict[tuple[str, int], np.ndarray] = {}  # this frame's partial cloud per mask id
+        self._object_view_size: dict[tuple[str, int], int] = {}  # points in each object's fullest view
+        self._places: dict[str, np.ndarray] = {}  # source objects and changes, in the source world: the eye's
 
     def log(self, event: Event) -> None:
         handler = getattr(self, "_" + type(event).__name__, None)
@@ -63,6 +117,10 @@ class RerunSink:
             handler(event)
 
     def close(self) -> None:
+        if self._places:
+            # The same layout again, its eye now on the whole scene: the viewer takes the last one sent.
+            self.rec.send_blueprint(detection_blueprint(np.stack(list(self._places.values()))),
+                                    make_active=True, make_default=True)
         self.rec.flush()
         self.rec.disconnect()
         self._staged.commit()
@@ -88,22 +146,32 @@ class RerunSink:
         for entity in self._observation_entities[e.session]:
             self.rec.log(entity, rr.Clear(recursive=True))
         self._observation_entities[e.session] = set()
+        self._frame_clouds = {}
 
     def _ObservationEvent(self, e: ObservationEvent) -> None:
         if e.skipped is not None or e.points_world is None:
             return
         entity = f"{e.session}/observations/{e.instance_id}"
         self._observation_entities[e.session].add(entity)
+        self._frame_clouds[e.session, e.instance_id] = e.points_world
         self.rec.log(f"{entity}/partial", rr.Points3D(e.points_world, colors=SESSION_COLORS[e.session], radii=0.002))
         if e.reconstruction_world is not None and len(e.reconstruction_world):
             self.rec.log(f"{entity}/reconstruction", rr.Points3D(e.reconstruction_world, colors=(120, 220, 120), radii=0.003))
-        self.rec.log(f"{entity}/center", rr.Points3D([e.center_world], radii=0.006, labels=[f"mask {e.instance_id}"]))
+        self.rec.log(f"{entity}/center", rr.Points3D([e.center_world], radii=0.006, labels=[f"mask {e.instance_id}"],
+                                                           show_labels=False))
 
     def _AssociationEvent(self, e: AssociationEvent) -> None:
         entity = f"{e.session}/objects/{e.object_id}"
+        if e.session == "source":
+            self._places[entity] = np.asarray(e.center_world, dtype=float)
         self.rec.log(entity, rr.Points3D([e.center_world], colors=SESSION_COLORS[e.session], radii=0.01,
-                                         labels=[f"{e.session[0]}{e.object_id}"]))
+                                         labels=[f"{e.session[0]}{e.object_id}"], show_labels=False))
         self.rec.log(f"{entity}/shape_code", rr.BarChart(np.asarray(e.shape_code, dtype=np.float32)))
+        cloud = self._frame_clouds.get((e.session, e.instance_id))
+        if cloud is not None and len(cloud) > self._object_view_size.get((e.session, e.object_id), 0):
+            self._object_view_size[e.session, e.object_id] = len(cloud)
+            every = -(-len(cloud) // OBJECT_POINTS)  # an even thinning: the view keeps its shape
+            self.rec.log(f"{entity}/points", rr.Points3D(cloud[::every], colors=SESSION_COLORS[e.session], radii=0.004))
 
     def _TreeEvent(self, e: TreeEvent) -> None:
         if not e.cells:
@@ -116,7 +184,7 @@ class RerunSink:
             labels.append(f"{len(ids)} objects")
         # Cells sit on the floor of the session's frame; their height is only for display.
         self.rec.log(f"{e.session}/tree/cells", rr.Boxes3D(mins=mins, sizes=sizes, labels=labels,
-                                                           colors=SESSION_COLORS[e.session]))
+                                                           colors=SESSION_COLORS[e.session], show_labels=False))
 
     def _RegistrationEvent(self, e: RegistrationEvent) -> None:
         if e.accepted and e.transform is not None:
@@ -146,6 +214,7 @@ class RerunSink:
     def _DecisionEvent(self, e: DecisionEvent) -> None:
         position = e.center_source if e.center_source is not None else e.center_world
         if e.kind != "unchanged":
+            self._places[f"decisions/{e.session}_{e.object_id}"] = np.asarray(position, dtype=float)
             self.rec.log(f"decisions/{e.session}_{e.object_id}", rr.Points3D(
                 [position], colors=KIND_COLORS[e.kind], radii=0.03,
                 labels=[f"{e.kind} {e.session[0]}{e.object_id} {e.score:.2f}"]))
