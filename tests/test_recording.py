@@ -79,7 +79,7 @@ def leftover_temp_files(directory: Path) -> list[Path]:
 
 def test_round_trip_keeps_every_field(tmp_path: Path) -> None:
     frames = make_frames()
-    ground_truth = {"objects": [{"id": np.uint16(3), "center": np.array([0.5, 1.0, 0.75])}], "changes": {"added": [3]}}
+    ground_truth = {"objects": [{"instance_id": np.uint16(3), "center": np.array([0.5, 1.0, 0.75])}], "changes": {"added": [3]}}
     reader = RecordingReader(write_recording(tmp_path / "session.mcap", frames, ground_truth))
 
     assert len(reader) == len(frames)
@@ -87,7 +87,7 @@ def test_round_trip_keeps_every_field(tmp_path: Path) -> None:
     assert reader.meta["source"] == "test" and reader.meta["session"] == "unit"
     assert reader.meta["provenance"] == META_IN["provenance"]
     assert reader.meta["depth_scale"] == 0.001
-    assert reader.ground_truth == {"objects": [{"id": 3, "center": [0.5, 1.0, 0.75]}], "changes": {"added": [3]}}
+    assert reader.ground_truth == {"objects": [{"instance_id": 3, "center": [0.5, 1.0, 0.75]}], "changes": {"added": [3]}}
 
     read = list(reader.frames())
     assert len(read) == len(frames)

@@ -60,6 +60,7 @@ from ndfa.io.ingest.tum_layout import (
 )
 from ndfa.io.ingest.tum_lists import StampedList, associate, poses_at, read_list
 from ndfa.io.recording import Frame
+from ndfa.io.recording.ground_truth import ground_truth_problem
 from ndfa.trajectory.tum_format import pose_from_fields
 
 # Frame rate of the synthetic stamps when the folder's own stamps cannot be used (TUM's Kinect rate).
@@ -137,6 +138,9 @@ class TumFolder:
             raise IngestError(f"{path} is not valid JSON: {error}") from error
         if not isinstance(value, dict):
             raise IngestError(f"{path} must hold a JSON object, got {type(value).__name__}")
+        problem = ground_truth_problem(value)
+        if problem:
+            raise IngestError(f"{path}: {problem}")
         return value
 
     def frames(self, images: bool = True) -> Iterator[Frame]:
