@@ -101,7 +101,8 @@ def run_cli(args: list[str], deadline_s: float = DEADLINE_S) -> Outcome:
     start = time.perf_counter()
     code = 0
     try:
-        with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr), warnings.catch_warnings():
+        with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr), \
+                warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("default")
             try:
                 with _deadline(deadline_s):
@@ -116,6 +117,8 @@ def run_cli(args: list[str], deadline_s: float = DEADLINE_S) -> Outcome:
                 stderr.write(traceback.format_exc())
     finally:
         sys.argv, warnings.showwarning = saved_argv, saved_showwarning
+    for warning in caught:  # what Python would have printed: ndfa's own warnings are printed by main
+        stderr.write(warnings.formatwarning(warning.message, warning.category, warning.filename, warning.lineno))
     return Outcome(list(args), code, stdout.getvalue(), stderr.getvalue(), time.perf_counter() - start)
 
 
@@ -125,11 +128,13 @@ def _listing(folder: Path) -> set[str]:
 
 def check_cli(args: list[str], names: list[str], output: Path | None = None,
               check_result: Callable[[Outcome], None] | None = None,
-              deadline_s: float = DEADLINE_S) -> Outcome:
+              deadline_s: float = DEADLINE_S, progress_on_stderr: bool = False) -> Outcome:
     """Run `ndfa ARGS` and assert the property. `names`: what the error line may name the input
     by (its path, or the path of a file inside it); `output`: the command's output file, if any
     (a file there before the run must survive a failure unchanged); `check_result` asserts that a
-    successful run's result is sane."""
+    successful run's result is sane. `progress_on_stderr`: the command reports its progress on
+    stderr (`ndfa detect`: where each session's world came from), so lines before the error line are
+    allowed, as long as none is a traceback or a warning from a library."""
     before_listing = _listing(output.parent) if output is not None else set()
     before = output.read_bytes() if output is not None and output.is_file() else None
 
@@ -141,6 +146,10 @@ def check_cli(args: list[str], names: list[str], output: Path | None = None,
         assert not new, f"left {sorted(new)} beside the output:\n{outcome.describe()}"
     if outcome.code == 2:
         lines = outcome.stderr.strip("\n").split("\n")
+        if progress_on_stderr:
+            assert not any("Traceback" in line or "Warning: " in line for line in lines), outcome.describe()
+            assert sum(line.startswith("error: ") for line in lines) == 1, outcome.describe()
+            lines = lines[-1:]
         assert len(lines) == 1 and lines[0].startswith("error: "), \
             f"exit 2 without exactly one error line:\n{outcome.describe()}"
         assert any(name in lines[0] for name in names), f"the error does not name the input:\n{outcome.describe()}"
@@ -150,6 +159,9 @@ def check_cli(args: list[str], names: list[str], output: Path | None = None,
             else:
                 assert output.is_file() and output.read_bytes() == before, \
                     f"a failed run changed the existing {output}:\n{outcome.describe()}"
-    elif check_result is not None:
-        check_result(outcome)
+    else:
+        library = [line for line in outcome.stderr.splitlines() if "Warning: " in line]
+        assert not library, f"a library's warning reached the user:\n{outcome.describe()}"
+        if check_result is not None:
+            check_result(outcome)
     return outcome

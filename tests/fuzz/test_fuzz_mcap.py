@@ -40,7 +40,7 @@ def check_detect(data: bytes, as_source: bool) -> None:
         pair = [str(path), str(TINY)] if as_source else [str(TINY), str(path)]
         with kept_on_failure(path):
             check_cli(["detect", *pair, "--up", "z", "--threads", "1", "--json", str(json_out)],
-                      [str(path), str(TINY)], output=json_out)
+                      [str(path), str(TINY)], output=json_out, progress_on_stderr=True)
 
 
 def test_mutated_recordings(fuzz_settings):

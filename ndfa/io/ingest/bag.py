@@ -26,6 +26,8 @@ true camera pose when the recorded one is perturbed; both come back into the rec
 
 from __future__ import annotations
 
+import sqlite3
+import struct
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -49,6 +51,10 @@ from ndfa.io.ingest.tf_buffer import frame_name
 
 # Bag errors rosbags raises for missing, truncated or malformed bags.
 _BAG_ERRORS = (AnyReaderError, Rosbag1Error, Rosbag2Error)
+# What rosbags' parsers (and sqlite) raise on damaged bytes beyond their own errors: its ROS1 reader
+# asserts record sizes, and a length field read from damaged bytes can be anything.
+_DAMAGED_DATA_ERRORS = (AssertionError, struct.error, IndexError, UnicodeDecodeError, OverflowError, MemoryError,
+                        EOFError, sqlite3.DatabaseError)
 
 
 @dataclass
@@ -88,18 +94,40 @@ def open_bag(path: Path) -> Iterator[AnyReader]:
     try:
         reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()
-    except (*_BAG_ERRORS, OSError, KeyError, ValueError) as error:
+    except (*_BAG_ERRORS, *_DAMAGED_DATA_ERRORS, OSError, KeyError, ValueError, TypeError) as error:
         hint = " (ROS2 bags are directories with a metadata.yaml, or a ROS2 .mcap/.db3 file; ndfa recordings " \
                "are not bags)" if path.suffix == ".mcap" else ""
         if "index" in str(error).lower() and path.suffix == ".bag":
             hint = " (a ROS1 bag whose recording was cut off has no index: `rosbag reindex` repairs it)"
-        raise IngestError(f"{path}: cannot read the bag: {error}{hint}") from None
+        raise IngestError(f"{path}: cannot read the bag: {one_line(error)}{hint}") from None
     try:
         yield reader
-    except _BAG_ERRORS as error:
-        raise IngestError(f"{path}: the bag is corrupt: {error}") from None
+    except (*_BAG_ERRORS, *_DAMAGED_DATA_ERRORS) as error:
+        raise IngestError(f"{path}: the bag is corrupt: {one_line(error)}") from None
     finally:
-        reader.close()
+        try:
+            reader.close()
+        except (*_BAG_ERRORS, *_DAMAGED_DATA_ERRORS, OSError):
+            pass  # closing a damaged bag: the error that matters is already on its way
+
+
+def one_line(error: BaseException) -> str:
+    """A library's error as one line: a YAML parser's report (a broken ROS2 metadata.yaml) becomes
+    its problem and position; any other text has its line breaks folded; an empty one is named by its type."""
+    cause: BaseException | None = error
+    while cause is not None:  # rosbags wraps its YAML parser's (ruamel's) error: found by what it has
+        if "yaml" in type(cause).__module__:
+            mark = getattr(cause, "problem_mark", None)
+            problem = getattr(cause, "problem", None) or getattr(cause, "context", None)
+            if problem and mark is not None:
+                return f"metadata.yaml is not valid YAML: {problem} at line {mark.line + 1}, column {mark.column + 1}"
+            first = str(cause).strip().splitlines()[:1]
+            return f"metadata.yaml is not valid YAML: {first[0] if first else type(cause).__name__}"
+        cause = cause.__cause__ or cause.__context__
+    if isinstance(error, AssertionError) and not str(error):  # rosbags' ROS1 reader asserts record sizes
+        return "a record's sizes do not match its contents (the file is damaged)"
+    text = " ".join(str(error).split())
+    return (text[:300] + "...") if len(text) > 300 else text or type(error).__name__
 
 
 def ingest_bag(
