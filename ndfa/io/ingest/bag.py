@@ -94,12 +94,18 @@ def open_bag(path: Path) -> Iterator[AnyReader]:
     try:
         reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()
-    except (*_BAG_ERRORS, *_DAMAGED_DATA_ERRORS, OSError, KeyError, ValueError, TypeError) as error:
+        # rosbags takes a ROS2 metadata.yaml's values as they come: a topic name that is a mapping
+        # fails only when topics are sorted. Touch them here, where the error is the bag's.
+        _ = reader.topics, [(c.topic + c.msgtype, c.msgcount + 0) for c in reader.connections]
+    except (*_BAG_ERRORS, *_DAMAGED_DATA_ERRORS, OSError, KeyError, ValueError, TypeError, AttributeError) as error:
         hint = " (ROS2 bags are directories with a metadata.yaml, or a ROS2 .mcap/.db3 file; ndfa recordings " \
                "are not bags)" if path.suffix == ".mcap" else ""
         if "index" in str(error).lower() and path.suffix == ".bag":
             hint = " (a ROS1 bag whose recording was cut off has no index: `rosbag reindex` repairs it)"
-        raise IngestError(f"{path}: cannot read the bag: {one_line(error)}{hint}") from None
+        what = one_line(error)
+        if isinstance(error, (TypeError, AttributeError)) and path.is_dir():
+            what = f"its metadata.yaml holds a value of the wrong type ({what})"
+        raise IngestError(f"{path}: cannot read the bag: {what}{hint}") from None
     try:
         yield reader
     except (*_BAG_ERRORS, *_DAMAGED_DATA_ERRORS) as error:
