@@ -311,3 +311,16 @@ def test_zero_quaternions_in_tf_and_nan_intrinsics_skip_frames(tmp_path):
     assert summary.skipped == {"invalid frame (K must be a finite (3, 3) matrix, got shape (3, 3))": 1}
     for frame in RecordingReader(tmp_path / "out.mcap").frames():
         assert np.all(np.isfinite(frame.pose_world_camera))
+
+
+def test_a_damaged_sqlite_bag_is_one_line(small_recording, tmp_path):
+    """rosbags reads ROS2 sqlite3 storage with apsw, whose CorruptError once escaped as a traceback."""
+    bag = tmp_path / "run"
+    export_bag(small_recording, bag, version=2, storage="sqlite3")
+    database = bag / "run.db3"
+    data = bytearray(database.read_bytes())
+    data[len(data) // 2:] = bytes(len(data) - len(data) // 2)  # the second half zeroed
+    database.write_bytes(bytes(data))
+    with pytest.raises(IngestError, match=r"run: (the bag is corrupt|cannot read the bag): "):
+        ingest_bag(bag, tmp_path / "out.mcap")
+    assert not (tmp_path / "out.mcap").exists()

@@ -19,7 +19,7 @@ from tests.fuzz.bag_inputs import (
     ros2_storage_file,
     write_broken_bag,
 )
-from tests.fuzz.property import Outcome, check_cli, kept_on_failure
+from tests.fuzz.property import Blob, Outcome, check_cli, kept_on_failure
 from tests.fuzz.seeds import SEED
 
 pytestmark = pytest.mark.fuzz
@@ -76,8 +76,8 @@ def test_mutated_ros2_bags(fuzz_settings, sqlite_seed, flavour):
     storage = ros2_storage_file(seed).read_bytes()
     metadata = (seed / "metadata.yaml").read_text()
     storage_mutation = mutated_mcap(storage) if flavour == "mcap" else st.builds(
-        lambda at, bit, cut: storage[:cut][:at] + bytes([storage[at] ^ (1 << bit)]) + storage[at + 1:cut]
-        if at < cut else storage[:cut],
+        lambda at, bit, cut: Blob(storage[:cut][:at] + bytes([storage[at] ^ (1 << bit)]) + storage[at + 1:cut]
+                                  if at < cut else storage[:cut]),
         st.integers(0, len(storage) - 1), st.integers(0, 7), st.integers(0, len(storage)))
 
     @fuzz_settings

@@ -33,6 +33,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import apsw
 from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.rosbag1 import ReaderError as Rosbag1Error
 from rosbags.rosbag2 import ReaderError as Rosbag2Error
@@ -53,8 +54,9 @@ from ndfa.io.ingest.tf_buffer import frame_name
 _BAG_ERRORS = (AnyReaderError, Rosbag1Error, Rosbag2Error)
 # What rosbags' parsers (and sqlite) raise on damaged bytes beyond their own errors: its ROS1 reader
 # asserts record sizes, and a length field read from damaged bytes can be anything.
+# rosbags reads ROS2 sqlite3 storage with apsw (its dependency), whose errors are not sqlite3's.
 _DAMAGED_DATA_ERRORS = (AssertionError, struct.error, IndexError, UnicodeDecodeError, OverflowError, MemoryError,
-                        EOFError, sqlite3.DatabaseError)
+                        EOFError, sqlite3.DatabaseError, apsw.Error)
 
 
 @dataclass
