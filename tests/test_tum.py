@@ -294,3 +294,10 @@ def test_an_import_of_no_frames_fails(tmp_path):
                                           r"\(5 missing depth PNG\)"):
         ingest_tum(folder, tmp_path / "out.mcap")
     assert not (tmp_path / "out.mcap").exists()
+
+
+def test_non_finite_intrinsics_in_calibration_txt_name_the_file(tmp_path):
+    folder = make_folder(tmp_path / "tum")
+    (folder / "calibration.txt").write_text("# fx fy cx cy\nnan 525 319.5 239.5\n")
+    with pytest.raises(IngestError, match=r"calibration.txt: intrinsics must have finite fx, fy > 0"):
+        ingest_tum(folder, tmp_path / "out.mcap")

@@ -11,7 +11,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from tests.fuzz.mcap_inputs import foreign_mcap, mutated_mcap, read_messages, rewritten_recording
-from tests.fuzz.property import Outcome, check_cli, kept_on_failure
+from tests.fuzz.property import Outcome, check_cli, kept_on_failure, run_cli
 from tests.fuzz.seeds import SEED
 
 pytestmark = pytest.mark.fuzz
@@ -77,6 +77,9 @@ def test_foreign_mcaps(fuzz_settings):
 def test_detect_on_mutated_recordings(fuzz_settings):
     """detect is slow (it loads the NDF): a fifth of the examples of the other generators."""
     seed, messages = TINY.read_bytes(), read_messages(TINY)
+    # The first run imports what detect needs (torch, open3d: ~10 s on a busy machine), which the
+    # per-input deadline must not count; an import cut off by the deadline would break later runs.
+    run_cli(["detect", str(TINY), str(TINY), "--up", "z", "--threads", "1"], deadline_s=300)
 
     @fuzz_settings.__class__(fuzz_settings, max_examples=max(fuzz_settings.max_examples // 5, 3))
     @given(st.one_of(mutated_mcap(seed), rewritten_recording(messages)), st.booleans())

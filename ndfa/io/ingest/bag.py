@@ -29,7 +29,7 @@ from __future__ import annotations
 import sqlite3
 import struct
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -93,6 +93,7 @@ def open_bag(path: Path) -> Iterator[AnyReader]:
     if path.is_file() and path.suffix not in (".bag", ".mcap", ".db3"):
         raise IngestError(f"{path}: not a bag: ROS1 bags end in .bag; ROS2 bags are directories "
                           "(or a single .db3 or .mcap file)")
+    reader = None
     try:
         reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()
@@ -104,6 +105,9 @@ def open_bag(path: Path) -> Iterator[AnyReader]:
                "are not bags)" if path.suffix == ".mcap" else ""
         if "index" in str(error).lower() and path.suffix == ".bag":
             hint = " (a ROS1 bag whose recording was cut off has no index: `rosbag reindex` repairs it)"
+        if reader is not None:
+            with suppress(Exception):  # open, but its topics are broken: its files must not be left open
+                reader.close()
         what = one_line(error)
         if isinstance(error, (TypeError, AttributeError)) and path.is_dir():
             what = f"its metadata.yaml holds a value of the wrong type ({what})"

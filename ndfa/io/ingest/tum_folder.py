@@ -259,12 +259,13 @@ class TumFolder:
             source, chosen = CALIBRATION, read_calibration(self.folder / CALIBRATION)
         else:
             source, chosen = "TUM ROS default (no intrinsics given)", DEFAULT_INTRINSICS
+        where = f"{self.folder / CALIBRATION}: " if source == CALIBRATION else ""  # else an option: no file to name
         try:
             fx, fy, cx, cy = (float(v) for v in chosen)
         except (TypeError, ValueError):
-            raise IngestError(f"intrinsics must be (fx, fy, cx, cy), got {chosen!r}") from None
-        if not (fx > 0 and fy > 0 and np.isfinite([cx, cy]).all()):
-            raise IngestError(f"intrinsics must have fx, fy > 0 and finite cx, cy, got {chosen!r}")
+            raise IngestError(f"{where}intrinsics must be (fx, fy, cx, cy), got {chosen!r}") from None
+        if not (0 < fx < np.inf and 0 < fy < np.inf and np.isfinite([cx, cy]).all()):
+            raise IngestError(f"{where}intrinsics must have finite fx, fy > 0 and finite cx, cy, got {chosen!r}")
         K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
         return K, {"source": source, "fx": fx, "fy": fy, "cx": cx, "cy": cy}
 
