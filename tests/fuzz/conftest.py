@@ -11,6 +11,15 @@ from hypothesis import HealthCheck, settings
 SHORT_EXAMPLES = 25
 
 
+def pytest_terminal_summary(terminalreporter) -> None:
+    """How many generated inputs went through the property, by command (the long pass's count)."""
+    from tests.fuzz.property import CHECKED
+
+    if CHECKED:
+        by_command = ", ".join(f"{command} {count}" for command, count in sorted(CHECKED.items()))
+        terminalreporter.write_line(f"fuzz: {sum(CHECKED.values())} inputs checked ({by_command})")
+
+
 @pytest.fixture
 def fuzz_settings(request) -> settings:
     """What a fuzz test's inner @given function is decorated with. `fuzz_settings(scale)` in a

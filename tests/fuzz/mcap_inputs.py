@@ -27,7 +27,7 @@ def interesting_u64(original: int = 0, size: int = 0) -> st.SearchStrategy[int]:
     return st.one_of(
         st.sampled_from([0, 1, 2**31 - 1, 2**31, 2**32 - 1, 2**32, 2**63 - 1, 2**63, 2**64 - 1]),
         st.integers(1, 64).map(lambda k: 2**64 - k),
-        st.integers(-16, 16).map(lambda d: max(0, original + d)),
+        st.integers(-16, 16).map(lambda d: min(max(0, original + d), 2**64 - 1)),
         st.integers(0, 4).map(lambda k: max(0, size * k // 2 + k - 2)),
         st.integers(0, 2**64 - 1),
     )

@@ -22,11 +22,15 @@ import sys
 import tempfile
 import time
 import warnings
+from collections import Counter
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 DEADLINE_S = 10.0
+
+# Inputs checked in this session, by command ("info", "ingest tum", ...): the fuzz conftest reports them.
+CHECKED: Counter[str] = Counter()
 
 
 # Where an input that breaks the property is kept, to be replayed or added to corpus/regressions/.
@@ -139,6 +143,7 @@ def check_cli(args: list[str], names: list[str], output: Path | None = None,
     before = output.read_bytes() if output is not None and output.is_file() else None
 
     outcome = run_cli(args, deadline_s)
+    CHECKED[" ".join(args[:2]) if args[0] == "ingest" else args[0]] += 1
 
     assert outcome.code in (0, 2), f"exit code {outcome.code} (a traceback or a hang):\n{outcome.describe()}"
     if output is not None:
