@@ -324,3 +324,12 @@ def test_a_damaged_sqlite_bag_is_one_line(small_recording, tmp_path):
     with pytest.raises(IngestError, match=r"run: (the bag is corrupt|cannot read the bag): "):
         ingest_bag(bag, tmp_path / "out.mcap")
     assert not (tmp_path / "out.mcap").exists()
+
+
+def test_a_ros1_message_of_an_unknown_connection_is_one_line(tmp_path):
+    """rosbags' ROS1 reader once let a KeyError out for a record naming connection 256 of 9."""
+    corpus = Path(__file__).resolve().parent / "fuzz" / "corpus" / "regressions" / "bag" / "ros1-unknown-connection.bag"
+    with pytest.raises(IngestError, match=r"ros1-unknown-connection.bag: the bag is corrupt: rosbags cannot read it "
+                                          r"\(KeyError: 256\)"):
+        ingest_bag(corpus, tmp_path / "out.mcap")
+    assert not (tmp_path / "out.mcap").exists()

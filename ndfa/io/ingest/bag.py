@@ -26,6 +26,7 @@ true camera pose when the recorded one is perturbed; both come back into the rec
 
 from __future__ import annotations
 
+import os
 import sqlite3
 import struct
 from collections.abc import Iterator
@@ -116,11 +117,26 @@ def open_bag(path: Path) -> Iterator[AnyReader]:
         yield reader
     except (*_BAG_ERRORS, *_DAMAGED_DATA_ERRORS) as error:
         raise IngestError(f"{path}: the bag is corrupt: {one_line(error)}") from None
+    except (KeyError, ValueError, TypeError, AttributeError) as error:
+        if not _raised_in_rosbags(error):
+            raise  # ndfa's own bug: a traceback, not a message blaming the bag
+        # e.g. a ROS1 message record naming a connection the bag does not have (KeyError)
+        raise IngestError(f"{path}: the bag is corrupt: rosbags cannot read it ({type(error).__name__}: "
+                          f"{one_line(error)})") from None
     finally:
         try:
             reader.close()
         except (*_BAG_ERRORS, *_DAMAGED_DATA_ERRORS, OSError):
             pass  # closing a damaged bag: the error that matters is already on its way
+
+
+def _raised_in_rosbags(error: BaseException) -> bool:
+    """Whether `error` was raised inside rosbags' own code: its parsers index and convert what they
+    read, so damaged bytes end there as plain KeyErrors or ValueErrors."""
+    traceback = error.__traceback__
+    while traceback is not None and traceback.tb_next is not None:
+        traceback = traceback.tb_next
+    return traceback is not None and f"{os.sep}rosbags{os.sep}" in traceback.tb_frame.f_code.co_filename
 
 
 def one_line(error: BaseException) -> str:
