@@ -4,6 +4,12 @@ import pytest
 import torch
 
 
+def pytest_addoption(parser):
+    parser.addoption("--fuzz-examples", type=int, default=None,
+                     help="Examples per fuzz generator (tests/fuzz), drawn at random: the long pass. "
+                          "Default: a short derandomized pass.")
+
+
 @pytest.fixture(autouse=True)
 def one_torch_thread():
     """Tests use tiny tensors: a second thread costs more in synchronisation than it saves, and on a

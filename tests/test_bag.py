@@ -262,3 +262,74 @@ def test_image_decoders():
         ros_images.depth_from_image(Message(encoding="yuv422", height=1, width=1, step=2, is_bigendian=0, data=b"ab"))
     with pytest.raises(ros_images.ImageDecodeError):
         ros_images.depth_from_image(Message(encoding="16UC1", height=4, width=4, step=8, is_bigendian=0, data=np.zeros(5, np.uint8)))
+
+
+# -- bad input found by the fuzz suite (issue 18) -------------------------------------------------------
+
+def test_a_broken_metadata_yaml_is_one_line(tmp_path):
+    """The YAML parser's report (several lines, with a caret under the column) summarised."""
+    _write_bag(tmp_path / "bag")
+    text = (tmp_path / "bag" / "metadata.yaml").read_text().splitlines()
+    text[2] = "{"
+    (tmp_path / "bag" / "metadata.yaml").write_text("\n".join(text) + "\n")
+    with pytest.raises(IngestError) as raised:
+        ingest_bag(tmp_path / "bag", tmp_path / "out.mcap")
+    message = str(raised.value)
+    assert "\n" not in message and "metadata.yaml is not valid YAML" in message and "at line" in message
+    assert not (tmp_path / "out.mcap").exists()
+
+
+def test_a_metadata_yaml_value_of_the_wrong_type_is_one_line(tmp_path):
+    _write_bag(tmp_path / "bag")
+    path = tmp_path / "bag" / "metadata.yaml"
+    path.write_text(path.read_text().replace("name: /cam/info", "name: {}"))
+    with pytest.raises(IngestError, match=r"metadata.yaml holds a value of the wrong type"):
+        ingest_bag(tmp_path / "bag", tmp_path / "out.mcap")
+
+
+def test_a_damaged_ros1_record_is_one_line(tmp_path):
+    """rosbags' ROS1 reader asserts record sizes: a bare AssertionError once escaped."""
+    corpus = Path(__file__).resolve().parent / "fuzz" / "corpus" / "regressions" / "bag" / "ros1-record-size.bag"
+    with pytest.raises(IngestError, match=r"ros1-record-size.bag: cannot read the bag: a record's sizes do not match"):
+        ingest_bag(corpus, tmp_path / "out.mcap")
+
+
+def test_zero_quaternions_in_tf_and_nan_intrinsics_skip_frames(tmp_path):
+    """A zero quaternion on /tf once became a NaN pose (and a numpy warning); NaN intrinsics a
+    ValueError from Frame. The tf sample is refused (frame 1's pose is interpolated between its
+    neighbours'), the frame with NaN intrinsics skipped and counted, the others imported."""
+    import warnings
+
+    from tests.fuzz.bag_inputs import write_broken_bag
+
+    bag = write_broken_bag(tmp_path / "broken", {"version": (2, "sqlite3"), "frames": 3, "value": 0,
+                                                 "breaks": [("tf zero quaternion", 1), ("info nan K", 2)]})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        summary = ingest_bag(bag, tmp_path / "out.mcap")
+    assert summary.frames == 2
+    assert summary.skipped == {"invalid frame (K must be a finite (3, 3) matrix, got shape (3, 3))": 1}
+    for frame in RecordingReader(tmp_path / "out.mcap").frames():
+        assert np.all(np.isfinite(frame.pose_world_camera))
+
+
+def test_a_damaged_sqlite_bag_is_one_line(small_recording, tmp_path):
+    """rosbags reads ROS2 sqlite3 storage with apsw, whose CorruptError once escaped as a traceback."""
+    bag = tmp_path / "run"
+    export_bag(small_recording, bag, version=2, storage="sqlite3")
+    database = bag / "run.db3"
+    data = bytearray(database.read_bytes())
+    data[len(data) // 2:] = bytes(len(data) - len(data) // 2)  # the second half zeroed
+    database.write_bytes(bytes(data))
+    with pytest.raises(IngestError, match=r"run: (the bag is corrupt|cannot read the bag): "):
+        ingest_bag(bag, tmp_path / "out.mcap")
+    assert not (tmp_path / "out.mcap").exists()
+
+
+def test_a_ros1_message_of_an_unknown_connection_is_one_line(tmp_path):
+    """rosbags' ROS1 reader once let a KeyError out for a record naming connection 256 of 9."""
+    corpus = Path(__file__).resolve().parent / "fuzz" / "corpus" / "regressions" / "bag" / "ros1-unknown-connection.bag"
+    with pytest.raises(IngestError, match=r"ros1-unknown-connection.bag: the bag is corrupt: rosbags cannot read it "
+                                          r"\(KeyError: 256\)"):
+        ingest_bag(corpus, tmp_path / "out.mcap")
+    assert not (tmp_path / "out.mcap").exists()

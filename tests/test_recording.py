@@ -79,7 +79,7 @@ def leftover_temp_files(directory: Path) -> list[Path]:
 
 def test_round_trip_keeps_every_field(tmp_path: Path) -> None:
     frames = make_frames()
-    ground_truth = {"objects": [{"id": np.uint16(3), "center": np.array([0.5, 1.0, 0.75])}], "changes": {"added": [3]}}
+    ground_truth = {"objects": [{"instance_id": np.uint16(3), "center": np.array([0.5, 1.0, 0.75])}], "changes": {"added": [3]}}
     reader = RecordingReader(write_recording(tmp_path / "session.mcap", frames, ground_truth))
 
     assert len(reader) == len(frames)
@@ -87,7 +87,7 @@ def test_round_trip_keeps_every_field(tmp_path: Path) -> None:
     assert reader.meta["source"] == "test" and reader.meta["session"] == "unit"
     assert reader.meta["provenance"] == META_IN["provenance"]
     assert reader.meta["depth_scale"] == 0.001
-    assert reader.ground_truth == {"objects": [{"id": 3, "center": [0.5, 1.0, 0.75]}], "changes": {"added": [3]}}
+    assert reader.ground_truth == {"objects": [{"instance_id": 3, "center": [0.5, 1.0, 0.75]}], "changes": {"added": [3]}}
 
     read = list(reader.frames())
     assert len(read) == len(frames)
@@ -371,3 +371,64 @@ def test_a_recording_names_its_format_as_the_shipped_sample_does(tmp_path: Path)
         writer.write_frame(frame)
     written = RecordingReader(tmp_path / "x.mcap").meta
     assert (written["format"], written["format_version"]) == (shipped["format"], shipped["format_version"]) == ("ndfa.recording", 1)
+
+
+# -- damaged files (issue 18; tests/fuzz finds more) ---------------------------------------------------
+
+def _tiny_with_chunk_field(tmp_path: Path, field_offset: int, value: int) -> Path:
+    """The fuzz seed recording with one u64 field of its first chunk's header set to `value`
+    (field_offset: bytes after the chunk record's body start)."""
+    import struct
+
+    from tests.fuzz.mcap_inputs import CHUNK_OPCODE, top_level_records
+    from tests.fuzz.seeds import SEED
+
+    data = bytearray((SEED / "tiny.mcap").read_bytes())
+    offset = next(o for o, opcode, _ in top_level_records(bytes(data)) if opcode == CHUNK_OPCODE)
+    struct.pack_into("<Q", data, offset + 9 + field_offset, value)
+    path = tmp_path / "damaged.mcap"
+    path.write_bytes(bytes(data))
+    return path
+
+
+@pytest.mark.parametrize("value", [2**63, 2**64 - 1, 2**40])
+def test_a_huge_uncompressed_chunk_size_is_refused_before_decompressing(tmp_path, value):
+    """Once an OverflowError (2^63) or a MemoryError (2^40) from the zstd decompressor."""
+    path = _tiny_with_chunk_field(tmp_path, 16, value)
+    with pytest.raises(RecordingError, match=rf"damaged.mcap is corrupt: the chunk at byte \d+ says it holds {value} bytes"):
+        RecordingReader(path)
+
+
+@pytest.mark.parametrize("value", [0, 2**63, 2**64 - 1])
+def test_a_chunk_records_length_that_does_not_fit_is_refused(tmp_path, value):
+    path = _tiny_with_chunk_field(tmp_path, 32 + len("zstd"), value)
+    with pytest.raises(RecordingError, match=rf"the chunk at byte \d+ holds {value} bytes of records by its header"):
+        RecordingReader(path)
+
+
+@pytest.mark.parametrize("value", [0, 2**63 - 1, 2**64 - 9])
+def test_a_record_length_past_the_end_is_refused(tmp_path, value):
+    import struct
+
+    from tests.fuzz.mcap_inputs import top_level_records
+    from tests.fuzz.seeds import SEED
+
+    data = bytearray((SEED / "tiny.mcap").read_bytes())
+    offset = top_level_records(bytes(data))[2][0]
+    struct.pack_into("<Q", data, offset + 1, value)
+    (tmp_path / "damaged.mcap").write_bytes(bytes(data))
+    with pytest.raises(RecordingError, match=r"damaged.mcap is corrupt: (the record at byte \d+|its records do not end|"
+                                             r"the chunk at byte|a record at byte)"):
+        RecordingReader(tmp_path / "damaged.mcap")
+
+
+def test_a_ground_truth_without_instance_ids_is_refused_on_open(tmp_path, monkeypatch):
+    """Once a KeyError deep in the scoring of `ndfa detect`. The writer refuses to write one; a
+    recording from elsewhere (here: the writer with its check off) is refused when opened."""
+    with pytest.raises(RecordingError, match=r'session.mcap: ground truth: "objects"\[0\] has no integer "instance_id"'):
+        write_recording(tmp_path / "session.mcap", make_frames(), {"objects": [{"id": 3}]})
+    assert not (tmp_path / "session.mcap").exists()
+    monkeypatch.setattr("ndfa.io.recording.writer.ground_truth_problem", lambda truth: None)
+    path = write_recording(tmp_path / "session.mcap", make_frames(), {"objects": [{"id": 3}]})
+    with pytest.raises(RecordingError, match=r'session.mcap: channel /ndfa/ground_truth: "objects"\[0\] has no integer "instance_id"'):
+        RecordingReader(path)

@@ -264,3 +264,40 @@ def test_cli_imports_and_exports(tmp_path):
     result = runner.invoke(app, ["export", "tum", str(tmp_path / "a.mcap"), "--out", str(tmp_path / "again")])
     assert result.exit_code == 0, result.output
     assert (tmp_path / "again" / "calibration.txt").read_text().splitlines()[-1] == "500.0 501.0 3.5 2.5"
+
+
+# -- bad input found by the fuzz suite (issue 18) -------------------------------------------------------
+
+@pytest.mark.parametrize("quaternion", ["0 0 0 0", "1e300 1e300 1e300 1e300"])
+def test_an_impossible_quaternion_in_groundtruth_names_the_line(tmp_path, quaternion):
+    """A zero quaternion once became a NaN pose (a numpy warning, then an error naming a depth PNG)."""
+    folder = make_folder(tmp_path / "tum", comments=False)
+    lines = (folder / "groundtruth.txt").read_text().splitlines()
+    lines[3] = " ".join(lines[3].split()[:4]) + " " + quaternion
+    (folder / "groundtruth.txt").write_text("\n".join(lines) + "\n")
+    result = CliRunner().invoke(app, ["ingest", "tum", str(folder), "--out", str(tmp_path / "out.mcap")])
+    assert isinstance(result.exception, IngestError)
+    assert "groundtruth.txt, line 4" in str(result.exception) and "is no rotation" in str(result.exception)
+    assert not (tmp_path / "out.mcap").exists()
+
+
+def test_an_import_of_no_frames_fails(tmp_path):
+    """An empty depth.txt, or every depth PNG missing, once wrote a recording of 0 frames and exited 0."""
+    folder = make_folder(tmp_path / "tum")
+    (folder / "depth.txt").write_text("# nothing\n")
+    with pytest.raises(IngestError, match=r"no frames to import: depth.txt lists no depth images"):
+        ingest_tum(folder, tmp_path / "out.mcap")
+    folder = make_folder(tmp_path / "tum2")
+    for png in (folder / "depth").iterdir():
+        png.unlink()
+    with pytest.raises(IngestError, match=r"no frames to import: all 5 depth images of depth.txt were dropped "
+                                          r"\(5 missing depth PNG\)"):
+        ingest_tum(folder, tmp_path / "out.mcap")
+    assert not (tmp_path / "out.mcap").exists()
+
+
+def test_non_finite_intrinsics_in_calibration_txt_name_the_file(tmp_path):
+    folder = make_folder(tmp_path / "tum")
+    (folder / "calibration.txt").write_text("# fx fy cx cy\nnan 525 319.5 239.5\n")
+    with pytest.raises(IngestError, match=r"calibration.txt: intrinsics must have finite fx, fy > 0"):
+        ingest_tum(folder, tmp_path / "out.mcap")

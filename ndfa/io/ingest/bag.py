@@ -26,11 +26,15 @@ true camera pose when the recorded one is perturbed; both come back into the rec
 
 from __future__ import annotations
 
+import os
+import sqlite3
+import struct
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import apsw
 from rosbags.highlevel import AnyReader, AnyReaderError
 from rosbags.rosbag1 import ReaderError as Rosbag1Error
 from rosbags.rosbag2 import ReaderError as Rosbag2Error
@@ -49,6 +53,11 @@ from ndfa.io.ingest.tf_buffer import frame_name
 
 # Bag errors rosbags raises for missing, truncated or malformed bags.
 _BAG_ERRORS = (AnyReaderError, Rosbag1Error, Rosbag2Error)
+# What rosbags' parsers (and sqlite) raise on damaged bytes beyond their own errors: its ROS1 reader
+# asserts record sizes, and a length field read from damaged bytes can be anything.
+# rosbags reads ROS2 sqlite3 storage with apsw (its dependency), whose errors are not sqlite3's.
+_DAMAGED_DATA_ERRORS = (AssertionError, struct.error, IndexError, UnicodeDecodeError, OverflowError, MemoryError,
+                        EOFError, sqlite3.DatabaseError, apsw.Error)
 
 
 @dataclass
@@ -85,21 +94,68 @@ def open_bag(path: Path) -> Iterator[AnyReader]:
     if path.is_file() and path.suffix not in (".bag", ".mcap", ".db3"):
         raise IngestError(f"{path}: not a bag: ROS1 bags end in .bag; ROS2 bags are directories "
                           "(or a single .db3 or .mcap file)")
+    reader = None
     try:
         reader = AnyReader([path], default_typestore=get_typestore(Stores.ROS2_HUMBLE))
         reader.open()
-    except (*_BAG_ERRORS, OSError, KeyError, ValueError) as error:
+        # rosbags takes a ROS2 metadata.yaml's values as they come: a topic name that is a mapping
+        # fails only when topics are sorted. Touch them here, where the error is the bag's.
+        _ = reader.topics, [(c.topic + c.msgtype, c.msgcount + 0) for c in reader.connections]
+    except (*_BAG_ERRORS, *_DAMAGED_DATA_ERRORS, OSError, KeyError, ValueError, TypeError, AttributeError) as error:
         hint = " (ROS2 bags are directories with a metadata.yaml, or a ROS2 .mcap/.db3 file; ndfa recordings " \
                "are not bags)" if path.suffix == ".mcap" else ""
         if "index" in str(error).lower() and path.suffix == ".bag":
             hint = " (a ROS1 bag whose recording was cut off has no index: `rosbag reindex` repairs it)"
-        raise IngestError(f"{path}: cannot read the bag: {error}{hint}") from None
+        if reader is not None:
+            with suppress(Exception):  # open, but its topics are broken: its files must not be left open
+                reader.close()
+        what = one_line(error)
+        if isinstance(error, (TypeError, AttributeError)) and path.is_dir():
+            what = f"its metadata.yaml holds a value of the wrong type ({what})"
+        raise IngestError(f"{path}: cannot read the bag: {what}{hint}") from None
     try:
         yield reader
-    except _BAG_ERRORS as error:
-        raise IngestError(f"{path}: the bag is corrupt: {error}") from None
+    except (*_BAG_ERRORS, *_DAMAGED_DATA_ERRORS) as error:
+        raise IngestError(f"{path}: the bag is corrupt: {one_line(error)}") from None
+    except (KeyError, ValueError, TypeError, AttributeError) as error:
+        if not _raised_in_rosbags(error):
+            raise  # ndfa's own bug: a traceback, not a message blaming the bag
+        # e.g. a ROS1 message record naming a connection the bag does not have (KeyError)
+        raise IngestError(f"{path}: the bag is corrupt: rosbags cannot read it ({type(error).__name__}: "
+                          f"{one_line(error)})") from None
     finally:
-        reader.close()
+        try:
+            reader.close()
+        except (*_BAG_ERRORS, *_DAMAGED_DATA_ERRORS, OSError):
+            pass  # closing a damaged bag: the error that matters is already on its way
+
+
+def _raised_in_rosbags(error: BaseException) -> bool:
+    """Whether `error` was raised inside rosbags' own code: its parsers index and convert what they
+    read, so damaged bytes end there as plain KeyErrors or ValueErrors."""
+    traceback = error.__traceback__
+    while traceback is not None and traceback.tb_next is not None:
+        traceback = traceback.tb_next
+    return traceback is not None and f"{os.sep}rosbags{os.sep}" in traceback.tb_frame.f_code.co_filename
+
+
+def one_line(error: BaseException) -> str:
+    """A library's error as one line: a YAML parser's report (a broken ROS2 metadata.yaml) becomes
+    its problem and position; any other text has its line breaks folded; an empty one is named by its type."""
+    cause: BaseException | None = error
+    while cause is not None:  # rosbags wraps its YAML parser's (ruamel's) error: found by what it has
+        if "yaml" in type(cause).__module__:
+            mark = getattr(cause, "problem_mark", None)
+            problem = getattr(cause, "problem", None) or getattr(cause, "context", None)
+            if problem and mark is not None:
+                return f"metadata.yaml is not valid YAML: {problem} at line {mark.line + 1}, column {mark.column + 1}"
+            first = str(cause).strip().splitlines()[:1]
+            return f"metadata.yaml is not valid YAML: {first[0] if first else type(cause).__name__}"
+        cause = cause.__cause__ or cause.__context__
+    if isinstance(error, AssertionError) and not str(error):  # rosbags' ROS1 reader asserts record sizes
+        return "a record's sizes do not match its contents (the file is damaged)"
+    text = " ".join(str(error).split())
+    return (text[:300] + "...") if len(text) > 300 else text or type(error).__name__
 
 
 def ingest_bag(

@@ -174,9 +174,13 @@ def _write_frame(writer: RecordingWriter, path: Path, chosen: dict[str, str], pl
         skipped["image size changed"] += 1
         return 0
     image_size[:] = [depth.shape]
-    frame = Frame(index=index, timestamp=plan.stamp / 1e9, rgb=parts.get("color"), depth=depth, K=plan.K,
-                  pose_world_camera=plan.pose if plan.pose is not None else np.eye(4),
-                  instances=parts.get("mask"), pose_world_camera_true=plan.true_pose)
+    try:
+        frame = Frame(index=index, timestamp=plan.stamp / 1e9, rgb=parts.get("color"), depth=depth, K=plan.K,
+                      pose_world_camera=plan.pose if plan.pose is not None else np.eye(4),
+                      instances=parts.get("mask"), pose_world_camera_true=plan.true_pose)
+    except ValueError as error:  # NaN intrinsics in its CameraInfo, an impossible pose: skipped as undecodable
+        skipped[f"invalid frame ({error})"] += 1
+        return 0
     if estimate_poses is not None:
         frame.pose_world_camera = np.asarray(estimate_poses(frame), dtype=np.float64)
     writer.write_frame(frame)

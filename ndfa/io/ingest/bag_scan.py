@@ -19,6 +19,7 @@ from ndfa.core.geometry import make_pose, matrix_from_quaternion_xyzw
 from ndfa.io.ingest import ros_images
 from ndfa.io.ingest.bag_topics import GROUND_TRUTH_POSE_TOPIC, GROUND_TRUTH_TOPIC, IMAGE, ODOMETRY, TF_MESSAGE
 from ndfa.io.ingest.tf_buffer import TransformBuffer, stamp_ns
+from ndfa.io.recording.ground_truth import ground_truth_problem
 
 
 @dataclass
@@ -111,4 +112,7 @@ def _ground_truth(path: Path, text: str) -> dict:
         raise IngestError(f"{path}: {GROUND_TRUTH_TOPIC} is not JSON: {error}") from None
     if not isinstance(truth, dict):
         raise IngestError(f"{path}: {GROUND_TRUTH_TOPIC} must hold a JSON object")
+    problem = ground_truth_problem(truth)
+    if problem:
+        raise IngestError(f"{path}: {GROUND_TRUTH_TOPIC}: {problem}")
     return truth

@@ -91,16 +91,23 @@ class TransformBuffer:
         self.tolerance_ns = tolerance_ns
         self._edges: dict[str, _Edge] = {}  # child -> edge to its parent
         self.conflicts: set[str] = set()
+        self.invalid = 0  # samples left out: a zero or non-finite quaternion, a non-finite translation
 
     def add(self, parent: str, child: str, stamp_ns: int, translation: np.ndarray, quaternion_xyzw: np.ndarray,
             static: bool) -> None:
+        translation, quaternion_xyzw = np.asarray(translation, float), np.asarray(quaternion_xyzw, float)
+        with np.errstate(over="ignore", invalid="ignore"):
+            length = float(np.linalg.norm(quaternion_xyzw))
+        if not (1e-12 < length < np.inf and np.all(np.isfinite(translation))):
+            self.invalid += 1  # as tf2 does, an impossible transform is refused, not normalised into NaN
+            return
         parent, child = frame_name(parent), frame_name(child)
         edge = self._edges.get(child)
         if edge is None or edge.parent != parent or edge.static != static:
             if edge is not None and edge.parent != parent:
                 self.conflicts.add(child)
             edge = self._edges[child] = _Edge(parent, child, static)
-        edge.add(stamp_ns, np.asarray(translation, float), np.asarray(quaternion_xyzw, float))
+        edge.add(stamp_ns, translation, quaternion_xyzw)
 
     def add_message(self, message: object, static: bool) -> None:
         """Add every transform of a tf2_msgs/TFMessage."""

@@ -18,7 +18,7 @@ from ndfa.core.errors import IngestError, NdfaError
 from ndfa.core.progress import Progress
 from ndfa.io.ingest import MAX_DT_S, PoseEstimator
 from ndfa.io.ingest.tum_folder import TumFolder, no_poses_message
-from ndfa.io.ingest.tum_layout import DEPTH_SCALE, GROUNDTRUTH, Intrinsics
+from ndfa.io.ingest.tum_layout import DEPTH_LIST, DEPTH_SCALE, GROUNDTRUTH, Intrinsics
 from ndfa.io.recording import RecordingWriter
 
 
@@ -79,6 +79,8 @@ def ingest_tum(
     session = session or tum.folder.resolve().name
     indexed = len(tum.entries) + sum(tum.dropped.values())
     poses = tum.info.get("poses", "")
+    if not tum.entries:  # "empty results are errors": a recording of no frames would only fail later
+        raise IngestError(_nothing_to_import(tum.folder, indexed, tum.dropped))
     if tum.needs_poses and estimate_poses is None:
         raise IngestError(no_poses_message(tum.folder))
     if estimate_poses is not None:
@@ -117,9 +119,19 @@ def ingest_tum(
             has_instances = has_instances or frame.instances is not None
             if on_progress is not None:
                 on_progress(written, len(tum.entries))
+        if written == 0:  # raised inside the block: the writer discards the recording
+            raise IngestError(_nothing_to_import(tum.folder, indexed, tum.dropped))
     return TumSummary(
         path=out, session=session, indexed=indexed, written=written, dropped=dict(tum.dropped),
         depth_without_rgb=tum.info["depth_without_rgb"], poses=poses, intrinsics=tum.info["intrinsics"]["source"],
         timestamps=tum.info["timestamps"], has_instances=has_instances, has_ground_truth=ground_truth is not None,
         warnings=list(tum.warnings),
     )
+
+
+def _nothing_to_import(folder: Path, indexed: int, dropped: dict[str, int]) -> str:
+    """The one line of an import that would write no frame: what depth.txt listed and why each was dropped."""
+    if indexed == 0:
+        return f"{folder}: no frames to import: {DEPTH_LIST} lists no depth images"
+    reasons = ", ".join(f"{count} {reason}" for reason, count in dropped.items() if count)
+    return f"{folder}: no frames to import: all {indexed} depth images of {DEPTH_LIST} were dropped ({reasons})"

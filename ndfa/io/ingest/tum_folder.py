@@ -60,6 +60,7 @@ from ndfa.io.ingest.tum_layout import (
 )
 from ndfa.io.ingest.tum_lists import StampedList, associate, poses_at, read_list
 from ndfa.io.recording import Frame
+from ndfa.io.recording.ground_truth import ground_truth_problem
 from ndfa.trajectory.tum_format import pose_from_fields
 
 # Frame rate of the synthetic stamps when the folder's own stamps cannot be used (TUM's Kinect rate).
@@ -137,6 +138,9 @@ class TumFolder:
             raise IngestError(f"{path} is not valid JSON: {error}") from error
         if not isinstance(value, dict):
             raise IngestError(f"{path} must hold a JSON object, got {type(value).__name__}")
+        problem = ground_truth_problem(value)
+        if problem:
+            raise IngestError(f"{path}: {problem}")
         return value
 
     def frames(self, images: bool = True) -> Iterator[Frame]:
@@ -255,12 +259,13 @@ class TumFolder:
             source, chosen = CALIBRATION, read_calibration(self.folder / CALIBRATION)
         else:
             source, chosen = "TUM ROS default (no intrinsics given)", DEFAULT_INTRINSICS
+        where = f"{self.folder / CALIBRATION}: " if source == CALIBRATION else ""  # else an option: no file to name
         try:
             fx, fy, cx, cy = (float(v) for v in chosen)
         except (TypeError, ValueError):
-            raise IngestError(f"intrinsics must be (fx, fy, cx, cy), got {chosen!r}") from None
-        if not (fx > 0 and fy > 0 and np.isfinite([cx, cy]).all()):
-            raise IngestError(f"intrinsics must have fx, fy > 0 and finite cx, cy, got {chosen!r}")
+            raise IngestError(f"{where}intrinsics must be (fx, fy, cx, cy), got {chosen!r}") from None
+        if not (0 < fx < np.inf and 0 < fy < np.inf and np.isfinite([cx, cy]).all()):
+            raise IngestError(f"{where}intrinsics must have finite fx, fy > 0 and finite cx, cy, got {chosen!r}")
         K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
         return K, {"source": source, "fx": fx, "fy": fy, "cx": cx, "cy": cy}
 

@@ -51,10 +51,11 @@ def check_size(path: Path, shape: tuple[int, ...], depth_path: Path, depth_shape
 
 
 def _read_png(path: Path) -> Image.Image:
+    """The decoded image, its file closed (a failed decode must not leave the file open either)."""
     try:
-        image = Image.open(path)
-        image.load()
-    except (OSError, SyntaxError, ValueError) as error:
+        with Image.open(path) as image:
+            image.load()
+    except (OSError, SyntaxError, ValueError, Image.DecompressionBombError) as error:
         raise IngestError(f"{path} is not a readable image: {error}") from error
     return image
 

@@ -73,12 +73,23 @@ def read_list(folder: Path, name: str, required: bool) -> StampedList | None:
             values = [float(v) for v in parts[1:columns]] if columns == 8 else None
             if not np.isfinite(stamp) or (values is not None and not np.all(np.isfinite(values))):
                 raise ValueError("not a finite number")
+            if values is not None:
+                _check_quaternion(values[3:7])
         except ValueError as error:
             raise IngestError(f"{path}, line {number}: cannot read {text!r}: {error}") from None
         stamps.append(stamp)
         rows.append(parts[1:columns])
         numbers.append(number)
     return StampedList(path, np.array(stamps, dtype=np.float64), rows, numbers)
+
+
+def _check_quaternion(q: list[float]) -> None:
+    """A ValueError unless (qx, qy, qz, qw) can be normalised into a rotation: a zero (or, past
+    floating point, an infinite) length has no direction, and would make every pose element NaN."""
+    with np.errstate(over="ignore", under="ignore"):
+        length = float(np.linalg.norm(q))
+    if not 1e-12 < length < np.inf:
+        raise ValueError(f"the quaternion qx qy qz qw has length {length:g}: it is no rotation")
 
 
 def associate(depth_stamps: np.ndarray, rgb_stamps: np.ndarray, max_dt: float) -> dict[int, int]:

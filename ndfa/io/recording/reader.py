@@ -32,6 +32,8 @@ from ndfa.core.errors import RecordingError
 from ndfa.core.frame import Frame
 from ndfa.core.geometry import make_pose, matrix_from_quaternion_xyzw
 from ndfa.io.recording import channels
+from ndfa.io.recording.ground_truth import ground_truth_problem
+from ndfa.io.recording.structure import ChunkRecord, check_chunk_indexes, check_structure
 
 # The 8 bytes every MCAP file starts and ends with, and the footer record just before the end:
 # opcode (1 byte), record length (8), summary start (8), summary offset start (8), summary CRC (4).
@@ -39,8 +41,11 @@ _MCAP_MAGIC = b"\x89MCAP0\r\n"
 _FOOTER_OPCODE = 0x02
 _FOOTER_SIZE = 1 + 8 + 8 + 8 + 4
 
-# What a damaged file makes the mcap library raise (CRC mismatches are ValueErrors).
-_CORRUPTION_ERRORS = (McapError, zstandard.ZstdError, struct.error, EOFError, ValueError)
+# What a damaged file makes the mcap library (and its decompressors) raise: CRC mismatches are
+# ValueErrors, a message of a channel the file does not declare a KeyError, a damaged lz4 frame a
+# RuntimeError. Huge length fields, which would raise OverflowError or MemoryError, are refused
+# before the library reads them (`structure.check_structure`).
+_CORRUPTION_ERRORS = (McapError, zstandard.ZstdError, struct.error, EOFError, ValueError, KeyError, RuntimeError)
 
 # Pixel formats the reader accepts per image channel: encoding -> (numpy dtype, values per pixel).
 _IMAGE_FORMATS: dict[str, dict[str, tuple[str, int]]] = {
@@ -73,10 +78,11 @@ class RecordingReader:
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
-        _check_mcap_file(self.path)
+        chunks = _check_mcap_file(self.path)
         with open(self.path, "rb") as file:
             mcap = SeekingReader(file, validate_crcs=True)
             summary = self._read_summary(mcap)
+            check_chunk_indexes(self.path, chunks, summary.chunk_indexes)
             self._channels = self._check_channels(summary)
             counts = summary.statistics.channel_message_counts
             self._frame_count = counts.get(self._channels[channels.DEPTH].id, 0)
@@ -89,6 +95,10 @@ class RecordingReader:
                 raise RecordingError(f"{self.path}: channel {channels.META} has no message")
             self.meta: dict[str, Any] = meta
             self.ground_truth: dict[str, Any] | None = self._read_json(mcap, channels.GROUND_TRUTH)
+        if self.ground_truth is not None:
+            problem = ground_truth_problem(self.ground_truth)
+            if problem:
+                raise RecordingError(f"{self.path}: channel {channels.GROUND_TRUTH}: {problem}")
 
         if not self.has_poses and self._frame_count and self.meta.get("poses") != "none":
             raise RecordingError(f"{self.path}: channel {channels.TF} has no message, and its meta does not say "
@@ -311,8 +321,9 @@ class RecordingReader:
         return pixels.reshape(image.height, image.width, values_per_pixel)
 
 
-def _check_mcap_file(path: Path) -> None:
-    """Refuse what is not a complete MCAP file, before the mcap library reads (or misreads) it."""
+def _check_mcap_file(path: Path) -> dict[int, ChunkRecord]:
+    """Refuse what is not a complete MCAP file, before the mcap library reads (or misreads) it;
+    return its chunks by offset (`structure.check_structure`)."""
     if not path.exists():
         raise RecordingError(f"{path}: no such file")
     if not path.is_file():
@@ -332,6 +343,7 @@ def _check_mcap_file(path: Path) -> None:
                     "(https://mcap.dev)"
                 )
             _check_summary_crc(path, file, size)
+            return check_structure(path, file, size)
     except OSError as error:
         raise RecordingError(f"{path} cannot be read: {error.strerror}") from error
 

@@ -31,6 +31,7 @@ from ndfa.core.frame import Frame
 from ndfa.core.geometry import quaternion_xyzw_from_matrix
 from ndfa.io.atomic import Staged
 from ndfa.io.recording import channels
+from ndfa.io.recording.ground_truth import ground_truth_problem
 
 # Uncompressed bytes buffered before a chunk is compressed and written. It bounds the writer's
 # memory and is what a reader decompresses at a time; 4 MiB holds about two 640x480 frames
@@ -186,6 +187,10 @@ class RecordingWriter:
         if not isinstance(ground_truth, dict):
             raise RecordingError(f"{self.path}: ground truth must be a dict, got {type(ground_truth).__name__}")
         self._ground_truth_json = _encode_json(self.path, "ground truth", ground_truth)
+        problem = ground_truth_problem(json.loads(self._ground_truth_json))  # as the reader will check it
+        if problem:
+            self._ground_truth_json = None
+            raise RecordingError(f"{self.path}: ground truth: {problem}")
 
     def close(self) -> None:
         """Finish the file (meta, ground truth, summary) and move it onto `path`."""

@@ -1,0 +1,69 @@
+"""The shape of a recording's /ndfa/ground_truth message, checked when a recording is opened.
+
+The message is loose JSON (the simulator's scene description), but the evaluation and `ndfa info`
+index into parts of it: a recording written by another tool, or damaged, must fail on open with
+one line naming the field, not deep inside the scoring with a KeyError."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+_SESSIONS = ("source", "target")
+
+
+def ground_truth_problem(truth: dict[str, Any]) -> str | None:
+    """What is wrong with a ground-truth message, or None when the parts ndfa reads are well formed."""
+    for key, kind in (("objects", list), ("clutter", list), ("tables", list), ("changes", dict)):
+        if key in truth and not isinstance(truth[key], kind):
+            return f'"{key}" must be a JSON {"array" if kind is list else "object"}, got {type(truth[key]).__name__}'
+    if "session" in truth and not isinstance(truth["session"], str):
+        return f'"session" must be a string, got {type(truth["session"]).__name__}'
+    for position, item in enumerate(truth.get("objects", [])):
+        problem = _item_problem(item, with_poses_per_session=True)
+        if problem:
+            return f'"objects"[{position}] {problem}'
+    for position, item in enumerate(truth.get("clutter", [])):
+        problem = _item_problem(item, with_poses_per_session=False)
+        if problem:
+            return f'"clutter"[{position}] {problem}'
+    tilt = truth.get("world_tilt")
+    if tilt and not (isinstance(tilt, dict) and _is_pose(tilt.get("pose_world_level"))):
+        return '"world_tilt" must be an object with a 4x4 "pose_world_level"'
+    visible = truth.get("visible")
+    if visible is not None and not (isinstance(visible, dict) and all(
+            isinstance(ids, list) and all(_is_id(i) for i in ids) for ids in visible.values())):
+        return '"visible" must map sessions to arrays of instance ids'
+    return None
+
+
+def _item_problem(item: Any, with_poses_per_session: bool) -> str | None:
+    if not isinstance(item, dict):
+        return f"must be a JSON object, got {type(item).__name__}"
+    if not _is_id(item.get("instance_id")):
+        return f'has no integer "instance_id" >= 0 (got {item.get("instance_id")!r})'
+    if with_poses_per_session:
+        if item.get("change") is not None and not isinstance(item["change"], str):
+            return f'"change" must be a string, got {type(item["change"]).__name__}'
+        for session in _SESSIONS:
+            placed = item.get(session)
+            if placed and not (isinstance(placed, dict) and _is_pose(placed.get("pose_world_object"))):
+                return f'"{session}" must be null or an object with a 4x4 "pose_world_object"'
+        return None
+    if not isinstance(item.get("kind"), str):
+        return 'has no string "kind"'
+    if not _is_pose(item.get("pose_world_object")):
+        return 'has no 4x4 "pose_world_object"'
+    return None
+
+
+def _is_id(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def _is_pose(value: Any) -> bool:
+    """A 4x4 nested list of finite numbers."""
+    return (isinstance(value, list) and len(value) == 4 and all(
+        isinstance(row, list) and len(row) == 4 and all(
+            isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in row)
+        for row in value))
