@@ -147,3 +147,23 @@ def test_broken_mesh_files_fail_in_one_line_naming_the_file(tmp_path, name, cont
     with pytest.raises(SimError, match=name) as error:
         load_mug_mesh(tmp_path / name)
     assert "\n" not in str(error.value)
+
+
+def test_what_the_mesh_fuzzer_found_fails_in_one_line(tmp_path):
+    """A vertex line short of a coordinate (trimesh then gives 2-D points), and coordinates far
+    beyond any unit (trimesh's casts of them warned, and their hull meant nothing)."""
+    import warnings
+
+    vertices, faces = revolved_cup(0.04, 0.09)
+    write_obj(tmp_path / "short.obj", vertices, faces)
+    text = (tmp_path / "short.obj").read_text().splitlines()
+    (tmp_path / "short.obj").write_text("\n".join(["v 0.1 0.2"] * 3 + text[3:]) + "\n")
+    with pytest.raises(SimError, match=r"short\.obj: .*(3-D points|cannot read)"):
+        load_mug_mesh(tmp_path / "short.obj")
+    mug = make_mug(3).mesh
+    write_binary_stl(tmp_path / "huge.stl", np.vstack([mug.vertices, [[3e37, 0, 0]]]),
+                     np.vstack([mug.triangles, [[0, 1, len(mug.vertices)]]]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # one line, no library warning beside it
+        with pytest.raises(SimError, match=r"huge\.stl: coordinates up to 3e\+37"):
+            load_mug_mesh(tmp_path / "huge.stl")

@@ -51,6 +51,7 @@ DEFAULT_HEIGHT = 0.10  # metres; height of a mesh whose units had to be guessed
 MAX_FOOTPRINT_RADIUS = 0.10  # metres; from the body axis to the farthest point seen from above
 MIN_HEIGHT = 0.04  # metres; a mesh this low once narrowed to MAX_FOOTPRINT_RADIUS is refused
 END_COSINE = 0.99  # a hull face is an end of the mug along an axis when its normal is this close to it
+MAX_COORDINATE = 1e5  # file units; a mug in millimetres stays within a few hundred
 BASE_BAND = 0.2  # fraction of the height, from the bottom, used to find the body's axis
 
 Notes = Callable[[str], None]
@@ -108,15 +109,22 @@ def _read_triangles(path: Path) -> tuple[np.ndarray, np.ndarray]:
         raise SimError(f"{path}: empty file")
     logging.getLogger("trimesh").setLevel(logging.CRITICAL)  # we say what is wrong, in one line
     try:
-        # force="mesh": a GLB scene's meshes, each moved by its node's transform, as one mesh
-        mesh = trimesh.load(str(path), force="mesh", process=False)
-        if not isinstance(mesh, trimesh.Trimesh):
-            raise ValueError(f"holds a {type(mesh).__name__}, not a surface")
-        if not np.all(np.isfinite(mesh.vertices)):
-            raise SimError(f"{path}: vertices with NaN or infinite coordinates")
-        # Weld corners by position alone: STL repeats them per triangle, and OBJ splits them
-        # along texture seams; either way no mesh would ever be closed.
-        mesh.merge_vertices(merge_tex=True, merge_norm=True)
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            # trimesh casts absurd coordinates with a RuntimeWarning; the checks below say what is wrong
+            warnings.simplefilter("ignore", RuntimeWarning)
+            # force="mesh": a GLB scene's meshes, each moved by its node's transform, as one mesh
+            mesh = trimesh.load(str(path), force="mesh", process=False)
+            if not isinstance(mesh, trimesh.Trimesh):
+                raise ValueError(f"holds a {type(mesh).__name__}, not a surface")
+            if np.ndim(mesh.vertices) != 2 or np.shape(mesh.vertices)[1] != 3:  # an OBJ "v" line short of a coordinate
+                raise SimError(f"{path}: vertices are not 3-D points (a coordinate missing?)")
+            if not np.all(np.isfinite(mesh.vertices)):
+                raise SimError(f"{path}: vertices with NaN or infinite coordinates")
+            if len(mesh.vertices) and (largest := float(np.abs(mesh.vertices).max())) > MAX_COORDINATE:
+                raise SimError(f"{path}: coordinates up to {largest:.3g}: no mug in metres, centimetres or millimetres")
+            # Weld corners by position alone: STL repeats them per triangle, and OBJ splits them
+            # along texture seams; either way no mesh would ever be closed.
+            mesh.merge_vertices(merge_tex=True, merge_norm=True)
     except SimError:
         raise
     except Exception as error:  # trimesh's readers raise whatever the parser hit
@@ -140,10 +148,12 @@ def guess_up(vertices: np.ndarray, triangles: np.ndarray) -> str:
 
     mesh = trimesh.Trimesh(vertices, triangles, process=False)
     try:
-        hull = mesh.convex_hull
-        # coplanar hull triangles merged into facets, and single triangles: the flat pieces
-        areas = np.concatenate([hull.facets_area, hull.area_faces])
-        normals = np.concatenate([np.reshape(hull.facets_normal, (-1, 3)), hull.face_normals])
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore", RuntimeWarning)  # degenerate hulls: the fallback below
+            hull = mesh.convex_hull
+            # coplanar hull triangles merged into facets, and single triangles: the flat pieces
+            areas = np.concatenate([hull.facets_area, hull.area_faces])
+            normals = np.concatenate([np.reshape(hull.facets_normal, (-1, 3)), hull.face_normals])
     except Exception:  # a flat or degenerate mesh has no hull: its own faces vote instead
         areas, normals = mesh.area_faces, mesh.face_normals
 
