@@ -142,13 +142,13 @@ def bench_detect(source: Path, target: Path, threads: int = 1, frame_step: int =
 def bench_detect_runs(source: Path, target: Path, threads: int = 1, compare: bool = False, load: bool = False,
                       frame_step: int = 1) -> list[dict]:
     """`bench_detect` back to back in one process, each row labelled: with `compare` the torch
-    runtime first (the before), then the default one; with `load` the default runtime once more
+    runtime first (the before), then "auto" (ONNX Runtime where installed); with `load` that once more
     beside one busy process (`python -c 'while True: pass'`, started here and stopped after),
     the question being whether the pass keeps its speed when the machine is shared."""
     rows = []
     if compare:
         rows.append({"label": "torch"} | bench_detect(source, target, threads, frame_step, runtime="torch"))
-    rows.append({"label": "default"} | bench_detect(source, target, threads, frame_step))
+    rows.append({"label": "auto"} | bench_detect(source, target, threads, frame_step))
     if load:
         import subprocess
         import sys
