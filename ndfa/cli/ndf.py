@@ -143,8 +143,15 @@ def ndf_eval_command(
     split: str = typer.Option("test", help="Mug split: test (held out), or train to tune on validation mugs the run did not fit."),
     first_mug: int = typer.Option(0, help="Index of the first mug in the split (e.g. 1000: the validation mugs after 1,000 training ones).",
                                   callback=at_least(0)),
+    real: Optional[Path] = typer.Option(None, "--real", help="Instead: the real-mug protocol on this TUM folder or .mcap "
+                                        "with given poses (docs/real_mugs.md)."),
+    frame_step: int = typer.Option(2, help="With --real: segment every n-th frame.", callback=at_least_one),
 ) -> None:
-    """Model quality on unseen test-split mugs: center error, shape-code retrieval, IoU."""
+    """Model quality on unseen test-split mugs: center error, shape-code retrieval, IoU (--real: on real mugs)."""
+    if real is not None:
+        from ndfa.cli.real_mugs import real_mugs_command
+
+        return real_mugs_command(real, weights, out, frame_step)
     import polars as pl
 
     from ndfa.io.atomic import write_parquet
