@@ -15,7 +15,8 @@ is estimated from the support planes as `ndfa detect` does (`ndfa.run.world`).
 
 from __future__ import annotations
 
-import itertools
+import copy
+import dataclasses
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -115,8 +116,12 @@ def _open_recording(path: Path) -> RealSequence:
 
 
 def _tum_frames(tum: TumFolder, step: int) -> Iterator[Frame]:
-    """Every `step`-th frame of the folder (the importer decodes the others too: ~10 ms each)."""
-    return itertools.islice(tum.frames(), 0, None, step)
+    """Every `step`-th frame of the folder, numbered as in the whole folder; the others are not
+    decoded (a copy of the index keeps every `step`-th entry)."""
+    subset = copy.copy(tum)
+    subset.entries = tum.entries[::step]
+    for frame in subset.frames():
+        yield dataclasses.replace(frame, index=frame.index * step)
 
 
 def _read_matrix(path: Path, shape: tuple[int, ...]) -> np.ndarray:
