@@ -210,3 +210,37 @@ def test_refitting_one_part_keeps_the_rest(tiny_run, tmp_path, part):
         assert "train_occ" in metrics.columns and "train_shape" not in metrics.columns
     with pytest.raises(ModelError, match="needs --init"):
         train(dataclasses.replace(refit, init_weights=None), tmp_path / "no-init")
+
+
+def test_fresh_decoder_of_another_size_trains_with_the_rest_from_init(tiny_run, tmp_path):
+    import dataclasses
+
+    from ndfa.ndf.checkpoint import load_model
+
+    config, out, _ = tiny_run
+    smaller = dataclasses.replace(TINY, decoder_width=16)
+    run = dataclasses.replace(config, model=smaller, init_weights=str(out / "checkpoint.pt"), init_fresh="decoder", steps=3)
+    train(run, tmp_path / "fresh")
+    before = load_model(out / "checkpoint.pt")[0].state_dict()
+    after = load_model(tmp_path / "fresh" / "checkpoint.pt")[0].state_dict()
+    assert after["decoder.query_in.weight"].shape[0] == 16 and before["decoder.query_in.weight"].shape[0] == 32
+    # Everything trains: the encoder moved away from the init's weights.
+    encoder = [name for name in before if name.startswith("encoder.")]
+    assert encoder and any(not torch.equal(after[name], before[name]) for name in encoder)
+    with pytest.raises(ModelError, match="do not fit"):  # without init_fresh the other size cannot load
+        train(dataclasses.replace(run, init_fresh="none"), tmp_path / "no-fresh")
+
+
+def test_headline_counts_the_detector_regime_and_box_twins(tiny_run):
+    from ndfa.training.ndf_eval import box_twins, evaluate_ndf
+
+    _, out, _ = tiny_run
+    views = generate_views("test", [0, 1, 2], 3, 0, ViewConfig(n_points=128, n_queries=64, distance_range_m=(0.2, 0.8)), workers=1)
+    summary, per_view = evaluate_ndf(out / "checkpoint.pt", views=views, iou_grid=0)
+    regime = per_view["detector_regime"].to_numpy()
+    assert summary["views_within_2m"] == regime.sum() > 1
+    assert np.all(per_view["n_visible"].to_numpy()[regime] >= 300)
+    assert summary["retrieval_top1_within_2m"] <= summary["retrieval_top1_within_2m_twins_merged"] <= 1.0
+    assert "iou_mean" not in summary
+    twins = box_twins("test", np.array([0, 1, 2]))
+    assert twins.shape == (3, 3) and np.all(np.diag(twins)) and np.array_equal(twins, twins.T)

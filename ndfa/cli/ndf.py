@@ -43,6 +43,7 @@ def train_command(
     init: Optional[Path] = typer.Option(None, help="Start from these weights (e.g. the shipped ones) with a fresh optimizer.",
                                         callback=checkpoint),
     train_only: str = typer.Option("all", help="all, or refit only a fresh code_head or decoder on the --init model's frozen encoder."),
+    init_fresh: str = typer.Option("none", help="With --init: none, or decoder / code_head to start that part fresh (e.g. another size); all of it trains."),
     proxy_weight: float = typer.Option(0.0, help="Weight of the proxy identity loss on the shape codes (0: off).",
                                        callback=non_negative),
     param_weight: float = typer.Option(0.0, help="Weight of the mugs' shape-parameter regression from the codes (0: off).",
@@ -51,6 +52,14 @@ def train_command(
                                      callback=non_negative),
     frame_weight: float = typer.Option(1.0, help="Weight of the frame loss: the frame decoder's axes vs the true pose (0: off).",
                                        callback=non_negative),
+    decoder_width: int = typer.Option(128, help="Width of the occupancy MLP.", callback=at_least_one),
+    decoder_blocks: int = typer.Option(3, help="Residual blocks of the occupancy MLP.", callback=non_negative),
+    points: int = typer.Option(400, help="Points per training view (the encoder then resamples observations to this).",
+                               callback=at_least(16)),
+    max_distance: float = typer.Option(5.0, help="Farthest camera from the table's edge, metres (the detector encodes mugs within ~2.5 m).",
+                                       callback=in_range(gt=0.2, le=10.0)),
+    min_points: int = typer.Option(30, help="A view showing fewer of the mug's points is drawn again.", callback=at_least_one),
+    sensor_artifacts: bool = typer.Option(False, help="Real-sensor artifacts on the views: holes, missing thin handles, flying pixels, misregistered masks."),
     up_cue: bool = typer.Option(False, help="The encoder also gets world up in the camera frame (from the pose)."),
     view_cue: bool = typer.Option(False, help="The encoder also gets the direction from the camera to the view."),
     center_head: str = typer.Option("linear", help="Center head: linear (one VN-linear channel) or gated (z weighted by its invariants)."),
@@ -69,16 +78,21 @@ def train_command(
 ) -> None:
     """Train the NDF on rendered partial views of train-split procedural mugs (CPU)."""
     from ndfa.ndf.config import NDFConfig
+    from ndfa.sim.sensor_artifacts import SensorArtifacts
     from ndfa.training.train import TrainConfig, train
+    from ndfa.training.views import ViewConfig
 
     config = TrainConfig(
         model=NDFConfig(code_head=code_head, pooling=pooling, decoder=decoder, local_points=local_points,
-                        gram_eps=gram_eps, up_cue=up_cue, view_cue=view_cue, center_head=center_head),
+                        gram_eps=gram_eps, up_cue=up_cue, view_cue=view_cue, center_head=center_head,
+                        decoder_width=decoder_width, decoder_blocks=decoder_blocks),
+        view=ViewConfig(distance_range_m=(0.2, max_distance), n_points=points, min_points=min_points,
+                        artifacts=SensorArtifacts() if sensor_artifacts else None),
         train_mugs=train_mugs, views_per_mug=views_per_mug, batch_mugs=batch_mugs, steps=steps, lr=lr,
         lr_final_fraction=lr_final, alpha=alpha, shape_margin=shape_margin, proxy_weight=proxy_weight,
         param_weight=param_weight, up_tilt_deg=up_tilt,
         frame_weight=frame_weight, seed=seed, threads=threads, init_weights=str(init) if init else None,
-        train_only=train_only)
+        train_only=train_only, init_fresh=init_fresh)
     recorder = None
     if log is not None:
         import rerun as rr
@@ -143,6 +157,7 @@ def ndf_eval_command(
     split: str = typer.Option("test", help="Mug split: test (held out), or train to tune on validation mugs the run did not fit."),
     first_mug: int = typer.Option(0, help="Index of the first mug in the split (e.g. 1000: the validation mugs after 1,000 training ones).",
                                   callback=at_least(0)),
+    iou: bool = typer.Option(True, help="Also the reconstruction IoU on a 32^3 grid (most of the time)."),
     real: Optional[Path] = typer.Option(None, "--real", help="Instead: the real-mug protocol on this TUM folder or .mcap "
                                         "with given poses (docs/real_mugs.md)."),
     frame_step: int = typer.Option(2, help="With --real: segment every n-th frame.", callback=at_least_one),
@@ -165,7 +180,7 @@ def ndf_eval_command(
     rows = []
     out.mkdir(parents=True, exist_ok=True)
     for path in weights or [None]:
-        summary, per_view = evaluate_ndf(path, views=views, v0=v0)
+        summary, per_view = evaluate_ndf(path, views=views, v0=v0, iou_grid=32 if iou else 0)
         name = str(path) if path is not None else "shipped"
         rows.append({"weights": name, **summary})
         write_parquet(per_view.with_columns(pl.lit(name).alias("weights")), out / f"views-{len(rows)}.parquet")
@@ -177,5 +192,11 @@ def ndf_eval_command(
         if key != "weights":
             table.add_row(key, *(f"{row[key]:.3f}" for row in rows))
     console.print(table)
+    for row in rows:  # the headline: the detector's regime
+        console.print(
+            f"[bold]{row['weights']}[/bold], {row['views_within_2m']:.0f} views with the mug within 2 m and >= 300 points: "
+            f"center {row['center_median_mm_head_within_2m']:.1f} / {row['center_p90_mm_head_within_2m']:.1f} mm (median / p90), "
+            f"retrieval top-1 {row.get('retrieval_top1_within_2m', float('nan')):.3f}, "
+            f"box twins merged {row.get('retrieval_top1_within_2m_twins_merged', float('nan')):.3f}")
     write_parquet(pl.DataFrame(rows), out / "summary.parquet")
     console.print(f"tables in {out}")

@@ -24,6 +24,7 @@ from ndfa.core.events import DecisionEvent, Event, FrameEvent, ObservationEvent,
 from ndfa.core.progress import LabelledProgress
 from ndfa.eval.scoring import Score, is_visible, score
 from ndfa.io.recording import INSTANCES, RecordingReader
+from ndfa.io.recording.prefetch import prefetched
 from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
 from ndfa.run.align import AlignConfig, RegistrationMode, SceneAlignment, registration_prior
 from ndfa.run.world import PoseMode, SessionWorld, UpMode, prepare_session
@@ -153,7 +154,7 @@ def run_detection(
         for session, reader in (("source", source_reader), ("target", target_reader)):
             total = len(range(0, len(reader), frame_step))
             started, count = time.perf_counter(), 0
-            for frame in reader.frames(step=frame_step):
+            for frame in prefetched(reader.frames(step=frame_step)):  # the next frames are read meanwhile
                 for event in pipeline.process(session, worlds[session].apply(frame)):
                     _emit(event, sinks)
                     seen[session].count(event)

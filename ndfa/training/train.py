@@ -64,6 +64,7 @@ class TrainConfig:
     lr_final_fraction: float = 1.0   # cosine decay of lr to this fraction at the last step (1: constant, the paper's)
     init_weights: str | None = None  # start from this checkpoint's weights (a fresh optimizer), e.g. to continue a shipped model
     train_only: str = "all"          # "all", or refit only a fresh "code_head" or "decoder" on init_weights' frozen encoder
+    init_fresh: str = "none"         # "none", or "decoder" / "code_head": that part starts fresh (e.g. another size), the rest from init_weights; all of it trains
     alpha: float = 0.01              # the paper's shape-loss weight
     shape_margin: float | None = None  # None: the paper's loss; a number: hinge with this margin
     center_weight: float = 1.0
@@ -264,7 +265,10 @@ def _initial_model(config: TrainConfig) -> NDFModel:
         return model
     if config.train_only == "code_head" and config.model.code_head != "gram":
         raise ModelError("refitting the code head needs the gram code head")
-    fresh = {"all": "", "code_head": "gram_code.", "decoder": "decoder."}[config.train_only]
+    if config.init_fresh not in ("none", "code_head", "decoder"):
+        raise ModelError(f"init_fresh must be none, code_head or decoder, not {config.init_fresh!r}")
+    part = config.train_only if config.train_only != "all" else config.init_fresh
+    fresh = {"all": "", "none": "", "code_head": "gram_code.", "decoder": "decoder."}[part]
     initial = load_model(config.init_weights)[0].state_dict()
     kept = {name: value for name, value in initial.items() if not (fresh and name.startswith(fresh))}
     try:

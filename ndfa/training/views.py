@@ -46,6 +46,7 @@ from ndfa.sim.mug_body import revolve_profile
 from ndfa.sim.noise import DepthNoise
 from ndfa.sim.render import RenderObject, SceneRenderer
 from ndfa.sim.scene import Table
+from ndfa.sim.sensor_artifacts import SensorArtifacts
 from ndfa.training.mug_samples import MugSamples, mug_samples
 
 TARGET_ID = 1  # instance id of the target mug in the rendered instance image; occluders get 2, 3, ...
@@ -73,6 +74,8 @@ class ViewConfig:
         than a box or a cylinder.
     occluder_gap_range_m: free space between the footprint circles of the mug and an occluder.
     noise: the depth sensor model.
+    artifacts: a real sensor's artifacts on top of the noise (`ndfa.sim.sensor_artifacts`:
+        holes, missing thin handles, flying pixels, quantisation, misregistered masks); None: off.
     n_points: points per view, resampled from the visible ones.
     n_queries: query points per view: half near the surface, half uniform in the box.
     min_points: a view that shows fewer points of the mug is drawn again.
@@ -91,6 +94,7 @@ class ViewConfig:
     occluder_mug_probability: float = 0.5
     occluder_gap_range_m: tuple[float, float] = (0.01, 0.15)
     noise: DepthNoise = DepthNoise()
+    artifacts: SensorArtifacts | None = None
     n_points: int = 400
     n_queries: int = 512
     min_points: int = 30
@@ -145,7 +149,7 @@ def render_view(mug: Mug, others: list[Mug], rng: np.random.Generator, config: V
                             margin=config.noise.edge_width_px + 2)
         if crop is None:
             continue
-        visible = _visible_points(SceneRenderer(objects), crop, pose_world_camera, rng, config.noise)
+        visible = _visible_points(SceneRenderer(objects), crop, pose_world_camera, rng, config.noise, config.artifacts)
         if len(visible) >= config.min_points:
             break
     else:
@@ -278,12 +282,18 @@ def _crop_camera(camera: PinholeCamera, pose_camera_object: np.ndarray, box_min:
 
 
 def _visible_points(renderer: SceneRenderer, camera: PinholeCamera, pose_world_camera: np.ndarray,
-                    rng: np.random.Generator, noise: DepthNoise) -> np.ndarray:
+                    rng: np.random.Generator, noise: DepthNoise, artifacts: SensorArtifacts | None = None) -> np.ndarray:
     """(M, 3) float64 noisy depth points of the target mug, camera frame."""
     rendered = renderer.render(camera, pose_world_camera)
-    depth = noise.apply(rendered.depth, rendered.normals_camera, rng, camera)
+    mask = rendered.instance == TARGET_ID
+    if artifacts is None:
+        depth = noise.apply(rendered.depth, rendered.normals_camera, rng, camera)
+    else:
+        depth = artifacts.noise_for_view(noise, rng).apply(rendered.depth, rendered.normals_camera, rng, camera)
+        cos_incidence = np.abs(camera.ray_cosines(rendered.normals_camera))
+        depth, mask = artifacts.apply(depth, rendered.depth, mask, cos_incidence, rng)
     points, pixels = camera.backproject(depth)
-    return points[rendered.instance[pixels[:, 0], pixels[:, 1]] == TARGET_ID]
+    return points[mask[pixels[:, 0], pixels[:, 1]]]
 
 
 def _query_points(samples: MugSamples, rng: np.random.Generator, config: ViewConfig) -> np.ndarray:
