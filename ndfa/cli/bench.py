@@ -25,12 +25,18 @@ def bench_command(
     step: int = typer.Option(1, help="segment: use every N-th frame.", callback=at_least_one),
     threads: int = typer.Option(1, help="detect: torch's and ONNX Runtime's CPU threads (docs/speed.md).",
                                 callback=at_least_one),
-    compare: bool = typer.Option(False, "--compare", help="detect: first the torch runtime (the before), then the "
-                                                          "default one, back to back."),
+    compare: bool = typer.Option(False, "--compare", help="detect: first the before (--before-runtime, --before-weights), "
+                                                          "then now, back to back."),
     load: bool = typer.Option(False, "--load", help="detect: once more beside one busy process (while True: pass)."),
+    runtime: str = typer.Option("auto", help="detect: the NDF's runtime now: auto, onnxruntime or torch."),
+    before_runtime: str = typer.Option("torch", help="detect --compare: the NDF's runtime before."),
+    before_weights: Optional[Path] = typer.Option(None, help="detect --compare: the NDF's weights before (default: the shipped ones).",
+                                                  callback=checkpoint),
+    frame_step: int = typer.Option(1, help="detect: use every N-th frame.", callback=at_least_one),
 ) -> None:
     """Time each stage of a pipeline and print milliseconds."""
     from ndfa.eval.bench import bench_detect_runs, bench_detection_scaling, bench_ndf, bench_sim
+    from ndfa.ndf.runtime import RUNTIMES
 
     if what == "segment":
         from ndfa.eval.segmentation import segmentation_recall
@@ -45,13 +51,17 @@ def bench_command(
                       f"{r.ms_per_frame:.1f} ms/frame ({r.cpu_ms_per_frame:.1f} ms CPU)")
         return
     if what == "detect":
-        rows = bench_detect_runs(source, target, threads=threads, compare=compare, load=load)
+        for option, value in (("--runtime", runtime), ("--before-runtime", before_runtime)):
+            if value not in RUNTIMES:
+                raise typer.BadParameter(f"{option} must be one of {', '.join(RUNTIMES)}, got {value!r}")
+        rows = bench_detect_runs(source, target, threads=threads, compare=compare, load=load, frame_step=frame_step,
+                                 runtime=runtime, before_runtime=before_runtime, before_weights=before_weights)
         first = rows[0]
         table = Table(title=f"ndfa bench detect: target pass of {target} (no sinks)",
                       caption=f"{first['frames']} frames, {threads} thread(s); {first['machine']}")
         table.add_column("ms / frame")
         for row in rows:
-            table.add_column(f"{row['label']} ({row['runtime']})", justify="right")
+            table.add_column(f"{row['label']} ({row['runtime']}, {Path(row['weights']).name})", justify="right")
         for stage in first["stage_ms"]:
             table.add_row(stage, *(f"{row['stage_ms'].get(stage, 0.0):.1f}" for row in rows))
         table.add_row("total", *(f"{row['total_ms']:.1f}" for row in rows))
@@ -59,12 +69,12 @@ def bench_command(
         table.add_row("CPU s (both passes)", *(f"{row['cpu_s']:.1f}" for row in rows))
         table.add_row("TP / FP / FN", *("-" if row["score"] is None else "/".join(map(str, row["score"])) for row in rows))
         console.print(table)
-        default = next(row for row in rows if row["label"] == "default")
+        now = next(row for row in rows if row["label"] == "now")
         if compare:
-            console.print(f"speed-up of the target pass over torch: {default['fps'] / rows[0]['fps']:.2f}x "
-                          f"(encoding {rows[0]['stage_ms']['encoding'] / default['stage_ms']['encoding']:.2f}x)")
+            console.print(f"speed-up of the target pass over the before: {now['fps'] / rows[0]['fps']:.2f}x "
+                          f"(encoding {rows[0]['stage_ms']['encoding'] / now['stage_ms']['encoding']:.2f}x)")
         if load:
-            console.print(f"beside one busy process: {default['fps'] / rows[-1]['fps']:.2f}x slower")
+            console.print(f"beside one busy process: {now['fps'] / rows[-1]['fps']:.2f}x slower")
         scaling = Table(title="detection step (tree, association, graphs) vs map size")
         scaling.add_column("objects", justify="right")
         scaling.add_column("median ms / frame (4 measurements)", justify="right")

@@ -114,10 +114,11 @@ def bench_ndf(weights: Path | None = None, repeats: int = 30, points: int = 1000
     return result
 
 
-def bench_detect(source: Path, target: Path, threads: int = 1, frame_step: int = 1, runtime: str = "auto") -> dict:
+def bench_detect(source: Path, target: Path, threads: int = 1, frame_step: int = 1, runtime: str = "auto",
+                 weights: Path | None = None) -> dict:
     """The whole target pass without sinks: frames per second, and ms per frame of each stage
     (reading = the pass's wall time minus the stages). `threads`: torch's and ONNX Runtime's;
-    `runtime`: the NDF's (`ndfa.ndf.runtime`)."""
+    `runtime`: the NDF's (`ndfa.ndf.runtime`); `weights`: the NDF's (default: the shipped ones)."""
     import torch
 
     from ndfa.ndf.encoder import EncoderConfig
@@ -125,7 +126,7 @@ def bench_detect(source: Path, target: Path, threads: int = 1, frame_step: int =
     from ndfa.run.detect import run_detection
 
     torch.set_num_threads(threads)
-    config = PipelineConfig(encoder=EncoderConfig(runtime=runtime, threads=threads))
+    config = PipelineConfig(encoder=EncoderConfig(runtime=runtime, threads=threads), weights=weights)
     pipeline = ChangeDetectionPipeline(config)
     cpu_started = time.process_time()
     result = run_detection(source, target, config, sinks=[], frame_step=frame_step, pipeline=pipeline)
@@ -134,28 +135,31 @@ def bench_detect(source: Path, target: Path, threads: int = 1, frame_step: int =
     stages["reading"] = max(per_frame_ms - sum(stages.values()), 0.0)
     return {"fps": result.target_fps, "frames": result.frames["target"], "total_ms": per_frame_ms,
             "stage_ms": stages, "threads": threads, "runtime": pipeline.encoder.runtime.name,
+            "weights": "shipped" if weights is None else str(weights),
             "cpu_s": time.process_time() - cpu_started,  # both passes, this process's CPU time
             "score": None if result.score is None else (result.score.tp, result.score.fp, result.score.fn),
             "machine": f"{platform.processor() or platform.machine()}, {_cpu_count()} cores"}
 
 
 def bench_detect_runs(source: Path, target: Path, threads: int = 1, compare: bool = False, load: bool = False,
-                      frame_step: int = 1) -> list[dict]:
-    """`bench_detect` back to back in one process, each row labelled: with `compare` the torch
-    runtime first (the before), then "auto" (ONNX Runtime where installed); with `load` that once more
-    beside one busy process (`python -c 'while True: pass'`, started here and stopped after),
-    the question being whether the pass keeps its speed when the machine is shared."""
+                      frame_step: int = 1, runtime: str = "auto", before_runtime: str = "torch",
+                      before_weights: Path | None = None) -> list[dict]:
+    """`bench_detect` back to back in one process, each row labelled: with `compare` first the
+    "before" (`before_runtime` with `before_weights`, default the shipped ones), then "now" (the
+    shipped weights on `runtime`); with `load` "now" once more beside one busy process (`python -c
+    'while True: pass'`, started here and stopped after), the question being whether the pass keeps
+    its speed when the machine is shared."""
     rows = []
     if compare:
-        rows.append({"label": "torch"} | bench_detect(source, target, threads, frame_step, runtime="torch"))
-    rows.append({"label": "auto"} | bench_detect(source, target, threads, frame_step))
+        rows.append({"label": "before"} | bench_detect(source, target, threads, frame_step, before_runtime, before_weights))
+    rows.append({"label": "now"} | bench_detect(source, target, threads, frame_step, runtime))
     if load:
         import subprocess
         import sys
 
         busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])
         try:
-            rows.append({"label": "beside one busy process"} | bench_detect(source, target, threads, frame_step))
+            rows.append({"label": "beside one busy process"} | bench_detect(source, target, threads, frame_step, runtime))
         finally:
             busy.kill()
             busy.wait()
