@@ -69,6 +69,20 @@ class DecisionConfig:
     # horizontal, so without it testing a mug on a table "observes" a piece of floor under the
     # table, which the target may never have seen (docs/detector.md). 0: off (any height).
     observed_height_m: float = 0.3
+    # Rotated objects (`ndfa.change.rotation`, docs/rotation.md): an object found unchanged whose
+    # handle turned about up by more than this many degrees between the sessions is reported
+    # "rotated". None: off (the paper has no such test).
+    rotation_deg: float | None = 30.0
+    # A view's handle heading counts from this strength (the horizontal length of the NDF's handle
+    # vector, `ndfa.ndf.heading`): on the baseline scenes' source views, 41 % reach 0.25, and 97 %
+    # of those are within 20 degrees of the truth (docs/rotation.md).
+    heading_strength: float = 0.25
+    rotation_views: int = 3            # reliable views each of the two objects needs
+    rotation_spread_deg: float = 25.0  # their headings' circular spread, per object, at most this
+
+    def __post_init__(self) -> None:
+        if self.rotation_deg is not None and not 0.0 < self.rotation_deg < 180.0:
+            raise ValueError(f"rotation_deg must be in (0, 180) degrees or None, got {self.rotation_deg}")
 
 
 @dataclass(frozen=True)
@@ -92,5 +106,5 @@ class DetectorConfig:
             decision=DecisionConfig(edge_m=0.03, fallback_distance_m=0.05, in_place_m=0.0, scatter_factor=0.0,
                                     cell_margin_m=0.0,
                                     min_measurements=1,
-                                    confirm_measurements=1, observed_height_m=0.0),
+                                    confirm_measurements=1, observed_height_m=0.0, rotation_deg=None),
         )
