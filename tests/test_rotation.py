@@ -32,6 +32,10 @@ def test_headings_fuse_by_circular_mean_across_the_wrap_and_weak_views_are_left_
     assert abs((np.degrees(fused.angle_rad) - 179.0 + 180.0) % 360.0 - 180.0) < 1.0  # not the 59 of a plain mean
     assert np.degrees(fused.spread_rad) < 3.0
     assert fused_heading(_object([10.0], strength=0.1), min_strength=0.25) is None
+    # weighted by strength: a strong view outweighs a weak one
+    obj = _object([0.0])
+    obj.headings.append((np.radians(60.0), 0.1))
+    assert 0.0 < np.degrees(fused_heading(obj, 0.05).angle_rad) < 20.0
 
 
 @pytest.mark.parametrize("target_deg, views, strength, expected", [
@@ -39,8 +43,9 @@ def test_headings_fuse_by_circular_mean_across_the_wrap_and_weak_views_are_left_
     ([-60.0, -64.0, -57.0], 3, 0.4, -60.0),   # the other sense
     ([20.0, 24.0, 18.0], 3, 0.4, None),       # under the 30-degree bar
     ([100.0, 104.0], 3, 0.4, None),           # too few reliable views
-    ([100.0, 104.0, 98.0], 3, 0.1, None),     # no reliable view: the handle was never seen
+    ([100.0, 104.0, 98.0], 3, 0.05, None),    # no reliable view: the handle was never seen
     ([100.0, -20.0, 40.0], 3, 0.4, None),     # the views disagree (spread over the bar)
+    ([25.0, 55.0, 40.0], 3, 0.4, None),       # 40 on average, 12 degrees of spread: within the margin
 ])
 def test_a_rotation_needs_reliable_tight_headings_and_a_turn_over_the_bar(target_deg, views, strength, expected):
     source = _object([0.0, 3.0, -2.0])
@@ -126,7 +131,7 @@ def test_the_detector_reports_a_turned_mug_as_rotated_with_its_angle():
 
 
 def test_no_rotation_is_reported_from_unreliable_headings_or_with_the_test_off():
-    assert reported_changes(_run({3: 120.0}, strength={3: 0.1})) == []
+    assert reported_changes(_run({3: 120.0}, strength={3: 0.05})) == []
     off = DetectorConfig(registration=RegistrationConfig(pairs=4), decision=DecisionConfig(rotation_deg=None))
     assert reported_changes(_run({3: 120.0}, config=off)) == []
     assert reported_changes(_run({})) == []

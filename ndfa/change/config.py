@@ -74,11 +74,14 @@ class DecisionConfig:
     # "rotated". None: off (the paper has no such test).
     rotation_deg: float | None = 30.0
     # A view's handle heading counts from this strength (the horizontal length of the NDF's handle
-    # vector, `ndfa.ndf.heading`): on the baseline scenes' source views, 41 % reach 0.25, and 97 %
-    # of those are within 20 degrees of the truth (docs/rotation.md).
-    heading_strength: float = 0.25
+    # vector, `ndfa.ndf.heading`), weighted by it: on the baseline scenes' source views, 53 % reach
+    # 0.15, and 96 % of those are within 20 degrees of the truth (docs/rotation.md).
+    heading_strength: float = 0.15
     rotation_views: int = 3            # reliable views each of the two objects needs
     rotation_spread_deg: float = 25.0  # their headings' circular spread, per object, at most this
+    # The turn must pass `rotation_deg` by this many times the two objects' spreads combined
+    # (sqrt(s_t^2 + s_s^2)): their headings' view-dependent bias does not average away. 0: off.
+    rotation_margin: float = 1.0
 
     def __post_init__(self) -> None:
         if self.rotation_deg is not None and not 0.0 < self.rotation_deg < 180.0:

@@ -28,8 +28,9 @@ from ndfa.core.events import CHANGE_SCORE
 
 @dataclass(frozen=True)
 class FusedHeading:
-    """An object's heading about up from its reliable views: circular mean (radians, its world),
-    circular spread (radians: sqrt(-2 ln R), R the mean resultant length) and the views used."""
+    """An object's heading about up from its reliable views: their circular mean weighted by
+    strength (radians, its world), its circular spread (radians: sqrt(-2 ln R), R the weighted mean
+    resultant length) and the views used."""
 
     angle_rad: float
     spread_rad: float
@@ -45,14 +46,17 @@ class Rotation:
     score: float
     target: FusedHeading
     source: FusedHeading
+    margin_deg: float = 0.0  # the turn's uncertainty: rotation_margin x the two spreads combined
 
 
 def fused_heading(obj: SessionObject, min_strength: float) -> FusedHeading | None:
-    """The circular mean of `obj`'s headings with strength >= `min_strength`; None without any."""
-    angles = np.array([a for a, s in obj.headings if s >= min_strength and np.isfinite(a)])
-    if len(angles) == 0:
+    """The circular mean of `obj`'s headings with strength >= `min_strength`, each weighted by its
+    strength (the mean of the views' horizontal handle vectors, normalised); None without any."""
+    views = np.array([(a, s) for a, s in obj.headings if s >= min_strength and np.isfinite(a)]).reshape(-1, 2)
+    if len(views) == 0:
         return None
-    mean = np.array([np.cos(angles).mean(), np.sin(angles).mean()])
+    angles, weights = views[:, 0], views[:, 1] / views[:, 1].sum()
+    mean = np.array([weights @ np.cos(angles), weights @ np.sin(angles)])
     length = float(np.linalg.norm(mean))
     spread = float(np.sqrt(-2.0 * np.log(length))) if length > 1e-12 else np.inf
     return FusedHeading(float(np.arctan2(mean[1], mean[0])), spread, len(angles))
@@ -82,7 +86,10 @@ def rotation_of(target: SessionObject, partner: SessionObject, rotation: np.ndar
     assert target_heading is not None and partner_heading is not None  # refused above
     turn = (source_heading(target_heading.angle_rad, rotation) - partner_heading.angle_rad + np.pi) % (2 * np.pi) - np.pi
     angle_deg = float(np.degrees(turn))
-    if abs(angle_deg) <= decision.rotation_deg:
+    # The turn less its uncertainty must pass the bar: a view-dependent bias of the headings is not
+    # averaged away by more views of the same side, so the spreads themselves are the margin.
+    margin = decision.rotation_margin * float(np.degrees(np.hypot(target_heading.spread_rad, partner_heading.spread_rad)))
+    if abs(angle_deg) - margin <= decision.rotation_deg:
         return None
-    ratio = abs(angle_deg) / decision.rotation_deg
-    return Rotation(angle_deg, max(ratio / (1.0 + ratio), CHANGE_SCORE), target_heading, partner_heading)
+    ratio = (abs(angle_deg) - margin) / decision.rotation_deg
+    return Rotation(angle_deg, max(ratio / (1.0 + ratio), CHANGE_SCORE), target_heading, partner_heading, margin)
