@@ -183,3 +183,32 @@ def test_a_rotated_report_of_a_turned_mug_is_a_true_positive_and_counts_as_found
     assert s.rotated_ids == (1, 2, 3) and s.rotated_found_ids == (1,)
     assert s.as_dict()["rotated"] == {"mugs": [1, 2, 3], "found_as_rotated": [1], "recall": pytest.approx(1 / 3)}
     assert "rotated" not in score([1], {"objects": [{"instance_id": 1, "change": "added"}]}).as_dict()
+
+
+def test_a_rotation_reaches_the_decisions_table_and_the_json_summary(tmp_path):
+    import polars as pl
+
+    from ndfa.log.table_sink import TableSink
+    from ndfa.run.detect import DetectionResult
+
+    rotated, unchanged = _report(3, "rotated"), _report(4, "unchanged")
+    sink = TableSink(tmp_path)
+    for event in (rotated, unchanged):
+        sink.log(event)
+    sink.close()
+    table = pl.read_parquet(tmp_path / "decisions.parquet")
+    assert table["kind"].to_list() == ["rotated", "unchanged"] and table["angle_deg"].to_list() == [90.0, None]
+    result = DetectionResult(changes=[rotated], frames={"source": 1, "target": 1}, objects={"source": 1, "target": 1},
+                             seconds={}, stage_ms={})
+    assert result.summary()["changes"][0]["kind"] == "rotated" and result.summary()["changes"][0]["angle_deg"] == 90.0
+
+
+def test_a_bad_rotation_range_at_the_command_line_is_one_line_and_exit_2(tmp_path):
+    import subprocess
+    import sys
+
+    done = subprocess.run([sys.executable, "-c", "from ndfa.cli import main; main()", "ingest", "sim", "--preset", "sample",
+                           "--rotated", "1", "--rotated-deg", "90", "45", "--out", str(tmp_path / "x")],
+                          capture_output=True, text=True)
+    assert done.returncode == 2, done.stderr
+    assert "rotation range" in done.stderr and "Traceback" not in done.stderr and len(done.stderr.strip().splitlines()) == 1
