@@ -92,11 +92,12 @@ class ChangeDetectionPipeline:
                 n_points=len(observation.points_camera), touches_border=observation.touches_border,
                 points_world=transform_points(frame.pose_world_camera, observation.points_camera),
                 shape_code=code.shape_code, center_world=code.center_world, mean_occupancy=code.mean_occupancy,
-                reconstruction_world=code.reconstruction))
+                reconstruction_world=code.reconstruction, heading_rad=code.heading_rad,
+                heading_strength=code.heading_strength))
             if skip is not None:
                 continue
             measurements.append(Measurement(frame.index, observation.instance_id, code.shape_code, code.center_world,
-                                            code.mean_occupancy))
+                                            code.mean_occupancy, code.heading_rad, code.heading_strength))
         add = self.detector.add_source if session == "source" else self.detector.add_target
         events += add(measurements)
         detected = time.perf_counter()

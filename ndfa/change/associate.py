@@ -16,7 +16,7 @@ drifts between two visits of a place, more than `distance_m` on real sequences.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -34,6 +34,8 @@ class Measurement:
     shape_code: np.ndarray    # (D,)
     center_world: np.ndarray  # (3,)
     mean_occupancy: float
+    heading_rad: float = float("nan")  # the handle's azimuth about up, and how sure (`ndfa.ndf.heading`)
+    heading_strength: float = 0.0
 
 
 @dataclass
@@ -50,6 +52,8 @@ class SessionObject:
     instance_ids: tuple[int, ...] = ()  # mask ids of the measurements it took, in order of first use
     code_sum: np.ndarray | None = None   # sum of the unit codes of its measurements ("mean" fusion)
     centers: list[np.ndarray] | None = None  # centers of its measurements ("mean" fusion)
+    # (heading, strength) of every measurement it took: `ndfa.change.rotation` fuses the reliable ones
+    headings: list[tuple[float, float]] = field(default_factory=list)
 
     @property
     def center_scatter_m(self) -> float:
@@ -126,11 +130,13 @@ class SessionMap:
             object_id = len(self.objects)
             self.objects[object_id] = SessionObject(
                 object_id, m.shape_code, m.center_world, m.mean_occupancy, m.frame_index, m.frame_index,
-                instance_ids=(m.instance_id,), code_sum=_unit(m.shape_code), centers=[m.center_world])
+                instance_ids=(m.instance_id,), code_sum=_unit(m.shape_code), centers=[m.center_world],
+                headings=[(m.heading_rad, m.heading_strength)])
             self.tree.insert(object_id, m.center_world)
             return Association(object_id, True, False, float("nan"), float("nan"), len(candidates))
         best.n_measurements += 1
         best.last_frame = m.frame_index
+        best.headings.append((m.heading_rad, m.heading_strength))
         if m.instance_id not in best.instance_ids:
             best.instance_ids += (m.instance_id,)
         if c.fusion == "mean":

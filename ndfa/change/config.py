@@ -69,6 +69,23 @@ class DecisionConfig:
     # horizontal, so without it testing a mug on a table "observes" a piece of floor under the
     # table, which the target may never have seen (docs/detector.md). 0: off (any height).
     observed_height_m: float = 0.3
+    # Rotated objects (`ndfa.change.rotation`, docs/rotation.md): an object found unchanged whose
+    # handle turned about up by more than this many degrees between the sessions is reported
+    # "rotated". None: off (the paper has no such test).
+    rotation_deg: float | None = 30.0
+    # A view's handle heading counts from this strength (the horizontal length of the NDF's handle
+    # vector, `ndfa.ndf.heading`), weighted by it: on the baseline scenes' source views, 53 % reach
+    # 0.15, and 96 % of those are within 20 degrees of the truth (docs/rotation.md).
+    heading_strength: float = 0.15
+    rotation_views: int = 3            # reliable views each of the two objects needs
+    rotation_spread_deg: float = 25.0  # their headings' circular spread, per object, at most this
+    # The turn must pass `rotation_deg` by this many times the two objects' spreads combined
+    # (sqrt(s_t^2 + s_s^2)): their headings' view-dependent bias does not average away. 0: off.
+    rotation_margin: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.rotation_deg is not None and not 0.0 < self.rotation_deg < 180.0:
+            raise ValueError(f"rotation_deg must be in (0, 180) degrees or None, got {self.rotation_deg}")
 
 
 @dataclass(frozen=True)
@@ -92,5 +109,5 @@ class DetectorConfig:
             decision=DecisionConfig(edge_m=0.03, fallback_distance_m=0.05, in_place_m=0.0, scatter_factor=0.0,
                                     cell_margin_m=0.0,
                                     min_measurements=1,
-                                    confirm_measurements=1, observed_height_m=0.0),
+                                    confirm_measurements=1, observed_height_m=0.0, rotation_deg=None),
         )

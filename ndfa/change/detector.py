@@ -11,7 +11,9 @@ Read it top to bottom as the paper's loop:
                        acted on now or O waits; "changed" is reported now, never retracted
     end           finish()       waiting objects decided with the evidence there is; removed =
                                  source objects observed but never matched; a changed target
-                                 object that matches a removed one by shape is reported as moved
+                                 object that matches a removed one by shape is reported as moved;
+                                 an unchanged one whose handle turned about up, as rotated
+                                 (`ndfa.change.rotation`; beyond the paper)
 
 Every decision carries a score in [0, 1] (`DecisionEvent.score`; `ndfa.change.verdict.decision_score`,
 `removal_score`): changes at least 0.5, "unchanged" below, so a threshold on it trades precision
@@ -32,6 +34,7 @@ from ndfa.change.graph import local_graph
 from ndfa.change.policy import DecisionPolicy
 from ndfa.change.register import Registration, RegistrationPrior, apply
 from ndfa.change.registrar import Registrar
+from ndfa.change.rotation import rotation_of
 from ndfa.change.verdict import Verdict, decision_score, graph_verdict, removal_score, shape_verdict
 from ndfa.core.events import AssociationEvent, DecisionEvent, DecisionKind, Event, Session
 
@@ -49,6 +52,7 @@ class ChangeDetector:
         self.observed: set[int] = set()    # source objects that were in a tested object's neighbourhood
         self.observers: dict[int, set[int]] = {}  # source object -> the target objects tested around it
         self.matched: dict[int, int] = {}  # source object -> the target object first found consistent with it
+        self.partners: dict[int, int] = {}  # target object -> the source object its latest "unchanged" test named
         self._last_frame = -1
 
     @property
@@ -118,7 +122,7 @@ class ChangeDetector:
                 frame_index=self._last_frame, session="source", object_id=source_id, kind="removed",
                 reason="observed but never matched", center_world=obj.center_world, center_source=obj.center_world,
                 instance_ids=obj.instance_ids, score=removal_score(len(self.observers.get(source_id, ())))))
-        return events
+        return events + self._rotations()
 
     # -- steps ----------------------------------------------------------------------------------
 
@@ -178,11 +182,34 @@ class ChangeDetector:
         if verdict.kind == "unchanged":
             assert verdict.partner_id is not None  # an "unchanged" verdict names its partner
             self.matched.setdefault(verdict.partner_id, object_id)
+            self.partners[object_id] = verdict.partner_id
             return events + [self._decision(frame_index, object_id, "unchanged", verdict, center_source)]
         if verdict.kind == "changed":
             self.changed[object_id] = self._decision(frame_index, object_id, "added", verdict, center_source)
             return events + [self.changed[object_id]]
         return events  # undecided: O waits (the policy holds it pending)
+
+    def _rotations(self) -> list[Event]:
+        """At the end, when every view is in: the unchanged target objects whose handle turned
+        against their partner's by more than `DecisionConfig.rotation_deg` (`ndfa.change.rotation`)."""
+        if self.registration is None or self.config.decision.rotation_deg is None:
+            return []
+        rotation = self.registration.transform[:3, :3]
+        events: list[Event] = []
+        for object_id, partner_id in sorted(self.partners.items()):
+            if object_id in self.changed:
+                continue
+            obj, partner = self.target.objects[object_id], self.source.objects[partner_id]
+            turned = rotation_of(obj, partner, rotation, self.config.decision)
+            if turned is None:
+                continue
+            events.append(DecisionEvent(
+                frame_index=self._last_frame, session="target", object_id=object_id, kind="rotated",
+                reason=(f"turned {turned.angle_deg:+.0f} deg about up against source object {partner_id} "
+                        f"(headings from {turned.target.views} and {turned.source.views} views)"),
+                center_world=obj.center_world, center_source=apply(self.registration.transform, obj.center_world[None])[0],
+                partner_id=partner_id, instance_ids=obj.instance_ids, score=turned.score, angle_deg=turned.angle_deg))
+        return events
 
     def _decision(self, frame_index: int, object_id: int, kind: DecisionKind, verdict: Verdict,
                   center_source: np.ndarray) -> DecisionEvent:

@@ -126,7 +126,7 @@ def detect_command(
         table.add_column(column)
     for c in result.changes:
         position = c.center_source if c.center_source is not None else c.center_world
-        table.add_row(c.kind, c.session, str(c.object_id), str(c.frame_index),
+        table.add_row(c.kind if c.angle_deg is None else f"{c.kind} {c.angle_deg:+.0f}°", c.session, str(c.object_id), str(c.frame_index),
                       " ".join(f"{v:+.2f}" for v in position), ",".join(map(str, c.instance_ids)))
     console.print(table)
     summary = result.summary() | {"ndf_runtime": runtime}

@@ -144,6 +144,10 @@ def ingest_sim_command(
     max_turn: Optional[float] = typer.Option(None, help="Most the camera turns between frames, degrees; 0: unlimited "
                                                         f"(default: {RAW_MAX_TURN_DEG:g} with --raw, else unlimited).",
                                             callback=in_range(ge=0, le=180)),
+    rotated: int = typer.Option(0, help="Mugs turned in place about up in the target (unchanged mugs with a handle).",
+                                callback=non_negative),
+    rotated_deg: tuple[float, float] = typer.Option((45.0, 180.0), help="MIN MAX: the range (degrees) each "
+                                                    "--rotated mug turns by, in either sense."),
 ) -> None:
     """Render a synthetic source/target pair of recordings with ground truth."""
     from ndfa.io.ingest.synthetic import check_output_dir, ingest_sim
@@ -183,7 +187,8 @@ def ingest_sim_command(
                                    drift_translation_m=drift, drift_yaw_deg=drift_yaw).items() if v is not None}
     if error:
         overrides["target_pose_error"] = dataclasses.replace(config.target_pose_error, **error)
-    overrides.update(textures=textures, clutter_per_table=clutter, raw=raw, world_tilt_deg=world_tilt)
+    overrides.update(textures=textures, clutter_per_table=clutter, raw=raw, world_tilt_deg=world_tilt,
+                     rotated=rotated, rotated_deg=tuple(rotated_deg))
     config = make_config(preset, seed, **overrides)
 
     check_output_dir(out)
@@ -198,11 +203,12 @@ def ingest_sim_command(
         summaries = ingest_sim(config, out, models=user_models, on_progress=bar_per_label(progress, "rendering "))
 
     table = Table(title=f"{config.preset} scene, seed {config.seed}: {config.table_rows * config.table_cols} tables -> {out}")
-    for column in ("session", "frames", "mugs", "added", "removed", "moved", "switched", "size"):
+    kinds = ("added", "removed", "moved", "switched") + (("rotated",) if rotated else ())
+    for column in ("session", "frames", "mugs", *kinds, "size"):
         table.add_column(column, justify="left" if column == "session" else "right")
     for s in summaries:
         table.add_row(s.path.name, str(s.frames), str(s.objects),
-                      *(str(s.changes.get(k, "")) for k in ("added", "removed", "moved", "switched")),
+                      *(str(s.changes.get(k, "")) for k in kinds),
                       f"{s.size_bytes / 1e6:.1f} MB")
     console.print(table)
 

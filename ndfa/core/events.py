@@ -15,7 +15,7 @@ import numpy as np
 from ndfa.core.frame import Frame
 
 Session = Literal["source", "target"]
-DecisionKind = Literal["unchanged", "added", "removed", "moved"]
+DecisionKind = Literal["unchanged", "added", "removed", "moved", "rotated"]
 GraphMode = Literal["graph", "in place", "fallback"]
 # Where a T_rel came from: RANSAC on shape-matched object pairs (the paper's), or a prior hypothesis
 # the pairs verified: the sessions' shared world, or the alignment of their scene clouds.
@@ -48,6 +48,8 @@ class ObservationEvent:
     center_world: np.ndarray | None = None   # (3,)
     mean_occupancy: float = float("nan")
     reconstruction_world: np.ndarray | None = None  # (M, 3) grid points the NDF calls occupied
+    heading_rad: float = float("nan")        # the handle's azimuth about up (ndfa.ndf.heading)
+    heading_strength: float = 0.0            # how sure the NDF is of it
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -117,8 +119,10 @@ class DecisionEvent:
     """A change test of a target object, or a removal decided at the end.
 
     kind: "unchanged", "added" (changed in the target: new here), "removed" (a source object observed
-    but never matched) or "moved" (a changed target object that matches a removed source object by
-    shape; assigned at the end). A change is reported the first time it is found and never retracted.
+    but never matched), "moved" (a changed target object that matches a removed source object by
+    shape; assigned at the end) or "rotated" (an unchanged object whose handle turned about up by
+    `angle_deg`; assigned at the end, `ndfa.change.rotation`). A change is reported the first time
+    it is found and never retracted.
 
     score: how strongly the evidence says "changed", in [0, 1]; reported changes score at least
     `CHANGE_SCORE` and "unchanged" decisions below it, so thresholding the scores at another value
@@ -137,6 +141,7 @@ class DecisionEvent:
     instance_ids: tuple[int, ...] = ()       # mask ids of the object's measurements
     partner_instance_ids: tuple[int, ...] = ()  # a move's source object's mask ids (it is reported with it)
     score: float = float("nan")
+    angle_deg: float | None = None           # "rotated": the turn about up, degrees (source world, source -> target)
 
     @property
     def reported_instances(self) -> tuple[int, ...]:

@@ -2,12 +2,18 @@
 
 A reported change names an object of one session; the object stands for the physical mug of the
 mask that created it (its first instance id; in the synthetic world an instance id is a physical
-mug in both sessions). A ground-truth change is a mug that was added, removed, moved or switched.
+mug in both sessions). A ground-truth change is a mug that was added, removed, moved, switched or
+(beyond the paper) rotated: turned in place about up (docs/rotation.md).
 
     TP  changed mugs with at least one report (a moved mug found at its new place, at its old
         place, or both counts once)
     FN  changed mugs without a report
     FP  unchanged mugs with at least one report (object level: two reports of one mug are one FP)
+
+The kind of a report does not enter TP/FP/FN (a switched mug reported as "added" is found, as in
+the paper). For the rotated mugs the score also says how many were reported as "rotated"
+(`Score.rotated_found_ids` of `rotated_ids`): a turned mug reported as moved or added is a TP
+but not found as turned; one reported as unchanged (no report) is an FN and not found either.
 
 Only mugs whose change the recordings can show are scored: an added mug must be visible in the
 target, a removed one in the source, and every other mug in both sessions ("visible": its mask
@@ -19,6 +25,7 @@ looked cannot be missed. The others are listed as unscored, not dropped silently
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from ndfa.core.conventions import VISIBLE_PIXELS
@@ -33,6 +40,8 @@ class Score:
     false_positive_ids: tuple[int, ...]
     false_negative_ids: tuple[int, ...]
     unscored_ids: tuple[int, ...] = ()  # mugs not visible in a session they would need to be
+    rotated_ids: tuple[int, ...] = ()        # scored mugs the ground truth turned in place
+    rotated_found_ids: tuple[int, ...] = ()  # those of them with a "rotated" report
 
     @property
     def precision(self) -> float:
@@ -42,9 +51,18 @@ class Score:
     def recall(self) -> float:
         return self.tp / (self.tp + self.fn) if self.tp + self.fn else 1.0
 
+    @property
+    def rotated_recall(self) -> float:
+        """The share of the scored turned mugs reported as "rotated" (1.0 when there are none)."""
+        return len(self.rotated_found_ids) / len(self.rotated_ids) if self.rotated_ids else 1.0
+
     def as_dict(self) -> dict:
-        return {"tp": self.tp, "fp": self.fp, "fn": self.fn, "precision": self.precision, "recall": self.recall,
-                "unscored": list(self.unscored_ids)}
+        out = {"tp": self.tp, "fp": self.fp, "fn": self.fn, "precision": self.precision, "recall": self.recall,
+               "unscored": list(self.unscored_ids)}
+        if self.rotated_ids:  # only for scenes with turned mugs: the others' summaries stay as they were
+            out["rotated"] = {"mugs": list(self.rotated_ids), "found_as_rotated": list(self.rotated_found_ids),
+                              "recall": self.rotated_recall}
+        return out
 
 
 def changed_instances(ground_truth: dict) -> dict[int, str]:
@@ -72,10 +90,12 @@ def scorable_instances(ground_truth: dict, visible: dict[str, set[int]]) -> set[
     return out
 
 
-def score(reported_instances: list[int], ground_truth: dict, visible: dict[str, set[int]] | None = None) -> Score:
+def score(reported_instances: list[int], ground_truth: dict, visible: dict[str, set[int]] | None = None,
+          rotated_instances: Sequence[int] = ()) -> Score:
     """Score the instance ids of the reported changes (one per report, repeats allowed).
 
     `visible`: per session, the instances visible in it; None scores every mug of the ground truth.
+    `rotated_instances`: the instance ids of the "rotated" reports among them (`rotated_reports`).
     """
     truth = changed_instances(ground_truth)
     everything = {int(o["instance_id"]) for o in ground_truth.get("objects", [])} | set(reported_instances)
@@ -85,4 +105,12 @@ def score(reported_instances: list[int], ground_truth: dict, visible: dict[str, 
     tp = sorted(reported & truth.keys())
     fp = sorted(reported - truth.keys())
     fn = sorted(truth.keys() - reported)
-    return Score(len(tp), len(fp), len(fn), tuple(tp), tuple(fp), tuple(fn), tuple(sorted(everything - scored)))
+    turned = sorted(i for i, kind in truth.items() if kind == "rotated")
+    found = sorted(set(turned) & set(rotated_instances))
+    return Score(len(tp), len(fp), len(fn), tuple(tp), tuple(fp), tuple(fn), tuple(sorted(everything - scored)),
+                 tuple(turned), tuple(found))
+
+
+def rotated_reports(changes: list) -> list[int]:
+    """The instance ids the "rotated" reports among `changes` (`DecisionEvent`s) stand for."""
+    return [i for c in changes if c.kind == "rotated" for i in c.reported_instances]

@@ -23,7 +23,7 @@ from ndfa.core.progress import LabelledProgress
 from ndfa.eval.baselines.common import BaselineError, run_baseline
 from ndfa.eval.baselines.nn import NNBaseline, NNConfig
 from ndfa.eval.baselines.tsdf import TSDFBaseline, TSDFConfig
-from ndfa.eval.scoring import is_visible, score
+from ndfa.eval.scoring import is_visible, rotated_reports, score
 from ndfa.io.atomic import atomic_path, write_parquet
 from ndfa.io.recording import Frame, RecordingReader
 from ndfa.perception.observations import ObservationConfig
@@ -137,6 +137,11 @@ def evaluate_methods(source: Path, target: Path, nn: NNConfig = NNConfig(), tsdf
         unscored = s.unscored_ids
         rows.append(MethodRow(method, poses, s.tp, s.fp, s.fn, s.precision, s.recall, seconds[method],
                               s.false_positive_ids, s.false_negative_ids, tuple(sorted(set(reported[method])))))
+    turned = score(reported["ndfa"], truth, visible, rotated_reports(detection.changes))
+    if turned.rotated_ids:
+        notes.append(f"ndfa reported {len(turned.rotated_found_ids)} of the {len(turned.rotated_ids)} mugs turned in "
+                     "place as rotated; TP/FP/FN count a turned mug found by any report (the baselines have no "
+                     "rotated kind)")
     own = detection.score
     if own is not None and (own.tp, own.fp, own.fn) != (rows[-1].tp, rows[-1].fp, rows[-1].fn):
         notes.append(f"ndfa's own score (TP {own.tp} FP {own.fp} FN {own.fn}) differs from this table's: "

@@ -50,7 +50,8 @@ from ndfa.core.events import (
 )
 from ndfa.io.atomic import Staged
 
-KIND_COLORS = {"added": (230, 60, 60), "removed": (240, 160, 30), "moved": (170, 80, 230), "unchanged": (90, 200, 90)}
+KIND_COLORS = {"added": (230, 60, 60), "removed": (240, 160, 30), "moved": (170, 80, 230), "rotated": (40, 190, 220),
+               "unchanged": (90, 200, 90)}
 SESSION_COLORS = {"source": (80, 140, 255), "target": (255, 120, 80)}
 TABLE_HEIGHT_BOX_M = 0.3  # height of the tree-cell boxes drawn around the objects
 OBJECT_POINTS = 300  # points kept of an object's fullest view: enough to see a mug, small in the file
@@ -217,11 +218,16 @@ class RerunSink:
             self._places[f"decisions/{e.session}_{e.object_id}"] = np.asarray(position, dtype=float)
             self.rec.log(f"decisions/{e.session}_{e.object_id}", rr.Points3D(
                 [position], colors=KIND_COLORS[e.kind], radii=0.03,
-                labels=[f"{e.kind} {e.session[0]}{e.object_id} {e.score:.2f}"]))
+                labels=[f"{e.kind} {e.session[0]}{e.object_id} {e.score:.2f}{_turn(e)}"]))
         self.rec.log("decisions/log", rr.TextLog(
-            f"frame {e.frame_index}: {e.session} object {e.object_id} {e.kind} (score {e.score:.2f}): {e.reason}",
+            f"frame {e.frame_index}: {e.session} object {e.object_id} {e.kind}{_turn(e)} (score {e.score:.2f}): {e.reason}",
             level="INFO" if e.kind == "unchanged" else "WARN"))
 
     def _TimingEvent(self, e: TimingEvent) -> None:
         for stage, ms in e.stage_ms.items():
             self.rec.log(f"timings/{e.session}/{stage}", rr.Scalars(ms))
+
+
+def _turn(e: DecisionEvent) -> str:
+    """A rotation's turn for its label (" +92°"); empty for the other decisions."""
+    return "" if e.angle_deg is None else f" {e.angle_deg:+.0f}°"

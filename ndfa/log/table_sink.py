@@ -1,6 +1,7 @@
 """Events -> Polars tables, written as parquet into one directory, for analysis in notebooks.
 
-    observations.parquet   one row per instance per frame: pixels, points, skip reason, code, center
+    observations.parquet   one row per instance per frame: pixels, points, skip reason, code, center,
+                           handle heading about up and its strength (docs/rotation.md)
     associations.parquet   the intra-session update of each measurement
     objects.parquet        each session's objects at the end (last state of every object)
     tree_nodes.parquet     each session's interval-tree nodes at the end
@@ -9,7 +10,7 @@
                            row without an edge for a fallback comparison)
     decisions.parquet      every change test and the final removals/moves, with its score (>= 0.5:
                            a change; docs/scores.md) and the ground-truth change of the object's
-                           mask when the recordings carry it
+                           mask when the recordings carry it; a rotation's turn in `angle_deg`
     timings.parquet        ms per stage per frame
 
 Vectors are list columns (center_x/y/z as plain columns for easy filtering). The tables are
@@ -63,6 +64,7 @@ class TableSink:
                 "n_pixels": event.n_pixels, "n_points": event.n_points, "skipped": event.skipped,
                 "touches_border": event.touches_border, "mean_occupancy": event.mean_occupancy,
                 **_xyz("center", event.center_world), "shape_code": _list(event.shape_code),
+                "heading_deg": float(np.degrees(event.heading_rad)), "heading_strength": event.heading_strength,
                 "truth": self._truth(event.instance_id)})
         elif isinstance(event, AssociationEvent):
             row = {"session": event.session, "frame": event.frame_index, "instance_id": event.instance_id,
@@ -100,7 +102,7 @@ class TableSink:
             self.rows["decisions"].append({
                 "frame": event.frame_index, "session": event.session, "object_id": event.object_id, "kind": event.kind,
                 "reason": event.reason, **_xyz("position", position), "partner_id": event.partner_id,
-                "instance_ids": list(event.instance_ids), "score": event.score,
+                "instance_ids": list(event.instance_ids), "score": event.score, "angle_deg": event.angle_deg,
                 "truth": self._truth(event.instance_ids[0]) if event.instance_ids else None})
         elif isinstance(event, TimingEvent):
             self.rows["timings"].append({"session": event.session, "frame": event.frame_index} | event.stage_ms)

@@ -1,5 +1,5 @@
 """Inference: partial object point clouds -> `ObjectCode` (shape code, world center, latent z,
-mean occupancy, reconstruction). Pure computation: no files are read here except the weights.
+mean occupancy, reconstruction, handle heading). Pure computation: no files are read here except the weights.
 
 Each observation is resampled to the model's point count, centred on its mean (the translation),
 encoded, and decoded on a grid around the predicted center; everything is moved to the world
@@ -20,6 +20,7 @@ from ndfa.core.conventions import world_up
 from ndfa.core.errors import ModelError
 from ndfa.core.geometry import transform_points
 from ndfa.ndf.checkpoint import load_model
+from ndfa.ndf.heading import frame_weights_of, handle_heading
 from ndfa.ndf.runtime import make_runtime
 
 WEIGHTS_DIR = Path(__file__).parent / "weights"
@@ -37,6 +38,10 @@ class ObjectCode:
     z: np.ndarray                # [k, 3] equivariant latent, rotated into the world frame
     mean_occupancy: float        # mean predicted occupancy over the reconstruction (confidence)
     reconstruction: np.ndarray   # [M, 3] grid points with occupancy > v0, world frame
+    # The handle's azimuth about world up and how sure the network is of it (`ndfa.ndf.heading`):
+    # NaN and 0 for a model without the trained frame decoder.
+    heading_rad: float = float("nan")
+    heading_strength: float = 0.0
 
 
 FINE_GRID_RESOLUTION = 20  # the reconstruction grid of `ndfa ndf-eval` and the model card
@@ -91,6 +96,7 @@ class NDFEncoder:
         self.n_points = int(extra.get("n_points", 400))
         self.config = config
         self.runtime = make_runtime(self.model, self.n_points, config.runtime, config.threads)
+        self._frame_weights = frame_weights_of(self.model)
         axis = np.linspace(-1.0, 1.0, config.grid_resolution, dtype=np.float32) * config.grid_half_extent_m
         self._grid = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
 
@@ -115,12 +121,16 @@ class NDFEncoder:
             inside = occupancy[i] > self.config.v0
             center_local = self._center(offsets[i], query_points[i], occupancy[i], inside)
             rotation = np.asarray(pose)[:3, :3]
+            z_world = z[i] @ rotation.T
+            heading = handle_heading(z_world, self._frame_weights)
             results.append(ObjectCode(
                 shape_code=codes[i],
                 center_world=transform_points(pose, (centroids[i, 0] + center_local)[None])[0],
-                z=z[i] @ rotation.T,
+                z=z_world,
                 mean_occupancy=float(occupancy[i][inside].mean()) if inside.any() else 0.0,
                 reconstruction=transform_points(pose, query_points[i][inside] + centroids[i, 0]),
+                heading_rad=heading.angle_rad,
+                heading_strength=heading.strength,
             ))
         return results
 

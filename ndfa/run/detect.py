@@ -22,7 +22,7 @@ from ndfa.change.detector import reported_changes
 from ndfa.core.errors import RecordingError
 from ndfa.core.events import DecisionEvent, Event, FrameEvent, ObservationEvent, RegistrationEvent, TimingEvent
 from ndfa.core.progress import LabelledProgress
-from ndfa.eval.scoring import Score, is_visible, score
+from ndfa.eval.scoring import Score, is_visible, rotated_reports, score
 from ndfa.io.recording import INSTANCES, RecordingReader
 from ndfa.io.recording.prefetch import prefetched
 from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
@@ -68,7 +68,8 @@ class DetectionResult:
             "changes": [{"object": c.object_id, "session": c.session, "kind": c.kind, "frame": c.frame_index,
                          "position": [round(float(v), 4) for v in (c.center_source if c.center_source is not None
                                                                    else c.center_world)],
-                         "instance_ids": list(c.instance_ids)} for c in self.changes],
+                         "instance_ids": list(c.instance_ids)}
+                        | ({} if c.angle_deg is None else {"angle_deg": round(c.angle_deg, 1)}) for c in self.changes],
             "notes": self.notes,
             "world": {session: world.as_dict() for session, world in self.worlds.items()},
             "registration": self.registration,
@@ -216,7 +217,7 @@ def run_detection(
         result.score = score_segmented_run(changes, detector, {"source": source_reader, "target": target_reader},
                                            worlds, notes)
     elif truth is not None and "objects" in truth:
-        result.score = score([i for c in changes for i in c.reported_instances], truth, visible)
+        result.score = score([i for c in changes for i in c.reported_instances], truth, visible, rotated_reports(changes))
     return result
 
 

@@ -31,7 +31,7 @@ from ndfa.change.associate import Measurement
 from ndfa.change.detector import ChangeDetector, DetectorConfig, reported_changes
 from ndfa.change.register import RegistrationPrior
 from ndfa.core.events import CHANGE_SCORE, DecisionEvent
-from ndfa.eval.scoring import Score, is_visible, score
+from ndfa.eval.scoring import Score, is_visible, rotated_reports, score
 
 
 @dataclass
@@ -73,7 +73,9 @@ def measurements_by_frame(observations: pl.DataFrame, session: str) -> list[list
     for row in used.iter_rows(named=True):
         frames.setdefault(row["frame"], []).append(Measurement(
             row["frame"], row["instance_id"], np.asarray(row["shape_code"]),
-            np.array([row["center_x"], row["center_y"], row["center_z"]]), row["mean_occupancy"]))
+            np.array([row["center_x"], row["center_y"], row["center_z"]]), row["mean_occupancy"],
+            # the handle heading (docs/rotation.md); a table written before it had none
+            np.radians(np.nan if row.get("heading_deg") is None else row["heading_deg"]), row.get("heading_strength") or 0.0))
     return [frames[f] for f in sorted(frames)]
 
 
@@ -95,7 +97,8 @@ def replay(observations: pl.DataFrame, config: DetectorConfig = DetectorConfig()
     truth = _truth(observations)
     seen = observations.filter(is_visible(pl.col("n_pixels")))
     visible = {s: set(seen.filter(pl.col("session") == s)["instance_id"].to_list()) for s in ("source", "target")}
-    result_score = score([i for c in changes for i in c.reported_instances], truth, visible) if truth else None
+    result_score = (score([i for c in changes for i in c.reported_instances], truth, visible, rotated_reports(changes))
+                    if truth else None)
     return ReplayResult(changes, events, detector, result_score, decisions, truth, visible)
 
 

@@ -51,6 +51,11 @@ class SimConfig:
     clutter_per_table: int = 0      # non-mug objects per table (boxes, books, bowls, bottles); static
     raw: bool = False               # record as a sensor does: no instance masks, no camera poses (/tf)
     world_tilt_deg: float = 0.0     # tilt of the recorded world frame away from z-up (roll/pitch, seeded)
+    # Mugs turned in place about up in the target (a change the paper leaves out; docs/rotation.md),
+    # each by an angle drawn from `rotated_deg` (degrees, either sense), from a stream of their own:
+    # 0 leaves the seed's scene as it was.
+    rotated: int = 0
+    rotated_deg: tuple[float, float] = (45.0, 180.0)
 
     def __post_init__(self) -> None:
         lo, hi = self.mugs_per_table
@@ -65,6 +70,11 @@ class SimConfig:
             raise SimError(f"clutter per table must be >= 0, got {self.clutter_per_table}")
         if not 0.0 <= self.world_tilt_deg <= 90.0:
             raise SimError(f"world tilt must be in [0, 90] degrees, got {self.world_tilt_deg}")
+        if self.rotated < 0:
+            raise SimError(f"rotated mugs must be >= 0, got {self.rotated}")
+        lo_deg, hi_deg = self.rotated_deg
+        if not 0.0 < lo_deg <= hi_deg <= 180.0:
+            raise SimError(f"rotation range must satisfy 0 < MIN <= MAX <= 180 degrees, got {lo_deg:g}-{hi_deg:g}")
 
 
 def make_config(preset: str, seed: int = 0, **overrides) -> SimConfig:

@@ -31,6 +31,7 @@ from ndfa.sim.scene import Room, Table, room_around, table_grid
 from ndfa.sim.splits import TEST_SEEDS, make_split_mug
 
 CHANGE_KINDS = ("added", "removed", "moved", "switched")
+ROTATED = "rotated"  # a mug turned in place about up (`turn_in_place`; not one of the change script's kinds)
 SESSIONS = ("source", "target")
 
 
@@ -51,11 +52,12 @@ class Placement:
 
 @dataclass(frozen=True)
 class Change:
-    """One changed object. `partner` is the other mug of a switch."""
+    """One changed object. `partner` is the other mug of a switch, `angle_deg` a rotated mug's turn."""
 
     instance_id: int
     kind: str
     partner: int | None = None
+    angle_deg: float | None = None  # "rotated": the turn about up, degrees (counter-clockwise seen from above)
 
 
 @dataclass
@@ -84,7 +86,9 @@ class World:
         return item.pose_world_object(self.table(item.table_id))
 
     def change_counts(self) -> dict[str, int]:
-        return {kind: sum(c.kind == kind for c in self.changes) for kind in CHANGE_KINDS}
+        """Changes per kind; "rotated" only when there are any (a scene without keeps its counts)."""
+        kinds = CHANGE_KINDS + ((ROTATED,) if any(c.kind == ROTATED for c in self.changes) else ())
+        return {kind: sum(c.kind == kind for c in self.changes) for kind in kinds}
 
 
 def procedural_models(config: SimConfig) -> list[Mug]:
@@ -105,6 +109,10 @@ def build_world(config: SimConfig, models: list[Mug]) -> World:
     counts = _mugs_per_table(len(tables), config.mugs_per_table, config.total_mugs, rng)
     source = place_source(tables, mugs, counts, rng)
     target, changes = apply_changes(tables, mugs, source, config.changes, rng, config.switch_within_table)
+    if config.rotated:  # from a stream of its own: the other changes stay the seed's
+        target, turned = turn_in_place(target, changes, mugs, config.rotated, config.rotated_deg,
+                                       np.random.default_rng([config.seed, 5]))
+        changes = changes + turned
     color_rng = np.random.default_rng([config.seed, 3])
     colors = {i: tuple(float(c) for c in color_rng.uniform(0.15, 0.95, size=3)) for i in sorted(source.keys() | target.keys())}
     # Clutter last, from a stream of its own: adding it moves no mug of the same seed's scene.
@@ -262,6 +270,31 @@ def apply_changes(
         changes.append(Change(next_id, "added"))
         next_id += 1
     return target, changes
+
+
+def turn_in_place(target: dict[int, Placement], changes: list[Change], mugs: dict[str, Mug], count: int,
+                  degrees: tuple[float, float], rng: np.random.Generator) -> tuple[dict[int, Placement], list[Change]]:
+    """`count` mugs that `changes` left alone turned in place about their axis, each by an angle
+    drawn uniformly from `degrees` (inclusive range) in a random sense: the target layout and the
+    "rotated" changes. Only mugs with a handle turn (a mug without one looks the same turned); a
+    mesh from a file is taken to have one. A turn keeps the mug's footprint circle, so it fits."""
+    changed = {c.instance_id for c in changes} | {c.partner for c in changes if c.partner is not None}
+    candidates = [i for i in sorted(target) if i not in changed and _has_handle(mugs[target[i].model_id])]
+    if count > len(candidates):
+        raise SimError(f"{count} rotated mugs asked, but only {len(candidates)} unchanged mugs with a handle")
+    target = dict(target)
+    turned = []
+    for instance_id in sorted(int(i) for i in rng.choice(candidates, size=count, replace=False)):
+        angle = float(rng.uniform(*degrees)) * float(rng.choice([-1.0, 1.0]))
+        placement = target[instance_id]
+        yaw = float((placement.yaw + np.radians(angle) + np.pi) % (2 * np.pi) - np.pi)
+        target[instance_id] = Placement(instance_id, placement.model_id, placement.table_id, placement.xy, yaw)
+        turned.append(Change(instance_id, ROTATED, angle_deg=angle))
+    return target, turned
+
+
+def _has_handle(mug: Mug) -> bool:
+    return mug.params is None or mug.params.handle_shape != "none"
 
 
 def _switch_pairs(source: dict[int, Placement], candidates: list[int], n_pairs: int, within_table: bool,

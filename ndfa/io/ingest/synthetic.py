@@ -210,6 +210,7 @@ def world_ground_truth(world: World, config: SimConfig) -> dict:
             "target": where("target", instance_id),
             "change": change.kind if change else "unchanged",
             "partner": change.partner if change else None,
+            **({"angle_deg": change.angle_deg} if change and change.angle_deg is not None else {}),
         })
     counts = world.change_counts()
     truth = {

@@ -1,0 +1,95 @@
+"""Rotated objects: a mug turned in place about up, which its center and shape code cannot show.
+
+Each measurement carries the handle's heading about world up and how sure the NDF is of it
+(`ndfa.ndf.heading`). An object fuses the headings of its reliable views (strength at least
+`DecisionConfig.heading_strength`) into a circular mean with its spread. A target object found
+unchanged with a source partner is "rotated" when both have enough reliable views
+(`rotation_views`), both headings are tight (`rotation_spread_deg`), and the target's heading,
+brought into the source world by T_rel's rotation, differs from the partner's by more than
+`rotation_deg`. Otherwise nothing is said: the object stays unchanged. Mugs are close to
+symmetric without their handle, so the views that cannot see it (mostly those from behind the
+mug) give short handle vectors and are left out (docs/rotation.md).
+
+The score of a rotation is r / (1 + r) with r = |turn| / rotation_deg, at least 0.5 (a turn at
+the threshold scores 0.5, 90 degrees against 30 scores 0.75; docs/scores.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ndfa.change.associate import SessionObject
+from ndfa.change.config import DecisionConfig
+from ndfa.core.conventions import HORIZONTAL_AXES
+from ndfa.core.events import CHANGE_SCORE
+
+
+@dataclass(frozen=True)
+class FusedHeading:
+    """An object's heading about up from its reliable views: their circular mean weighted by
+    strength (radians, its world), its circular spread (radians: sqrt(-2 ln R), R the weighted mean
+    resultant length) and the views used."""
+
+    angle_rad: float
+    spread_rad: float
+    views: int
+
+
+@dataclass(frozen=True)
+class Rotation:
+    """A turn of target object O against its source partner: signed degrees about up (source
+    world, counter-clockwise seen from above, source to target) and the decision's score."""
+
+    angle_deg: float
+    score: float
+    target: FusedHeading
+    source: FusedHeading
+    margin_deg: float = 0.0  # the turn's uncertainty: rotation_margin x the two spreads combined
+
+
+def fused_heading(obj: SessionObject, min_strength: float) -> FusedHeading | None:
+    """The circular mean of `obj`'s headings with strength >= `min_strength`, each weighted by its
+    strength (the mean of the views' horizontal handle vectors, normalised); None without any."""
+    views = np.array([(a, s) for a, s in obj.headings if s >= min_strength and np.isfinite(a)]).reshape(-1, 2)
+    if len(views) == 0:
+        return None
+    angles, weights = views[:, 0], views[:, 1] / views[:, 1].sum()
+    mean = np.array([weights @ np.cos(angles), weights @ np.sin(angles)])
+    length = float(np.linalg.norm(mean))
+    spread = float(np.sqrt(-2.0 * np.log(length))) if length > 1e-12 else np.inf
+    return FusedHeading(float(np.arctan2(mean[1], mean[0])), spread, len(angles))
+
+
+def source_heading(angle_rad: float, rotation: np.ndarray) -> float:
+    """A target-world heading in the source world: its direction rotated by T_rel's rotation and
+    taken about up again (T_rel is a yaw with at most a small tilt)."""
+    direction = np.zeros(3)
+    x, y = HORIZONTAL_AXES
+    direction[x], direction[y] = np.cos(angle_rad), np.sin(angle_rad)
+    turned = rotation @ direction
+    return float(np.arctan2(turned[y], turned[x]))
+
+
+def rotation_of(target: SessionObject, partner: SessionObject, rotation: np.ndarray,
+                decision: DecisionConfig) -> Rotation | None:
+    """O's turn against its unchanged partner when it is a reportable rotation, else None (the
+    test is off, a heading lacks reliable views or is too spread, or the turn is under the bar)."""
+    if decision.rotation_deg is None:
+        return None
+    headings = [fused_heading(o, decision.heading_strength) for o in (target, partner)]
+    spread = np.radians(decision.rotation_spread_deg)
+    if any(h is None or h.views < decision.rotation_views or h.spread_rad > spread for h in headings):
+        return None
+    target_heading, partner_heading = headings
+    assert target_heading is not None and partner_heading is not None  # refused above
+    turn = (source_heading(target_heading.angle_rad, rotation) - partner_heading.angle_rad + np.pi) % (2 * np.pi) - np.pi
+    angle_deg = float(np.degrees(turn))
+    # The turn less its uncertainty must pass the bar: a view-dependent bias of the headings is not
+    # averaged away by more views of the same side, so the spreads themselves are the margin.
+    margin = decision.rotation_margin * float(np.degrees(np.hypot(target_heading.spread_rad, partner_heading.spread_rad)))
+    if abs(angle_deg) - margin <= decision.rotation_deg:
+        return None
+    ratio = (abs(angle_deg) - margin) / decision.rotation_deg
+    return Rotation(angle_deg, max(ratio / (1.0 + ratio), CHANGE_SCORE), target_heading, partner_heading, margin)
