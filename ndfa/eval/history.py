@@ -42,6 +42,7 @@ class HistoryScore:
     agree: int = 0
     disagreements: list[dict] = field(default_factory=list)      # {mug, object, session, truth, found, why}
     position_errors_m: list[float] = field(default_factory=list)  # present rows of matched mugs
+    scored: list[dict] = field(default_factory=list)  # every scored row: {mug, object, session, truth, found, error_m, why}
 
     @property
     def matches(self) -> bool:
@@ -98,20 +99,21 @@ def score_history(history: list[HistoryRow], truth: dict, visible: dict[str, set
             if there and mug not in shown[session]:
                 continue  # standing where this session did not look
             result.rows += 1
-            why = ""
+            why, error = "", float("nan")
             if there and found is not True:
                 why = "not found present"
             elif not there and found is True:
                 why = "found present, but the mug is not there"
             elif there and row is not None and row.center_first is not None:
                 axis = np.asarray(placement["pose_world_object"])[:2, 3]
-                error = float(np.linalg.norm(row.center_first[:2] - axis))
+                error = float(np.linalg.norm(np.asarray(row.center_first)[:2] - axis))
                 result.position_errors_m.append(error)
                 if error > tolerance_m:
                     why = f"{100 * error:.1f} cm from the mug"
+            scored = {"mug": mug, "object": h, "session": session, "truth": there, "found": found, "why": why}
+            result.scored.append(scored | {"error_m": error})
             if why:
-                result.disagreements.append({"mug": mug, "object": h, "session": session, "truth": there,
-                                             "found": found, "why": why})
+                result.disagreements.append(scored)
             else:
                 result.agree += 1
     return result

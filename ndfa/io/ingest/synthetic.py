@@ -39,9 +39,9 @@ from ndfa.io.recording.writer import depth_to_millimetres
 from ndfa.sim.mug import Mug
 from ndfa.sim.presets import SimConfig
 from ndfa.sim.render import RenderObject, SceneRenderer
+from ndfa.sim.sessions import build_sessions, history_truth, session_names
 from ndfa.sim.texture import RoomTextures, room_textures
 from ndfa.sim.trajectory import camera_poses
-from ndfa.sim.sessions import build_sessions, history_truth, session_names
 from ndfa.sim.world import World, procedural_models
 from ndfa.sim.world_tilt import tilt_pose
 
