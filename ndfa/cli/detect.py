@@ -24,7 +24,7 @@ _DETECTOR, _ODOMETRY = DetectorConfig(), OdometryConfig()
 def detect_command(
     recordings: list[Path] = typer.Argument(..., help="The sessions' recordings (.mcap), in order: a source and a "
                                             "target, or more (each compared with the one before, every object "
-                                            "followed over all of them: docs/sessions.md).", metavar="SESSIONS..."),
+                                            "followed over all of them: docs/sessions.md).", metavar="SESSION"),
     log: Optional[Path] = typer.Option(None, help="Write every intermediate to this Rerun file (.rrd).",
                                        callback=output_file),
     tables: Optional[Path] = typer.Option(None, help="Write the Polars tables (parquet) into this directory.",

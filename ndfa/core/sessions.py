@@ -13,6 +13,7 @@ position in the FIRST session's world (the world every session is registered to)
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -74,7 +75,7 @@ class HistoryRow:
     partner: int | None = None               # the previous session's object it was matched with
     reason: str = ""
 
-    def as_dict(self) -> dict[str, object]:
+    def as_dict(self) -> dict[str, Any]:
         center = self.center_first
         return {"object": self.object, "session": self.session, "session_name": self.session_name,
                 "present": self.present,
