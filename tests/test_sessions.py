@@ -84,6 +84,19 @@ def test_objects_no_decision_links_continue_what_stands_at_their_place():
     assert len(rows) == 5
 
 
+def test_an_untested_object_at_a_removed_objects_place_is_that_object():
+    # The pair decided source object 0 removed (observed, never matched), but a target object with
+    # its shape stands at its place that was never tested (too few views): it is object 0.
+    sessions = [objects([0, 1]), objects([0.01, 1]), objects([])]
+    pairs = [[decision("target", 1, "unchanged", 1), decision("source", 0, "removed")], []]
+    rows = rows_by_object(link_history(NAMES, sessions, [np.eye(4)] * 3, pairs))
+    assert len(rows) == 2 and rows[0][1].present and rows[0][1].decision is None
+    # an "added" one there is not: the pair tested it against object 0
+    pairs[0].append(decision("target", 0, "added"))
+    rows = rows_by_object(link_history(NAMES, sessions, [np.eye(4)] * 3, pairs))
+    assert len(rows) == 3 and rows[0][1].present is False and rows[0][1].decision == "removed"
+
+
 def test_an_added_object_continues_one_the_session_before_did_not_see():
     # Object 0 of session 0 is not looked at by session 1 (no decision about it), then session 2's pair
     # calls an object at its place "added" (session 1 had nothing there): it is object 0 again.

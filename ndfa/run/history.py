@@ -11,10 +11,12 @@ as the decisions follow it:
 - one decided "added", or one the pair never decided (too few views, or no registration between
   the sessions), continues the object it stands on, if any: an object last seen at most
   `LinkConfig.place_m` from it (first session's world) with a matching shape code, that no decision
-  took, and for an "added" one, that the session before did not see (the pair's word is that none
-  of the session before's objects is it; it may be one that session did not look at). Otherwise it
-  starts a new history object;
-- a source object decided "removed" is absent from the next session on;
+  took (for an undecided one, also a source object decided "removed": a removal is the want of a
+  match among the tested target objects, and this one was not tested), and for an "added" one,
+  that the session before did not see (the pair's word is that none of the session before's
+  objects is it; it may be one that session did not look at). Otherwise it starts a new history
+  object;
+- a source object decided "removed" and not continued so is absent from the next session on;
 - a source object that no target object continued and that was not decided removed was not looked
   at by the next session (the target's camera did not pass it): its presence there is unknown
   (None) until a later session sees it again at its place.
@@ -141,11 +143,12 @@ def link_history(names: list[str], sessions: list[SessionObjects], placements: l
             elif decision is None:
                 reason = "not decided (too few views, or no registration between the sessions)"
             unlinked.append((target_id, decision, reason))
-        removed = {history[k, s] for s in outcome.removed if (k, s) in history} - set(claimed)
-        gone = {h for h, session in removed_in.items() if session <= k} | removed
+        gone = {h for h, session in removed_in.items() if session <= k}
         for target_id, decision, reason in unlinked:
-            # An undecided object may be any source object no decision claimed; an added one, by the
-            # pair's word, none of them, but it may be one the source session did not see.
+            # An undecided object may be any source object no decision claimed, also one decided
+            # removed (a removal is the want of a match among the tested objects; this one was not
+            # tested); an added one, by the pair's word, none of them, but it may be one the source
+            # session did not see.
             candidates = [h for h in born if h not in claimed and h not in gone and h in last_seen
                           and (decision is None or last_seen[h][0] < k)]
             h = _by_place(first(k + 1, target_id), sessions[k + 1].codes.get(target_id), candidates,
