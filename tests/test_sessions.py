@@ -120,6 +120,19 @@ def test_two_objects_naming_one_partner_do_not_merge():
     assert rows[1][1].session_object == 1 and "continued by target object 0" in rows[1][1].reason
 
 
+def test_a_move_between_different_shapes_is_a_removal_and_a_new_object():
+    # the pair's "moved" pairs target object 1 with removed source object 1, but their codes differ
+    sessions = [objects([0, 1]), objects([0, 3], {1: 4}), objects([])]
+    pairs = [[decision("target", 0, "unchanged", 0), decision("target", 1, "moved", 1)], []]
+    rows = rows_by_object(link_history(NAMES, sessions, [np.eye(4)] * 3, pairs))
+    assert len(rows) == 3
+    assert rows[1][1].present is False and rows[1][1].decision == "removed" and "shapes differ" in rows[1][1].reason
+    assert rows[2][1].present and rows[2][1].decision == "moved" and "kept apart" in rows[2][1].reason
+    # the detector's own threshold links them
+    loose = link_history(NAMES, sessions, [np.eye(4)] * 3, pairs, LinkConfig(moved_similarity=-1.0))
+    assert len(rows_by_object(loose)) == 2
+
+
 def test_a_target_object_is_linked_by_its_final_decision():
     outcome = PairOutcome.of([decision("target", 0, "unchanged", 3), decision("target", 0, "added"),
                               decision("target", 0, "unchanged", 4),  # a change is never retracted
