@@ -89,7 +89,7 @@ def test_out_of_range_options_fail_before_any_work(ndfa, tmp_path, monkeypatch, 
 
 def test_a_usage_error_is_one_line_too(ndfa):
     one_line(ndfa("detect", NOWHERE, NOWHERE, "--frame-step", "two"), "--frame-step", "--help")
-    one_line(ndfa("detect", NOWHERE), "Missing argument")
+    one_line(ndfa("detect", NOWHERE), "give two or more session recordings")
 
 
 @pytest.fixture

@@ -12,6 +12,7 @@ from rich.table import Table
 from ndfa.change.detector import DetectorConfig
 from ndfa.cli.app import app, bar_per_label, console, err_console, progress_bar
 from ndfa.cli.checks import at_least_one, checkpoint, in_range, output_dir, output_file, positive
+from ndfa.core.errors import NdfaError
 from ndfa.trajectory.kiss import OdometryConfig
 
 # The help quotes the configs' defaults: DetectorConfig and OdometryConfig import without torch or
@@ -21,8 +22,9 @@ _DETECTOR, _ODOMETRY = DetectorConfig(), OdometryConfig()
 
 @app.command("detect")
 def detect_command(
-    source: Path = typer.Argument(..., help="Source session recording (.mcap)."),
-    target: Path = typer.Argument(..., help="Target session recording (.mcap)."),
+    recordings: list[Path] = typer.Argument(..., help="The sessions' recordings (.mcap), in order: a source and a "
+                                            "target, or more (each compared with the one before, every object "
+                                            "followed over all of them: docs/sessions.md).", metavar="SESSION"),
     log: Optional[Path] = typer.Option(None, help="Write every intermediate to this Rerun file (.rrd).",
                                        callback=output_file),
     tables: Optional[Path] = typer.Option(None, help="Write the Polars tables (parquet) into this directory.",
@@ -65,10 +67,13 @@ def detect_command(
                                               "opt-in: its occupancy differs from torch's by up to 0.06, which can "
                                               "move a segment across the objectness gate; docs/speed.md) | auto."),
 ) -> None:
-    """Detect added, removed and moved objects between two recordings (the paper's method)."""
+    """Detect added, removed and moved objects between two recordings (the paper's method), or
+    between each consecutive pair of more, with every object's history over them."""
     import json
     from dataclasses import replace
 
+    if len(recordings) < 2:
+        raise typer.BadParameter(f"give two or more session recordings, got {len(recordings)}")
     if threads is not None:
         import torch
 
@@ -100,6 +105,11 @@ def detect_command(
 
     if registration not in REGISTRATION_MODES:
         raise typer.BadParameter(f"--registration must be one of {', '.join(REGISTRATION_MODES)}, got {registration!r}")
+    if len(recordings) > 2:
+        _detect_sessions(recordings, config, pipeline, runtime, log, tables, json_out, no_images, frame_step, up,
+                         poses, registration)
+        return
+    source, target = recordings
     sinks = []
     if log is not None:
         from ndfa.log.rerun_sink import RerunSink
@@ -149,6 +159,89 @@ def detect_command(
             console.print(f"wrote {path}")
 
 
+def _detect_sessions(recordings: list[Path], config, pipeline, runtime: str, log: Optional[Path],  # noqa: ANN001
+                     tables: Optional[Path], json_out: Optional[Path], no_images: bool, frame_step: int, up: str,
+                     poses: str, registration: str) -> None:
+    """`ndfa detect S0 S1 S2 ...`: each consecutive pair, and every object's history (`ndfa.run.sessions`)."""
+    import json
+
+    from ndfa.run.sessions import run_sessions
+
+    sinks = []
+    if log is not None:
+        from ndfa.log.rerun_sink import RerunSink
+
+        sinks.append(RerunSink(log, log_images=not no_images))
+    if tables is not None:
+        from ndfa.log.table_sink import TableSink
+
+        sinks.append(TableSink(tables))  # each pair's ground truth arrives with the pair
+    with progress_bar() as progress:
+        result = run_sessions(recordings, config, sinks, frame_step=frame_step, on_frame=bar_per_label(progress),
+                              pipeline=pipeline, up=up, poses=poses, registration=registration,
+                              on_world=lambda world: err_console.print(f"world {world.describe()}", highlight=False),
+                              on_alignment=lambda pair, a: err_console.print(f"pair {pair}: registration prior: "
+                                                                             f"{a.describe()}", highlight=False))
+    for name, path in zip(result.names, result.paths):
+        console.print(f"{name}: {path} ({result.frames[name]} frames, {result.objects[name]} objects)", highlight=False)
+    table = Table(title="changes between consecutive sessions (positions in the first session's world)")
+    for column in ("pair", "kind", "session", "object", "frame", "position", "score", "masks"):
+        table.add_column(column)
+    for pair in result.pairs:
+        for c in pair.changes:
+            position = c.center_source if c.center_source is not None else c.center_world
+            table.add_row(pair.label, c.kind, c.session, str(c.object_id), str(c.frame_index),
+                          " ".join(f"{v:+.2f}" for v in position), f"{c.score:.2f}", ",".join(map(str, c.instance_ids)))
+    console.print(table)
+    table = Table(title="pairs")
+    for column in ("pair", "registration", "changes", "TP", "FP", "FN", "precision", "recall"):
+        table.add_column(column, justify="left" if column in ("pair", "registration") else "right")
+    for pair in result.pairs:
+        r = pair.registration
+        registered = "none found" if r is None else f"{r['method']}, {r['inliers']}/{r['pairs']} inliers"
+        s = pair.score
+        figures = ["", "", "", "", ""] if s is None else [str(s.tp), str(s.fp), str(s.fn), f"{s.precision:.2f}",
+                                                          f"{s.recall:.2f}"]
+        table.add_row(pair.label, registered, str(len(pair.changes)), *figures)
+    console.print(table)
+    console.print(history_table(result))
+    if result.history_score is not None:
+        console.print(result.history_score.describe(), highlight=False)
+        for d in result.history_score.disagreements:
+            console.print(f"  mug {d['mug']}, object {d['object']}, session {d['session']}: {d['why']}", highlight=False)
+    for note in result.notes:
+        console.print(f"note: {note}")
+    if json_out is not None:
+        from ndfa.io.atomic import atomic_path
+
+        with atomic_path(json_out) as temporary:
+            temporary.write_text(json.dumps(result.summary() | {"ndf_runtime": runtime}, indent=2))
+    for path in (log, tables, json_out):
+        if path is not None:
+            console.print(f"wrote {path}")
+
+
+def history_table(result) -> Table:  # noqa: ANN001 (SessionsResult: imported lazily)
+    """Objects down, sessions across: where each object is, and the decision that says so."""
+    table = Table(title="history: each object over the sessions (here: present; -: absent; ?: not looked at)")
+    table.add_column("object", justify="right")
+    for name in result.names:
+        table.add_column(name)
+    cells: dict[int, list[str]] = {}
+    for row in result.history:
+        if row.present:
+            text = "here" if row.decision in (None, "unchanged") else row.decision
+        else:
+            text = "?" if row.present is None else (row.decision if row.decision == "removed" else "-")
+        if row.present and row.decision is None and row.session > 0 and row.reason:
+            text += "*"  # linked by place, or not decided
+        cells.setdefault(row.object, []).append(text)
+    for obj, texts in cells.items():
+        table.add_row(str(obj), *texts)
+    table.caption = "*: no pair decision links it (linked by place and shape, or a new object); docs/sessions.md"
+    return table
+
+
 def empty_result_warnings(result) -> list[str]:  # noqa: ANN001 (DetectionResult: imported lazily)
     """One line each on why a run could decide nothing (it would otherwise end in a quiet empty
     table): a session without objects, and why (`run_detection` finds it out), or two sessions
@@ -185,8 +278,9 @@ def segment_command(
 
 @app.command("eval")
 def eval_command(
-    source: Optional[Path] = typer.Argument(None, help="Source session recording (.mcap), with instance masks."),
-    target: Optional[Path] = typer.Argument(None, help="Target session recording (.mcap), with masks and ground truth."),
+    recordings: Optional[list[Path]] = typer.Argument(
+        None, help="Source and target session recordings (.mcap), with instance masks and ground truth; with "
+        "--history two or more sessions of `ndfa ingest sim --sessions N`.", metavar="SOURCE TARGET"),
     out: Path = typer.Option(..., "--out", "-o", help="Directory for table.parquet and table.md (sweep: sweep.parquet, sweep_AXIS.png).",
                              callback=output_dir),
     nn_distance: Optional[float] = typer.Option(None, help="NN: d, metres (default: NNConfig.distance_m, the paper's).",
@@ -212,10 +306,26 @@ def eval_command(
     pr_curve: bool = typer.Option(False, "--pr-curve", help="Also sweep each method's decision threshold (ndfa's "
                                   "score by replaying its observations, NN's r, PMT's conflict count): "
                                   "DIR/pr_curve.parquet, DIR/pr_curve.png and the average precision per method."),
+    history: bool = typer.Option(False, "--history", help="Instead of Table I: run ndfa over the sessions given "
+                                 "(two or more) and score each pair's changes and the objects' history against "
+                                 "the ground truth: DIR/pairs.parquet, DIR/history.parquet, DIR/history_eval.parquet "
+                                 "(docs/sessions.md)."),
 ) -> None:
     """The paper's Table I: ndfa (given poses) and the NN and PMT baselines (true poses, ground-truth masks).
 
-    With --sweep: precision/recall/F1 of the three methods over an axis of synthetic scenes and seeds."""
+    With --sweep: precision/recall/F1 of the three methods over an axis of synthetic scenes and seeds.
+    With --history: ndfa over many sessions, its pairs and its object history scored."""
+    recordings = recordings or []
+    if history:
+        if sweep is not None or pr_curve:
+            raise typer.BadParameter("--history takes session recordings, not --sweep or --pr-curve")
+        if len(recordings) < 2:
+            raise typer.BadParameter(f"--history needs two or more session recordings, got {len(recordings)}")
+        _eval_history(recordings, out, frame_step)
+        return
+    if len(recordings) > 2:
+        raise typer.BadParameter(f"give SOURCE and TARGET (two recordings; more with --history), got {len(recordings)}")
+    source, target = (recordings + [None, None])[:2]
     if sweep is not None:
         if pr_curve:
             raise typer.BadParameter("--pr-curve needs SOURCE TARGET, not --sweep")
@@ -263,6 +373,57 @@ def eval_command(
     if observations is not None:
         _write_curves(result, observations, out, f"{source.parent.name}/{source.name} -> "
                                                       f"{target.parent.name}/{target.name}")
+
+
+def _eval_history(recordings: list[Path], out: Path, frame_step: int) -> None:
+    """`ndfa eval --history`: every pair's score and the history's, printed and written."""
+    import polars as pl
+
+    from ndfa.io.atomic import write_parquet
+    from ndfa.log.table_sink import HISTORY_SCHEMA, _history_row
+    from ndfa.run.sessions import run_sessions
+
+    with progress_bar() as progress:
+        result = run_sessions(recordings, frame_step=frame_step, on_frame=bar_per_label(progress))
+    if result.history_score is None:
+        raise NdfaError(f"{recordings[-1]}: has no ground truth of the sessions (made by `ndfa ingest sim --sessions "
+                        "N`, N > 2) to score the history against")
+    rows = []
+    table = Table(title=f"ndfa over {len(recordings)} sessions: each consecutive pair (object level)")
+    for column in ("pair", "registration", "TP", "FP", "FN", "precision", "recall"):
+        table.add_column(column, justify="left" if column in ("pair", "registration") else "right")
+    for pair in result.pairs:
+        s, r = pair.score, pair.registration
+        inliers = None if r is None else r["inliers"]
+        table.add_row(pair.label, "none found" if r is None else f"{r['inliers']}/{r['pairs']} inliers",
+                      *(("", "", "", "", "") if s is None else (str(s.tp), str(s.fp), str(s.fn), f"{s.precision:.1%}",
+                                                               f"{s.recall:.1%}")))
+        rows.append({"pair": pair.label, "source": pair.source, "target": pair.target, "inliers": inliers,
+                     "tp": None if s is None else s.tp, "fp": None if s is None else s.fp,
+                     "fn": None if s is None else s.fn, "precision": None if s is None else s.precision,
+                     "recall": None if s is None else s.recall})
+    console.print(table)
+    console.print(history_table(result))
+    score = result.history_score
+    console.print(score.describe(), highlight=False)
+    for d in score.disagreements:
+        console.print(f"  mug {d['mug']}, object {d['object']}, session {d['session']}: {d['why']}", highlight=False)
+    for mug, objects in score.split.items():
+        console.print(f"  mug {mug} is split over objects {', '.join(map(str, objects))}", highlight=False)
+    for obj, mugs in score.merged.items():
+        console.print(f"  object {obj} stands for mugs {', '.join(map(str, mugs))}", highlight=False)
+    if score.missing:
+        console.print(f"  mugs without an object: {', '.join(map(str, score.missing))}", highlight=False)
+    for note in result.notes:
+        console.print(f"note: {note}")
+    written = {"pairs.parquet": pl.DataFrame(rows, infer_schema_length=None),
+               "history.parquet": pl.DataFrame([_history_row(r) for r in result.history], schema=HISTORY_SCHEMA),
+               "history_eval.parquet": pl.DataFrame(score.scored, schema={
+                   "mug": pl.Int64, "object": pl.Int64, "session": pl.Int64, "truth": pl.Boolean, "found": pl.Boolean,
+                   "why": pl.String, "error_m": pl.Float64})}
+    for name, frame in written.items():
+        write_parquet(frame, out / name)
+        console.print(f"wrote {out / name}")
 
 
 def _write_curves(result, observations, out: Path, title: str) -> None:

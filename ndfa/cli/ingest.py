@@ -103,9 +103,11 @@ def _estimate_session_poses(out: Path, poses: str) -> None:
 
 @ingest_app.command("sim")
 def ingest_sim_command(
-    out: Path = typer.Option(..., "--out", "-o", help="Output directory for source.mcap and target.mcap.",
-                             callback=output_dir),
+    out: Path = typer.Option(..., "--out", "-o", help="Output directory for source.mcap and target.mcap "
+                             "(with --sessions N > 2: session_0.mcap ... session_{N-1}.mcap).", callback=output_dir),
     preset: str = typer.Option("paper", help="paper | sample | random."),
+    sessions: int = typer.Option(2, help="Sessions to render, with the change counts applied between each "
+                                         "consecutive pair (docs/sessions.md).", callback=in_range(ge=2, le=100)),
     seed: int = typer.Option(0, help="Seed of everything random in the scene.", callback=at_least(0)),
     mesh_dir: Optional[Path] = typer.Option(None, help="Place these OBJ/PLY/STL/GLB mug meshes instead of procedural "
                                              "ones (units and up axis guessed unless --mesh-up is given).",
@@ -149,7 +151,7 @@ def ingest_sim_command(
     rotated_deg: tuple[float, float] = typer.Option((45.0, 180.0), help="MIN MAX: the range (degrees) each "
                                                     "--rotated mug turns by, in either sense."),
 ) -> None:
-    """Render a synthetic source/target pair of recordings with ground truth."""
+    """Render a synthetic source/target pair of recordings (or N sessions) with ground truth."""
     from ndfa.io.ingest.synthetic import check_output_dir, ingest_sim
     from ndfa.sim.noise import DepthNoise
     from ndfa.sim.presets import make_config
@@ -200,7 +202,8 @@ def ingest_sim_command(
             f"note: {note}", highlight=False, soft_wrap=True))
 
     with progress_bar(transient=False) as progress:
-        summaries = ingest_sim(config, out, models=user_models, on_progress=bar_per_label(progress, "rendering "))
+        summaries = ingest_sim(config, out, models=user_models, on_progress=bar_per_label(progress, "rendering "),
+                               sessions=sessions)
 
     table = Table(title=f"{config.preset} scene, seed {config.seed}: {config.table_rows * config.table_cols} tables -> {out}")
     kinds = ("added", "removed", "moved", "switched") + (("rotated",) if rotated else ())

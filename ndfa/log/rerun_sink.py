@@ -23,6 +23,13 @@ data and shown on hover, since a dozen of them on one table pile up into an unre
 Timelines: `frame` (the frame index within its session) and `step` (frames processed so far,
 source then target), so that each decision sits at the target frame that made it.
 
+Many sessions (`ndfa.run.sessions`): the roots are the sessions' names (`session_0/`, ...), each
+placed into the first session's world once its pair registered it; `step` runs on through all of
+them, and a `session` timeline numbers them, so the viewer plays the visits in order. At the end,
+`history/` holds every object over the sessions (`ndfa.core.sessions.HistoryRow`): at each
+`session` its present objects (labelled with their history id, coloured by the pair decision that
+explains them), and each object's track through the sessions as a line.
+
 The file is streamed to a hidden temporary beside PATH (`ndfa.io.atomic.Staged`) and moved onto
 PATH on close, which `ndfa detect` does also when interrupted: PATH then holds everything up to the
 interruption, and is never half-written. A process killed outright leaves the readable stream in
@@ -48,16 +55,20 @@ from ndfa.core.events import (
     TimingEvent,
     TreeEvent,
 )
+from ndfa.core.sessions import HistoryEvent, PairEvent, SessionStartEvent
 from ndfa.io.atomic import Staged
 
 KIND_COLORS = {"added": (230, 60, 60), "removed": (240, 160, 30), "moved": (170, 80, 230), "rotated": (40, 190, 220),
                "unchanged": (90, 200, 90)}
 SESSION_COLORS = {"source": (80, 140, 255), "target": (255, 120, 80)}
+# Sessions of a many-session run, in order (then again): blue, orange, green, pink, teal, yellow.
+SESSION_PALETTE = ((80, 140, 255), (255, 120, 80), (90, 200, 120), (230, 110, 200), (60, 200, 210), (220, 200, 60))
 TABLE_HEIGHT_BOX_M = 0.3  # height of the tree-cell boxes drawn around the objects
 OBJECT_POINTS = 300  # points kept of an object's fullest view: enough to see a mug, small in the file
 
 
-def detection_blueprint(places: np.ndarray | None = None) -> rrb.Blueprint:
+def detection_blueprint(places: np.ndarray | None = None,
+                        sessions: tuple[str, ...] = tuple(SESSION_COLORS)) -> rrb.Blueprint:
     """The layout a run opens in: the 3-D world large on the left; on the right the camera image
     with its masks (target first: its frames make the decisions), the decisions log, and the
     per-stage timings.
@@ -69,16 +80,18 @@ def detection_blueprint(places: np.ndarray | None = None) -> rrb.Blueprint:
     The world view leaves out the cameras (their depth, as back-projected clouds of the whole room,
     buries the objects, and the frustums, metres away, shrink the view the viewer fits to them;
     the image view shows what the camera sees) and everything that is not 3-D; the tree cells are
-    there but hidden (the eye icon shows them): as floor-high boxes they cover the objects they group."""
+    there but hidden (the eye icon shows them): as floor-high boxes they cover the objects they group.
+
+    sessions: the sessions' names in order (a camera tab each, the last first)."""
     world = rrb.Spatial3DView(
         name="world (source frame): objects and changes", origin="/",
-        contents=["+ /**", *(f"- /{session}/camera/**" for session in SESSION_COLORS),
+        contents=["+ /**", *(f"- /{session}/camera/**" for session in sessions),
                   "- /timings/**", "- /decisions/log", "- /registration/log"],
-        overrides={f"/{session}/tree/cells": rrb.EntityBehavior(visible=False) for session in SESSION_COLORS},
+        overrides={f"/{session}/tree/cells": rrb.EntityBehavior(visible=False) for session in sessions},
         eye_controls=None if places is None or not len(places) else eye_on(places))
     cameras = rrb.Tabs(*(rrb.Spatial2DView(name=f"{session} camera: colour and masks", origin=f"/{session}/camera",
                                           contents=["+ $origin/**", "- $origin/depth"])
-                         for session in ("target", "source")))
+                         for session in reversed(sessions)))
     decisions = rrb.TextLogView(name="decisions and registration", origin="/",
                                 contents=["+ /decisions/log", "+ /registration/log"])
     timings = rrb.TimeSeriesView(name="ms per frame, by stage", origin="/timings")
@@ -111,6 +124,8 @@ class RerunSink:
         self._frame_clouds: dict[tuple[str, int], np.ndarray] = {}  # this frame's partial cloud per mask id
         self._object_view_size: dict[tuple[str, int], int] = {}  # points in each object's fullest view
         self._places: dict[str, np.ndarray] = {}  # source objects and changes, in the source world: the eye's
+        self._sessions: tuple[str, ...] = tuple(SESSION_COLORS)  # names in order; the first is the world's
+        self._registered = "target"  # the session an accepted registration places into the first's world
 
     def log(self, event: Event) -> None:
         handler = getattr(self, "_" + type(event).__name__, None)
@@ -120,13 +135,47 @@ class RerunSink:
     def close(self) -> None:
         if self._places:
             # The same layout again, its eye now on the whole scene: the viewer takes the last one sent.
-            self.rec.send_blueprint(detection_blueprint(np.stack(list(self._places.values()))),
+            self.rec.send_blueprint(detection_blueprint(np.stack(list(self._places.values())), self._sessions),
                                     make_active=True, make_default=True)
         self.rec.flush()
         self.rec.disconnect()
         self._staged.commit()
 
+    def _color(self, session: str) -> tuple[int, int, int]:
+        if session in SESSION_COLORS:
+            return SESSION_COLORS[session]
+        return SESSION_PALETTE[self._sessions.index(session) % len(SESSION_PALETTE)] \
+            if session in self._sessions else (200, 200, 200)
+
     # -- one method per event type --------------------------------------------------------------
+
+    def _SessionStartEvent(self, e: SessionStartEvent) -> None:
+        if e.names != self._sessions:
+            self._sessions = e.names
+            self.rec.send_blueprint(detection_blueprint(sessions=self._sessions), make_active=True, make_default=True)
+        self.rec.set_time("session", sequence=e.index)
+
+    def _PairEvent(self, e: PairEvent) -> None:
+        self._registered = e.target
+
+    def _HistoryEvent(self, e: HistoryEvent) -> None:
+        tracks: dict[int, list[np.ndarray]] = {}
+        for session, _ in enumerate(e.names):
+            rows = [r for r in e.rows if r.session == session and r.present and r.center_first is not None]
+            self.rec.set_time("session", sequence=session)
+            if not rows:
+                self.rec.log("history/objects", rr.Clear(recursive=False))
+                continue
+            self.rec.log("history/objects", rr.Points3D(
+                [r.center_first for r in rows], radii=0.015, show_labels=False,
+                colors=[KIND_COLORS.get(r.decision or "unchanged", (200, 200, 200)) for r in rows],
+                labels=[f"o{r.object} {r.decision or ''}".strip() for r in rows]))
+            for r in rows:
+                tracks.setdefault(r.object, []).append(r.center_first)
+        for obj, centers in tracks.items():
+            if len(centers) > 1:
+                self.rec.log(f"history/tracks/{obj}", rr.LineStrips3D([np.stack(centers)], colors=(200, 200, 200),
+                                                                      labels=[f"o{obj}"], show_labels=False), static=True)
 
     def _FrameEvent(self, e: FrameEvent) -> None:
         self._step += 1
@@ -144,7 +193,7 @@ class RerunSink:
             if f.instances is not None:
                 self.rec.log(f"{root}/instances", rr.SegmentationImage(f.instances))
         # Last frame's observations vanish unless seen again.
-        for entity in self._observation_entities[e.session]:
+        for entity in self._observation_entities.get(e.session, ()):
             self.rec.log(entity, rr.Clear(recursive=True))
         self._observation_entities[e.session] = set()
         self._frame_clouds = {}
@@ -155,7 +204,7 @@ class RerunSink:
         entity = f"{e.session}/observations/{e.instance_id}"
         self._observation_entities[e.session].add(entity)
         self._frame_clouds[e.session, e.instance_id] = e.points_world
-        self.rec.log(f"{entity}/partial", rr.Points3D(e.points_world, colors=SESSION_COLORS[e.session], radii=0.002))
+        self.rec.log(f"{entity}/partial", rr.Points3D(e.points_world, colors=self._color(e.session), radii=0.002))
         if e.reconstruction_world is not None and len(e.reconstruction_world):
             self.rec.log(f"{entity}/reconstruction", rr.Points3D(e.reconstruction_world, colors=(120, 220, 120), radii=0.003))
         self.rec.log(f"{entity}/center", rr.Points3D([e.center_world], radii=0.006, labels=[f"mask {e.instance_id}"],
@@ -163,16 +212,16 @@ class RerunSink:
 
     def _AssociationEvent(self, e: AssociationEvent) -> None:
         entity = f"{e.session}/objects/{e.object_id}"
-        if e.session == "source":
+        if e.session == self._sessions[0]:
             self._places[entity] = np.asarray(e.center_world, dtype=float)
-        self.rec.log(entity, rr.Points3D([e.center_world], colors=SESSION_COLORS[e.session], radii=0.01,
+        self.rec.log(entity, rr.Points3D([e.center_world], colors=self._color(e.session), radii=0.01,
                                          labels=[f"{e.session[0]}{e.object_id}"], show_labels=False))
         self.rec.log(f"{entity}/shape_code", rr.BarChart(np.asarray(e.shape_code, dtype=np.float32)))
         cloud = self._frame_clouds.get((e.session, e.instance_id))
         if cloud is not None and len(cloud) > self._object_view_size.get((e.session, e.object_id), 0):
             self._object_view_size[e.session, e.object_id] = len(cloud)
             every = -(-len(cloud) // OBJECT_POINTS)  # an even thinning: the view keeps its shape
-            self.rec.log(f"{entity}/points", rr.Points3D(cloud[::every], colors=SESSION_COLORS[e.session], radii=0.004))
+            self.rec.log(f"{entity}/points", rr.Points3D(cloud[::every], colors=self._color(e.session), radii=0.004))
 
     def _TreeEvent(self, e: TreeEvent) -> None:
         if not e.cells:
@@ -185,12 +234,12 @@ class RerunSink:
             labels.append(f"{len(ids)} objects")
         # Cells sit on the floor of the session's frame; their height is only for display.
         self.rec.log(f"{e.session}/tree/cells", rr.Boxes3D(mins=mins, sizes=sizes, labels=labels,
-                                                           colors=SESSION_COLORS[e.session], show_labels=False))
+                                                           colors=self._color(e.session), show_labels=False))
 
     def _RegistrationEvent(self, e: RegistrationEvent) -> None:
         if e.accepted and e.transform is not None:
             # The target's world frame, placed into the source's: everything under target/ aligns.
-            self.rec.log("target", rr.Transform3D(translation=e.transform[:3, 3], mat3x3=e.transform[:3, :3]))
+            self.rec.log(self._registered, rr.Transform3D(translation=e.transform[:3, 3], mat3x3=e.transform[:3, :3]))
             registered = e.target_centers @ e.transform[:3, :3].T + e.transform[:3, 3]
             self.rec.log("registration/inliers", rr.LineStrips3D(np.stack([registered, e.source_centers], axis=1),
                                                                  colors=(255, 255, 0)))

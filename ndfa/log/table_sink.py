@@ -12,6 +12,10 @@
                            a change; docs/scores.md) and the ground-truth change of the object's
                            mask when the recordings carry it; a rotation's turn in `angle_deg`
     timings.parquet        ms per stage per frame
+    history.parquet        a run over more than two sessions (`ndfa.run.sessions`): one row per object
+                           per session (`ndfa.core.sessions.HistoryRow`); its registration, graphs
+                           and decisions rows then name their `pair` ("0-1", ...), its sessions are
+                           named `session_0`, ..., and positions are in the first session's world
 
 Vectors are list columns (center_x/y/z as plain columns for easy filtering). The tables are
 rewritten every `flush_every` frames and at the end (each atomically), so an interrupted run
@@ -36,6 +40,7 @@ from ndfa.core.events import (
     TimingEvent,
     TreeEvent,
 )
+from ndfa.core.sessions import HistoryEvent, HistoryRow, PairEvent
 from ndfa.io.atomic import write_parquet
 
 TABLES = ("observations", "associations", "objects", "tree_nodes", "registration", "graphs", "decisions", "timings")
@@ -52,8 +57,29 @@ class TableSink:
         self._objects: dict[tuple[str, int], dict] = {}
         self._trees: dict[str, TreeEvent] = {}
         self._frames = 0
+        self._pair: str | None = None  # the pair of sessions the detector's events compare (many sessions)
+        self._history: list[dict] | None = None
 
-    def log(self, event: Event) -> None:
+    def log(self, event: Event | PairEvent | HistoryEvent) -> None:
+        if isinstance(event, PairEvent):
+            self._pair = event.label
+            if event.truth is not None:
+                self.truth = event.truth  # the changes between this pair's sessions
+            return
+        if isinstance(event, HistoryEvent):
+            self._history = [_history_row(row) for row in event.rows]
+            return
+        if self._pair is None or not isinstance(event, (RegistrationEvent, GraphEvent, DecisionEvent)):
+            self._log(event)
+            return
+        names = ("registration", "graphs", "decisions")
+        before = [len(self.rows[name]) for name in names]
+        self._log(event)
+        for name, start in zip(names, before):
+            for row in self.rows[name][start:]:
+                row["pair"] = self._pair
+
+    def _log(self, event: Event) -> None:
         if isinstance(event, FrameEvent):
             self._frames += 1
             if self._frames % self.flush_every == 0:
@@ -118,6 +144,8 @@ class TableSink:
                     nodes.append({"session": session, "axis": axis, "node": index, "low": float(low),
                                   "high": float(high), "objects": objects})
         tables["tree_nodes"] = pl.DataFrame(nodes, infer_schema_length=None)
+        if self._history is not None:
+            tables["history"] = pl.DataFrame(self._history, schema=HISTORY_SCHEMA)
         return tables
 
     def flush(self) -> None:
@@ -131,6 +159,21 @@ class TableSink:
         if self.truth is None:
             return None
         return self.truth.get(int(instance_id), "unchanged")
+
+
+HISTORY_SCHEMA = {
+    "object": pl.Int64, "session": pl.Int64, "session_name": pl.String, "present": pl.Boolean,
+    "center_x": pl.Float64, "center_y": pl.Float64, "center_z": pl.Float64, "session_object": pl.Int64,
+    "instance_id": pl.Int64, "decision": pl.String, "score": pl.Float64, "partner": pl.Int64, "reason": pl.String,
+}
+
+
+def _history_row(row: HistoryRow) -> dict:
+    """One history row as the table holds it: the center as plain columns, in the first session's world."""
+    return {"object": row.object, "session": row.session, "session_name": row.session_name, "present": row.present,
+            **_xyz("center", row.center_first), "session_object": row.session_object,
+            "instance_id": row.instance_id, "decision": row.decision, "score": row.score, "partner": row.partner,
+            "reason": row.reason}
 
 
 def _xyz(prefix: str, vector: np.ndarray | None) -> dict:

@@ -1,10 +1,16 @@
-"""`ndfa ingest sim`: render a synthetic source/target pair into two recordings.
+"""`ndfa ingest sim`: render a synthetic source/target pair (or N sessions) into recordings.
 
 The world (`ndfa.sim.world`) says where every mug stands in each session; this module moves the
 camera along each session's route, renders depth, instance ids and colour, adds sensor noise,
 perturbs the target's poses, and writes `source.mcap` and `target.mcap` with the full ground truth,
 including which instances each session shows (`visible`, counted on the rendered masks: a raw
 recording has none left to count them on).
+
+With N > 2 sessions (`ndfa.sim.sessions`) it writes `session_0.mcap` ... `session_{N-1}.mcap`:
+session 0 along the source route, every later one along the target route with a pose error of its
+own. Each recording's ground truth is that of the pair that leads to it (session 0: of the first
+pair), as a two-session recording's is, plus `sessions`: every mug's placement in every session
+and the change it underwent in each pair (`ndfa.eval.history` scores a run's history against it).
 
 Options that make the recordings closer to raw sensor data (`SimConfig`; all off by default):
 textured walls, floor and tables; clutter on the tables; `raw` recordings without instance masks
@@ -33,9 +39,10 @@ from ndfa.io.recording.writer import depth_to_millimetres
 from ndfa.sim.mug import Mug
 from ndfa.sim.presets import SimConfig
 from ndfa.sim.render import RenderObject, SceneRenderer
+from ndfa.sim.sessions import build_sessions, history_truth, session_names
 from ndfa.sim.texture import RoomTextures, room_textures
 from ndfa.sim.trajectory import camera_poses
-from ndfa.sim.world import SESSIONS, World, build_world, procedural_models
+from ndfa.sim.world import World, procedural_models
 from ndfa.sim.world_tilt import tilt_pose
 
 # Sessions start on fixed, distinct days so that the two recordings read as two traversals.
@@ -61,23 +68,59 @@ def ingest_sim(
     out_dir: Path,
     models: list[Mug] | None = None,
     on_progress: LabelledProgress | None = None,  # (session, frames done, frames in session)
+    sessions: int = 2,
 ) -> list[SessionSummary]:
-    """Render both sessions of `config` into `out_dir/source.mcap` and `out_dir/target.mcap`.
+    """Render the sessions of `config` into `out_dir`: `source.mcap` and `target.mcap`, or with
+    `sessions` > 2 `session_0.mcap` ... (`ndfa.sim.sessions`: changes between each consecutive pair).
 
     `models` replaces the procedural test-split mugs (e.g. meshes from `--mesh-dir`).
     """
     out_dir = Path(out_dir)
     check_output_dir(out_dir)
-    world = build_world(config, models if models is not None else procedural_models(config))
-    ground_truth = world_ground_truth(world, config)
-    # The room's look is part of the static scene: one set of textures for both sessions.
+    worlds = build_sessions(config, models if models is not None else procedural_models(config), sessions)
+    names = session_names(sessions)
+    # The room's look is part of the static scene: one set of textures for every session.
+    world = worlds.base
     textures = room_textures(world.room, world.tables, np.random.default_rng([config.seed, 14])) if config.textures else None
-    visible: dict[str, list[int]] = {}  # filled session by session: the target's ground truth holds both
-    return [
-        _render_session(world, config, session, out_dir / f"{session}.mcap", ground_truth, on_progress, textures,
-                        visible)
-        for session in SESSIONS
-    ]
+    visible: dict[str, list[int]] = {}  # filled session by session: each recording's ground truth holds those so far
+    history = None if sessions == 2 else {"names": names, "objects": history_truth(worlds, world_tilt(config))}
+    summaries = []
+    for index, name in enumerate(names):
+        # A session is the target of the pair that leads to it (the first: the source of the first pair).
+        pair = max(index - 1, 0)
+        plan = SessionPlan(name, index, worlds.pair(pair), "source" if index == 0 else "target",
+                           {"source": names[pair], "target": names[pair + 1]}, history)
+        ground_truth = world_ground_truth(plan.world, config)
+        summaries.append(_render_session(plan, config, out_dir / f"{name}.mcap", ground_truth, on_progress,
+                                         textures, visible))
+    return summaries
+
+
+@dataclass(frozen=True)
+class SessionPlan:
+    """One session to render: its name and place in the order, the two-session world of the pair
+    it belongs to and its role there (the source: the first session; the target: every later
+    one, whose poses get the pose error), the sessions of that pair (for the ground truth's
+    `visible`), and with more than two sessions every mug's history (`ndfa.sim.sessions.history_truth`)."""
+
+    name: str
+    index: int
+    world: World
+    role: str
+    pair_names: dict[str, str]
+    history: dict | None = None
+
+    @property
+    def route_of(self) -> str:
+        return "source_route" if self.role == "source" else "target_route"
+
+    @property
+    def start(self) -> float:
+        """The first frame's timestamp: a day after the session before."""
+        return SESSION_START[self.role] + max(self.index - 1, 0) * 86400.0
+
+    def pose_error_rng(self, seed: int) -> np.random.Generator:
+        return np.random.default_rng([seed, 11] if self.index <= 1 else [seed, 11, self.index])
 
 
 def world_tilt(config: SimConfig) -> np.ndarray:
@@ -85,19 +128,21 @@ def world_tilt(config: SimConfig) -> np.ndarray:
     return tilt_pose(config.world_tilt_deg, np.random.default_rng([config.seed, 13]))
 
 
-def _render_session(world: World, config: SimConfig, session: str, path: Path, ground_truth: dict,
+def _render_session(plan: SessionPlan, config: SimConfig, path: Path, ground_truth: dict,
                     on_progress: LabelledProgress | None, textures: RoomTextures | None = None,
                     visible: dict[str, list[int]] | None = None) -> SessionSummary:
-    """Render one session into `path`. `visible` (session -> instance ids) gains this session's
-    visible instances, and the recording's ground truth holds every session's rendered so far."""
+    """Render one session into `path`. `visible` (session name -> instance ids) gains this
+    session's visible instances, and the recording's ground truth holds those of its pair rendered
+    so far (and with more than two sessions, of every session rendered so far)."""
+    session, world = plan.name, plan.world
     # One stream per session and purpose: changing the noise model does not move the cameras.
-    stream = SESSIONS.index(session)
-    route = config.source_route if session == "source" else config.target_route
+    stream = plan.index
+    route = getattr(config, plan.route_of)
     true_poses = camera_poses(world.tables, dataclasses.replace(config.trajectory, route=route),
                               np.random.default_rng([config.seed, 10, stream]))
     recorded_poses, offset = true_poses, None
-    if session == "target" and config.target_pose_error.enabled and not config.raw:
-        recorded_poses, offset = config.target_pose_error.apply(true_poses, np.random.default_rng([config.seed, 11]))
+    if plan.role == "target" and config.target_pose_error.enabled and not config.raw:
+        recorded_poses, offset = config.target_pose_error.apply(true_poses, plan.pose_error_rng(config.seed))
     noise_rng = np.random.default_rng([config.seed, 12, stream])
     # Rendered in the level world; recorded in the (possibly) tilted one.
     pose_world_level = world_tilt(config)
@@ -106,7 +151,7 @@ def _render_session(world: World, config: SimConfig, session: str, path: Path, g
     if offset is not None:  # perturbed = offset @ drift @ true holds in the tilted world with this offset
         offset = pose_world_level @ offset @ pose_world_level.T
 
-    renderer = SceneRenderer(render_objects(world, session, textures))
+    renderer = SceneRenderer(render_objects(world, plan.role, textures))
     if config.raw:
         # What a sensor writes: no poses (the writer then leaves /tf out) and no instance masks.
         poses_meta, instances_meta = "none", "none"
@@ -124,6 +169,8 @@ def _render_session(world: World, config: SimConfig, session: str, path: Path, g
         "generator": f"ndfa {ndfa.__version__} ingest sim",
         "config": dataclasses.asdict(config),
     }
+    if plan.history is not None:
+        meta["sessions"] = {"index": plan.index, "names": plan.history["names"]}
     visible = {} if visible is None else visible
     pixels_seen: dict[int, int] = {}  # instance id -> its most pixels with depth in range in one frame
     camera = config.camera
@@ -135,7 +182,7 @@ def _render_session(world: World, config: SimConfig, session: str, path: Path, g
                 pixels_seen[instance_id] = max(n_pixels, pixels_seen.get(instance_id, 0))
             writer.write_frame(Frame(
                 index=index,
-                timestamp=SESSION_START[session] + index / config.fps,
+                timestamp=plan.start + index / config.fps,
                 rgb=view.rgb,
                 depth=depth,
                 K=camera.K,
@@ -148,12 +195,19 @@ def _render_session(world: World, config: SimConfig, session: str, path: Path, g
                 on_progress(session, index + 1, len(true_poses))
         # Known once every frame is rendered; the writer stores the ground truth at the end anyway.
         visible[session] = sorted(i for i, n in pixels_seen.items() if is_visible(n))
-        writer.write_ground_truth(dict(ground_truth, session=session,
-                                       pose_offset=None if offset is None else offset.tolist(),
-                                       visible={s: visible[s] for s in SESSIONS if s in visible}))
-    layout = world.layout(session)
-    changes = {kind: n for kind, n in world.change_counts().items()
-               if kind != ("added" if session == "source" else "removed")}
+        truth = dict(ground_truth, session=session, pose_offset=None if offset is None else offset.tolist(),
+                     visible={role: visible[name] for role, name in plan.pair_names.items() if name in visible})
+        if plan.history is not None:
+            # Every mug over every session, and what each session rendered so far showed of them.
+            truth["sessions"] = {"names": plan.history["names"], "index": plan.index,
+                                 "objects": plan.history["objects"], "visible": dict(visible)}
+        writer.write_ground_truth(truth)
+    layout = world.layout(plan.role)
+    if plan.history is None:
+        changes = {kind: n for kind, n in world.change_counts().items()
+                   if kind != ("added" if plan.role == "source" else "removed")}
+    else:  # the changes since the session before
+        changes = {} if plan.index == 0 else world.change_counts()
     return SessionSummary(session, path, len(true_poses), len(layout), changes, path.stat().st_size)
 
 
