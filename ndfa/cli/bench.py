@@ -17,7 +17,7 @@ def bench_command(
     what: str = typer.Argument("sim", help="What to time: sim (render, noise, write, read), ndf (encoding) "
                                             "or detect (the target pass, and the detection step's growth)."),
     frames: int = typer.Option(60, help="sim: frames to time.", callback=at_least_one),
-    weights: Optional[Path] = typer.Option(None, help="ndf: checkpoint to time (default: the shipped weights).",
+    weights: Optional[Path] = typer.Option(None, help="ndf, detect: checkpoint to time (default: the shipped weights).",
                                            callback=checkpoint),
     source: Path = typer.Option(Path("recordings/sample/source.mcap"), help="detect: source recording."),
     target: Path = typer.Option(Path("recordings/sample/target.mcap"), help="detect: target recording."),
@@ -55,7 +55,8 @@ def bench_command(
             if value not in RUNTIMES:
                 raise typer.BadParameter(f"{option} must be one of {', '.join(RUNTIMES)}, got {value!r}")
         rows = bench_detect_runs(source, target, threads=threads, compare=compare, load=load, frame_step=frame_step,
-                                 runtime=runtime, before_runtime=before_runtime, before_weights=before_weights)
+                                 runtime=runtime, weights=weights, before_runtime=before_runtime,
+                                 before_weights=before_weights)
         first = rows[0]
         table = Table(title=f"ndfa bench detect: target pass of {target} (no sinks)",
                       caption=f"{first['frames']} frames, {threads} thread(s); {first['machine']}")

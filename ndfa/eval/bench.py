@@ -142,24 +142,24 @@ def bench_detect(source: Path, target: Path, threads: int = 1, frame_step: int =
 
 
 def bench_detect_runs(source: Path, target: Path, threads: int = 1, compare: bool = False, load: bool = False,
-                      frame_step: int = 1, runtime: str = "auto", before_runtime: str = "torch",
-                      before_weights: Path | None = None) -> list[dict]:
+                      frame_step: int = 1, runtime: str = "auto", weights: Path | None = None,
+                      before_runtime: str = "torch", before_weights: Path | None = None) -> list[dict]:
     """`bench_detect` back to back in one process, each row labelled: with `compare` first the
-    "before" (`before_runtime` with `before_weights`, default the shipped ones), then "now" (the
-    shipped weights on `runtime`); with `load` "now" once more beside one busy process (`python -c
+    "before" (`before_runtime` with `before_weights`, default the shipped ones), then "now"
+    (`weights`, default the shipped ones, on `runtime`); with `load` "now" once more beside one busy process (`python -c
     'while True: pass'`, started here and stopped after), the question being whether the pass keeps
     its speed when the machine is shared."""
     rows = []
     if compare:
         rows.append({"label": "before"} | bench_detect(source, target, threads, frame_step, before_runtime, before_weights))
-    rows.append({"label": "now"} | bench_detect(source, target, threads, frame_step, runtime))
+    rows.append({"label": "now"} | bench_detect(source, target, threads, frame_step, runtime, weights))
     if load:
         import subprocess
         import sys
 
         busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])
         try:
-            rows.append({"label": "beside one busy process"} | bench_detect(source, target, threads, frame_step, runtime))
+            rows.append({"label": "beside one busy process"} | bench_detect(source, target, threads, frame_step, runtime, weights))
         finally:
             busy.kill()
             busy.wait()
