@@ -135,7 +135,7 @@ def test_an_alike_object_seen_again_after_drift_takes_the_measurement_unless_see
     b = s.update(Measurement(0, 2, _code(1), np.array([0.09, 0.0, 0.8]), 0.5))
     assert b.created and b.object_id != a.object_id
     # unlike, or farther than revisit_m, or on another shelf: a new object
-    for code, center in [(_code(2), [0.09, 0, 0.8]), (_code(1), [0.15, 0, 0.8]), (_code(1), [0.09, 0, 1.1])]:
+    for code, center in [(-_code(1), [0.09, 0, 0.8]), (_code(1), [0.15, 0, 0.8]), (_code(1), [0.09, 0, 1.1])]:
         s = SessionMap(config)
         s.update(Measurement(0, 1, _code(1), np.array([0.0, 0.0, 0.8]), 0.5))
         assert s.update(Measurement(50, 1, code, np.array(center), 0.5)).created
@@ -336,7 +336,7 @@ def test_a_changed_verdict_waits_for_confirm_measurements(confirm, reported):
 
 def test_the_default_config_is_ndfas_tuning_and_paper_gives_the_papers_parameters():
     default = DetectorConfig()
-    assert default.association == AssociationConfig(tree_length_m=1.2, distance_m=0.05, shape_similarity=0.7,
+    assert default.association == AssociationConfig(tree_length_m=1.2, distance_m=0.05, shape_similarity=0.35,
                                                      same_place_m=0.03, fusion="mean")
     assert default.registration == RegistrationConfig(pairs=6, candidates=10, inlier_m=0.05, min_inliers=4,
                                                       enough_inliers=12, retry_frames=10, seed=0)

@@ -179,9 +179,9 @@ def test_a_recording_of_the_table_gives_the_same_views_through_the_whole_protoco
     result = evaluate_real_mugs(tmp_path / "table.mcap", [None], tracks=TrackConfig(min_views=5))
     assert result.tracks.mugs == 2 and "synthetic" in result.sequence.up
     assert result.views["track"].to_list() == per_view["track"].to_list()
-    # Depth is stored in millimetres (masks and resampling change a little): centers within 3 mm.
+    # Depth is stored in millimetres (masks and resampling change a little): centers within 5 mm.
     for axis in "xyz":
-        assert np.abs(result.views[f"center_{axis}"].to_numpy() - per_view[f"center_{axis}"].to_numpy()).max() < 3e-3
+        assert np.abs(result.views[f"center_{axis}"].to_numpy() - per_view[f"center_{axis}"].to_numpy()).max() < 5e-3
     assert result.summary["mug"].to_list() == ["0", "1", "all"]
 
 

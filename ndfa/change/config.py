@@ -19,7 +19,7 @@ class AssociationConfig:
 
     tree_length_m: float = 1.2        # l: interval length of the object trees (paper: 1.2 m sim, 1.6 m real)
     distance_m: float = 0.05          # delta_d: largest center distance of a measurement to its object (paper 0.02)
-    shape_similarity: float = 0.7     # delta_s: smallest cosine similarity of two codes of one object (paper 0.9)
+    shape_similarity: float = 0.35    # delta_s: smallest cosine similarity of two codes of one object (paper 0.9; tuned by replay for NDF v2, docs/detector.md)
     same_place_m: float = 0.03        # a measurement this close (horizontally) to an object is that object; 0: off
     fusion: Fusion = "mean"           # an object's code and center: its measurements' "mean" (median center) or the "best"
     revisit_m: float = 0.12           # an alike object this close, not measured in the same frame, takes it (drift); 0: off
@@ -74,9 +74,10 @@ class DecisionConfig:
     # "rotated". None: off (the paper has no such test).
     rotation_deg: float | None = 30.0
     # A view's handle heading counts from this strength (the horizontal length of the NDF's handle
-    # vector, `ndfa.ndf.heading`), weighted by it: on the baseline scenes' source views, 53 % reach
-    # 0.15, and 96 % of those are within 20 degrees of the truth (docs/rotation.md).
-    heading_strength: float = 0.15
+    # vector, `ndfa.ndf.heading`), weighted by it: with the shipped NDF v2, 57 % of the views of
+    # three baseline scenes reach 0.10, and 93 % of those are within 20 degrees of the truth
+    # (docs/rotation.md).
+    heading_strength: float = 0.10
     rotation_views: int = 3            # reliable views each of the two objects needs
     rotation_spread_deg: float = 25.0  # their headings' circular spread, per object, at most this
     # The turn must pass `rotation_deg` by this many times the two objects' spreads combined

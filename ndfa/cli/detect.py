@@ -63,9 +63,8 @@ def detect_command(
                                                      "torch: default one per core). 1 keeps the pass steady when "
                                                      "other jobs share the cores (docs/speed.md).",
                                           callback=at_least_one),
-    runtime: str = typer.Option("torch", help="Where the NDF runs: torch (the reference) | onnxruntime (1.4x faster, "
-                                              "opt-in: its occupancy differs from torch's by up to 0.06, which can "
-                                              "move a segment across the objectness gate; docs/speed.md) | auto."),
+    runtime: str = typer.Option("auto", help="Where the NDF runs: auto (ONNX Runtime when installed, else torch) | "
+                                             "onnxruntime (faster; docs/speed.md) | torch (the reference)."),
 ) -> None:
     """Detect added, removed and moved objects between two recordings (the paper's method), or
     between each consecutive pair of more, with every object's history over them."""

@@ -63,12 +63,13 @@ class EncoderConfig:
         than at `FINE_GRID_RESOLUTION`, which `ndfa ndf-eval` and the model card's reconstruction
         figures use.
     runtime: where the network runs (`ndfa.ndf.runtime`): "torch" (the reference), "onnxruntime"
-        or "auto" (ONNX Runtime when installed, else torch). ONNX Runtime's encoding is 1.6x faster
-        on the `paper` scene (docs/speed.md), but it breaks near-ties of the nearest-neighbour
-        search differently: codes agree to a cosine >= 0.9999 and centers to 0.2 mm, mean occupancy
-        only to 0.06, enough to move a segment across the objectness gate (the kitchen halves with
-        estimated poses: one floor-level segment more, reported "added"). So torch stays the
-        default until the two agree.
+        or "auto" (the default: ONNX Runtime when installed, else torch). ONNX Runtime's encoding is
+        1.6x faster on the `paper` scene (docs/speed.md); it breaks near-ties of the
+        nearest-neighbour search differently, so codes agree to a cosine >= 0.9999 and centers to
+        0.2 mm but mean occupancy only to ~0.06. With v1 weights that let one kitchen segment
+        through the objectness gate; with NDF v2 both runtimes give the same reports on the
+        seven scenes and the five rotated ones, and the kitchen halves report nothing with ONNX
+        Runtime (2026-12-02, docs/speed.md).
     threads: ONNX Runtime's intra-op threads (torch's are process-wide: `torch.set_num_threads`).
         1: the pass is then one thread and keeps its speed beside another busy process on a
         2-core machine (docs/speed.md).
@@ -80,7 +81,7 @@ class EncoderConfig:
     grid_half_extent_m: float = 0.11  # the grid spans +-this around the predicted center
     coarse_threshold: float = 0.05
     seed: int = 0                    # of the point resampling, so encoding is deterministic
-    runtime: str = "torch"
+    runtime: str = "auto"
     threads: int = 1
 
 
