@@ -49,8 +49,8 @@ class ChangeDetector:
         self.registrar = Registrar(config.registration, config.association.shape_similarity, self.source, self.target)
         self.policy = DecisionPolicy(config.decision)
         self.changed: dict[int, DecisionEvent] = {}  # target object -> the decision that marked it
-        self.observed: set[int] = set()    # source objects that were in a tested object's neighbourhood
-        self.observers: dict[int, set[int]] = {}  # source object -> the target objects tested around it
+        # source object -> the target objects tested around it (its keys: the source objects observed)
+        self.observers: dict[int, set[int]] = {}
         self.matched: dict[int, int] = {}  # source object -> the target object first found consistent with it
         self.partners: dict[int, int] = {}  # target object -> the source object its latest "unchanged" test named
         self._last_frame = -1
@@ -102,7 +102,7 @@ class ChangeDetector:
         if self.registration is not None:
             for object_id in sorted(self.policy.pending):
                 events += self._test(object_id, self._last_frame, final=True)
-        removed = [i for i in sorted(self.observed) if i not in self.matched
+        removed = [i for i in sorted(self.observers) if i not in self.matched
                    and self.source.objects[i].n_measurements >= self.config.decision.min_measurements]
         moved_from = moves(sorted(self.changed), removed, self.target, self.source,
                            self.config.association.shape_similarity)
@@ -121,7 +121,7 @@ class ChangeDetector:
             events.append(DecisionEvent(
                 frame_index=self._last_frame, session="source", object_id=source_id, kind="removed",
                 reason="observed but never matched", center_world=obj.center_world, center_source=obj.center_world,
-                instance_ids=obj.instance_ids, score=removal_score(len(self.observers.get(source_id, ())))))
+                instance_ids=obj.instance_ids, score=removal_score(len(self.observers[source_id]))))
         return events + self._rotations()
 
     # -- steps ----------------------------------------------------------------------------------
@@ -162,7 +162,6 @@ class ChangeDetector:
         region = self.source.tree.region(center_source, margin)
         source_ids = sorted(region.objects())
         looked_at = self._looked_at(center_source, source_ids)
-        self.observed.update(looked_at)
         for source_id in looked_at:
             self.observers.setdefault(source_id, set()).add(object_id)
         similarity = {s: float(cosine_similarity(obj.shape_code, self.source.objects[s].shape_code)) for s in source_ids}
