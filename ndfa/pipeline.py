@@ -56,7 +56,11 @@ class ChangeDetectionPipeline:
         self.encoder = encoder or NDFEncoder(config.weights, config.encoder)
         self.detector = ChangeDetector(config.detector)
 
-    def process(self, session: Session, frame: Frame) -> list[Event]:
+    def process(self, session: Session, frame: Frame, full_reconstruction: bool = True) -> list[Event]:
+        """One frame's events. full_reconstruction False (for a caller without sinks): each
+        observation's reconstruction is decoded only as far as the decisions need it
+        (`NDFEncoder.encode_batch`); the events and decisions are the same, but an event's
+        `mean_occupancy` and `reconstruction_world` are then the coarse grid's."""
         if session not in SESSIONS:
             raise ValueError(f"session must be one of {SESSIONS}, got {session!r}")
         started = time.perf_counter()
@@ -72,8 +76,11 @@ class ChangeDetectionPipeline:
 
         observations, skipped = extract_observations(frame, self.config.observation)
         perceived = time.perf_counter()
+        # The mean occupancy decides the objectness gate of segments and, with "best" fusion, which
+        # measurement an object keeps; elsewhere only whether the reconstruction is empty decides.
+        full = full_reconstruction or segmented or self.config.detector.association.fusion == "best"
         codes = self.encoder.encode_batch([o.points_camera for o in observations],
-                                          [frame.pose_world_camera] * len(observations))
+                                          [frame.pose_world_camera] * len(observations), full_reconstruction=full)
         encoded = time.perf_counter()
 
         measurements: list[Measurement] = []

@@ -47,6 +47,16 @@ def test_summary_scores_the_sample_against_its_ground_truth(run):
     assert "TP" in output and "changes" in output
 
 
+def test_a_run_without_sinks_decodes_less_and_decides_the_same(run):
+    """Without sinks each reconstruction is decoded only as far as decisions need
+    (`ChangeDetectionPipeline.process`); the reports are those of the run with every output."""
+    out, _ = run
+    with_sinks = json.loads((out / "summary.json").read_text())
+    without = run_detection(SAMPLE / "source.mcap", SAMPLE / "target.mcap").summary()
+    assert without["changes"] == with_sinks["changes"]
+    assert (without["tp"], without["fp"], without["fn"]) == (with_sinks["tp"], with_sinks["fp"], with_sinks["fn"])
+
+
 def test_replaying_the_observations_table_reproduces_the_run(run):
     from ndfa.change.config import DetectorConfig, RegistrationConfig
     from ndfa.run.replay import replay

@@ -206,10 +206,12 @@ class _FixedOccupancyEncoder:
 
     def __init__(self, occupancy: float) -> None:
         self.occupancy = occupancy
+        self.full_reconstruction: list[bool] = []  # asked for, per call
 
-    def encode_batch(self, clouds, poses):
+    def encode_batch(self, clouds, poses, full_reconstruction=True):
         from ndfa.ndf.encoder import ObjectCode
 
+        self.full_reconstruction.append(full_reconstruction)
         return [ObjectCode(shape_code=np.zeros(8), center_world=np.asarray(pose)[:3, 3], z=np.zeros((4, 3)),
                            mean_occupancy=self.occupancy, reconstruction=np.zeros((0, 3))) for pose in poses]
 
@@ -223,11 +225,14 @@ def test_segments_the_ndf_does_not_fit_are_not_measured_but_masks_are(occupancy,
     sample = Path(__file__).parents[1] / "recordings" / "sample" / "source.mcap"
     frame = next(RecordingReader(sample).frames(4, 5))  # four mugs in view, all four segmented
     for masked in (True, False):
-        pipeline = ChangeDetectionPipeline(PipelineConfig(), encoder=_FixedOccupancyEncoder(occupancy))
+        encoder = _FixedOccupancyEncoder(occupancy)
+        pipeline = ChangeDetectionPipeline(PipelineConfig(), encoder=encoder)
         shown = frame if masked else dataclasses.replace(frame, instances=None)
-        observations = [e for e in pipeline.process("source", shown) if isinstance(e, ObservationEvent)
-                        and e.n_points > 0]
+        observations = [e for e in pipeline.process("source", shown, full_reconstruction=False)
+                        if isinstance(e, ObservationEvent) and e.n_points > 0]
         assert observations
+        # The gate of segments needs the whole reconstruction's mean occupancy, masks only whether it is empty.
+        assert encoder.full_reconstruction == [not masked]
         if masked or used:
             assert all(e.skipped is None for e in observations)
         else:

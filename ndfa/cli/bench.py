@@ -25,8 +25,8 @@ def bench_command(
     step: int = typer.Option(1, help="segment: use every N-th frame.", callback=at_least_one),
     threads: int = typer.Option(1, help="detect: torch's and ONNX Runtime's CPU threads (docs/speed.md).",
                                 callback=at_least_one),
-    compare: bool = typer.Option(False, "--compare", help="detect: first the before (--before-runtime, --before-weights), "
-                                                          "then now, back to back."),
+    compare: bool = typer.Option(False, "--compare", help="detect: first the before (--before-runtime, --before-weights, "
+                                                          "every reconstruction decoded), then now, back to back."),
     load: bool = typer.Option(False, "--load", help="detect: once more beside one busy process (while True: pass)."),
     runtime: str = typer.Option("auto", help="detect: the NDF's runtime now: auto, onnxruntime or torch."),
     before_runtime: str = typer.Option("torch", help="detect --compare: the NDF's runtime before."),
@@ -68,6 +68,7 @@ def bench_command(
         table.add_row("total", *(f"{row['total_ms']:.1f}" for row in rows))
         table.add_row("frames/s", *(f"{row['fps']:.1f}" for row in rows))
         table.add_row("CPU s (both passes)", *(f"{row['cpu_s']:.1f}" for row in rows))
+        table.add_row("reconstructions", *(row["reconstruction"] for row in rows))
         table.add_row("TP / FP / FN", *("-" if row["score"] is None else "/".join(map(str, row["score"])) for row in rows))
         console.print(table)
         now = next(row for row in rows if row["label"] == "now")

@@ -27,6 +27,9 @@ WEIGHTS_DIR = Path(__file__).parent / "weights"
 DEFAULT_WEIGHTS = WEIGHTS_DIR / "ndf_mugs.pt"
 CENTER_METHODS = ("head", "reconstruction", "weighted")
 MIN_POINTS = 10  # fewer points than this carry too little shape to encode
+# Observations per network call: the decoder's nearest-point search holds a [batch, queries,
+# points] array, which for 1,000 views on `ndfa ndf-eval`'s 20^3 grid took more than 20 GB.
+MAX_BATCH = 64
 
 
 @dataclass(frozen=True)
@@ -105,17 +108,32 @@ class NDFEncoder:
         """One observation: points [N, 3] in the camera frame, camera-to-world pose [4, 4]."""
         return self.encode_batch([points_camera], [pose_world_camera])[0]
 
-    def encode_batch(self, clouds: list[np.ndarray], poses_world_camera: list[np.ndarray]) -> list[ObjectCode]:
-        """Several observations at once (faster per observation than one by one)."""
+    def encode_batch(self, clouds: list[np.ndarray], poses_world_camera: list[np.ndarray],
+                     full_reconstruction: bool = True) -> list[ObjectCode]:
+        """Several observations at once (faster per observation than one by one), at most
+        `MAX_BATCH` per network call.
+
+        full_reconstruction False: the grid is decoded only as far as telling an empty
+        reconstruction from a non-empty one needs: the coarse points, and the fine ones only where
+        no coarse point exceeds v0. `mean_occupancy` and `reconstruction` are then those of the
+        coarse points (of the whole grid where the fine pass ran); whether a reconstruction is
+        empty is the same either way. For callers that use no more than that (`ndfa.pipeline`
+        without sinks, on masked frames); the fine pass was most of the decoding."""
         if len(clouds) != len(poses_world_camera):
             raise ModelError(f"{len(clouds)} point clouds but {len(poses_world_camera)} camera poses")
+        if len(clouds) > MAX_BATCH:
+            for i, cloud in enumerate(clouds):  # errors name the observation's index in `clouds`
+                _checked_cloud(cloud, i)
+            return [code for start in range(0, len(clouds), MAX_BATCH)
+                    for code in self.encode_batch(clouds[start:start + MAX_BATCH],
+                                                  poses_world_camera[start:start + MAX_BATCH], full_reconstruction)]
         if not clouds:
             return []
         points = np.stack([self.resample(_checked_cloud(c, i)) for i, c in enumerate(clouds)])
         centred, up, centroids = self._inputs(points, poses_world_camera)
         z, codes, offsets = self.runtime.encode(centred, up, centroids[:, 0].astype(np.float32))
         query_points = offsets[:, None, :] + self._grid[None]  # around each predicted center
-        occupancy = self._grid_occupancy(z, query_points, centred)
+        occupancy = self._grid_occupancy(z, query_points, centred, full_reconstruction)
 
         results = []
         for i, pose in enumerate(poses_world_camera):
@@ -157,8 +175,9 @@ class NDFEncoder:
                               torch.from_numpy(centroids[:, 0].astype(np.float32)))
         return z, torch.from_numpy(centred), centroids
 
-    def _grid_occupancy(self, z: np.ndarray, queries: np.ndarray, points: np.ndarray) -> np.ndarray:
-        """Occupancy `[B, G^3]` of the grid queries, decoded coarse to fine (see `EncoderConfig`)."""
+    def _grid_occupancy(self, z: np.ndarray, queries: np.ndarray, points: np.ndarray, full: bool = True) -> np.ndarray:
+        """Occupancy `[B, G^3]` of the grid queries, decoded coarse to fine (see `EncoderConfig`);
+        not `full`: the fine pass only for observations with no coarse point above v0."""
         if self.config.coarse_threshold <= 0:
             return self.runtime.occupancy(z, queries, points)
         n = self.config.grid_resolution
@@ -175,18 +194,19 @@ class NDFEncoder:
         near = dilated[:, up][:, :, up][:, :, :, up]
         near = near.reshape(batch, -1)
         near[:, coarse] = False  # already decoded
+        if not full:  # a coarse point above v0 already says the reconstruction is not empty
+            near[(occupancy[:, coarse] > self.config.v0).any(axis=1)] = False
         counts = near.sum(axis=1)
-        if counts.max() == 0:
+        rows = np.flatnonzero(counts)  # the observations with fine points to decode
+        if len(rows) == 0:
             return occupancy
-        # One padded batch: each observation's fine queries, padded with its first one.
-        index = np.zeros((batch, counts.max()), dtype=np.int64)
-        for b in range(batch):
-            chosen = np.flatnonzero(near[b])
-            index[b] = np.pad(chosen, (0, counts.max() - len(chosen)), mode="edge") if len(chosen) else coarse[0]
-        gathered = np.take_along_axis(queries, index[:, :, None], axis=1)
-        values = self.runtime.occupancy(z, gathered, points)
-        for b in range(batch):
-            occupancy[b, index[b, :counts[b]]] = values[b, :counts[b]]
+        # One padded batch: each of those observations' fine queries, padded with its first one.
+        width = counts.max()
+        index = np.stack([np.pad(np.flatnonzero(near[b]), (0, width - counts[b]), mode="edge") for b in rows])
+        gathered = np.take_along_axis(queries[rows], index[:, :, None], axis=1)
+        values = self.runtime.occupancy(np.ascontiguousarray(z[rows]), gathered, np.ascontiguousarray(points[rows]))
+        for row, b in enumerate(rows):
+            occupancy[b, index[row, :counts[b]]] = values[row, :counts[b]]
         return occupancy
 
     def _center(self, head: np.ndarray, queries: np.ndarray, occupancy: np.ndarray, inside: np.ndarray) -> np.ndarray:

@@ -125,6 +125,7 @@ def run_detection(
     registration: RegistrationMode = "auto",
     align: AlignConfig = AlignConfig(),
     on_alignment: Callable[[SceneAlignment], None] | None = None,
+    full_reconstruction: bool | None = None,
 ) -> DetectionResult:
     """Source pass, target pass, finish. Sinks are closed at the end, also when interrupted.
 
@@ -132,7 +133,8 @@ def run_detection(
     world up when its world is not known to be z-up (`up`, `poses`: the modes there);
     `on_world` hears what was used, as soon as it is known. Then the scene-level hypothesis of
     T_rel that `registration` asks for (`ndfa.run.align.registration_prior`) is computed and,
-    when it holds, handed to the detector; `on_alignment` hears it."""
+    when it holds, handed to the detector; `on_alignment` hears it. `full_reconstruction`
+    (`ChangeDetectionPipeline.process`): None, when there are sinks to see the reconstructions."""
     source_reader, target_reader, notes = open_pair(Path(source), Path(target), segment=config.segmentation is not None)
     worlds = {}
     for session, reader in (("source", source_reader), ("target", target_reader)):
@@ -151,12 +153,14 @@ def run_detection(
     registration_event: RegistrationEvent | None = None  # the last accepted: the T_rel of the last decisions
     visible: dict[str, set[int]] = {"source": set(), "target": set()}  # for scoring (`ndfa.eval.scoring`)
     seen = {"source": SessionCounts(), "target": SessionCounts()}     # to explain a session without objects
+    # Without sinks nobody sees the reconstructions: they are decoded only as far as decisions need.
+    full = bool(sinks) if full_reconstruction is None else full_reconstruction
     try:
         for session, reader in (("source", source_reader), ("target", target_reader)):
             total = len(range(0, len(reader), frame_step))
             started, count = time.perf_counter(), 0
             for frame in prefetched(reader.frames(step=frame_step)):  # the next frames are read meanwhile
-                for event in pipeline.process(session, worlds[session].apply(frame)):
+                for event in pipeline.process(session, worlds[session].apply(frame), full):
                     _emit(event, sinks)
                     seen[session].count(event)
                     if isinstance(event, DecisionEvent):

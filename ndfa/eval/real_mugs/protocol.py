@@ -38,8 +38,6 @@ from ndfa.change.config import DetectorConfig
 from ndfa.eval.real_mugs.tracks import MugView
 from ndfa.ndf.encoder import NDFEncoder
 
-ENCODE_BATCH = 32  # observations per encode_batch call: bounds the decoding grid's memory
-
 
 @dataclass(frozen=True)
 class ProtocolConfig:
@@ -130,10 +128,7 @@ def time_windows(timestamps: np.ndarray, azimuths: np.ndarray, centroids: np.nda
 def encode_views(views: list[MugView], encoder: NDFEncoder) -> pl.DataFrame:
     """One row per view: where it was seen from, the visible centroid, the NDF's center, shape code
     and mean occupancy, and the view's azimuth about its mug (see the module docstring)."""
-    codes = []
-    for first in range(0, len(views), ENCODE_BATCH):
-        batch = views[first:first + ENCODE_BATCH]
-        codes += encoder.encode_batch([v.points_camera for v in batch], [v.pose_world_camera for v in batch])
+    codes = encoder.encode_batch([v.points_camera for v in views], [v.pose_world_camera for v in views])
     camera = np.array([v.pose_world_camera[:3, 3] for v in views]).reshape(-1, 3)
     centroid = np.array([v.centroid_world for v in views]).reshape(-1, 3)
     center = np.array([c.center_world for c in codes]).reshape(-1, 3)
