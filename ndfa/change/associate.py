@@ -110,20 +110,25 @@ class SessionMap:
         candidates = self.neighbourhood(m.center_world, reach)
         best, best_distance, best_similarity = None, np.inf, np.nan
         revisit, revisit_distance, revisit_similarity = None, np.inf, np.nan
-        for object_id in candidates:
-            obj = self.objects[object_id]
-            distance = float(np.linalg.norm(obj.center_world - m.center_world))
-            similarity = float(cosine_similarity(m.shape_code, obj.shape_code))
-            horizontal_distance = float(np.linalg.norm(horizontal(obj.center_world) - horizontal(m.center_world)))
-            same = horizontal_distance < c.same_place_m or (distance < c.distance_m and similarity > c.shape_similarity)
-            if same and distance < best_distance:
-                best, best_distance, best_similarity = obj, distance, similarity
+        if candidates:
+            objects = [self.objects[i] for i in candidates]
+            centers = np.array([o.center_world for o in objects])
+            offsets = centers - m.center_world
+            distance = np.linalg.norm(offsets, axis=1)
+            similarity = cosine_similarity(m.shape_code, np.array([o.shape_code for o in objects]))
+            horizontal_distance = np.linalg.norm(horizontal(offsets), axis=1)
+            alike = similarity > c.shape_similarity
+            same = (horizontal_distance < c.same_place_m) | ((distance < c.distance_m) & alike)
             # The same object seen again after the odometry drifted: near, alike, and not seen in
             # this frame (two objects measured in one frame are two objects).
-            seen_again = (horizontal_distance < c.revisit_m and abs(obj.center_world[UP_AXIS] - m.center_world[UP_AXIS]) < c.revisit_m
-                          and similarity > c.shape_similarity and obj.last_frame != m.frame_index)
-            if seen_again and distance < revisit_distance:
-                revisit, revisit_distance, revisit_similarity = obj, distance, similarity
+            seen_again = ((horizontal_distance < c.revisit_m) & (np.abs(offsets[:, UP_AXIS]) < c.revisit_m) & alike
+                          & np.array([o.last_frame != m.frame_index for o in objects]))
+            if same.any():  # the nearest (the first of equals, in id order)
+                k = int(np.flatnonzero(same)[np.argmin(distance[same])])
+                best, best_distance, best_similarity = objects[k], float(distance[k]), float(similarity[k])
+            if seen_again.any():
+                k = int(np.flatnonzero(seen_again)[np.argmin(distance[seen_again])])
+                revisit, revisit_distance, revisit_similarity = objects[k], float(distance[k]), float(similarity[k])
         if best is None and revisit is not None:
             best, best_distance, best_similarity = revisit, revisit_distance, revisit_similarity
         if best is None:

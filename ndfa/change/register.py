@@ -110,29 +110,38 @@ def ransac_registration(
     if len(by_target) < 3:
         return None
     rng = np.random.default_rng(seed)
-    tolerance = 2 * inlier_m
-    best: tuple[int, float, np.ndarray] | None = None
-    tried = 0
-    for triple in _target_triples(sorted(by_target), max_hypotheses, rng):
-        for sample in _agreeing_samples(triple, by_target, t, s, source_ids, tolerance):
-            tried += 1
-            transform = rigid_transform(t[sample], s[sample])
-            inliers = _unique_inliers(transform, t, s, target_ids, source_ids, inlier_m)
-            score = (len(inliers), -_rms(transform, t[inliers], s[inliers]))
-            if best is None or score > best[:2]:
-                best = (score[0], score[1], inliers)
-            if tried >= max_hypotheses:
-                break
-        if tried >= max_hypotheses:
+    # Center distances between the pairs' objects, in each session (a rigid motion keeps them).
+    target_distances = np.linalg.norm(t[:, None] - t[None], axis=-1)
+    source_distances = np.linalg.norm(s[:, None] - s[None], axis=-1)
+    samples = np.array(list(itertools.islice(
+        (sample for triple in _target_triples(sorted(by_target), max_hypotheses, rng)
+         for sample in _agreeing_samples(triple, by_target, target_distances, source_distances, source_ids, 2 * inlier_m)),
+        max_hypotheses)), dtype=int).reshape(-1, 3)
+    if len(samples) == 0:
+        return None
+    transforms, _ = kabsch(t[samples], s[samples])  # every hypothesis at once
+    errors = np.linalg.norm(t @ np.swapaxes(transforms[:, :3, :3], 1, 2) + transforms[:, None, :3, 3] - s, axis=-1)
+    # A hypothesis' inliers (one pair per object) are at most its pairs within inlier_m: score the
+    # hypotheses in that order and stop where none left can reach the best. The winner: most
+    # inliers, then lowest residual, then the first drawn.
+    within = (errors <= inlier_m).sum(axis=1)
+    best: tuple[int, float, int] | None = None
+    best_inliers = np.zeros(0, dtype=int)
+    for h in np.argsort(-within, kind="stable"):
+        if best is not None and within[h] < best[0]:
             break
+        inliers = _unique_inliers(errors[h], target_ids, source_ids, inlier_m)
+        key = (len(inliers), -_rms(transforms[h], t[inliers], s[inliers]), -int(h))
+        if best is None or key > best:
+            best, best_inliers = key, inliers
     if best is None or best[0] < 3:
         return None
-    inliers = best[2]
+    inliers = best_inliers
     transform = rigid_transform(t[inliers], s[inliers])
-    inliers = _unique_inliers(transform, t, s, target_ids, source_ids, inlier_m)
+    inliers = _unique_inliers(_errors(transform, t, s), target_ids, source_ids, inlier_m)
     if len(inliers) >= 3:
         transform = rigid_transform(t[inliers], s[inliers])
-    return Registration(transform, inliers, _rms(transform, t[inliers], s[inliers]), len(pairs), tried)
+    return Registration(transform, inliers, _rms(transform, t[inliers], s[inliers]), len(pairs), len(samples))
 
 
 def _target_triples(target_ids: list[int], max_triples: int,
@@ -145,27 +154,29 @@ def _target_triples(target_ids: list[int], max_triples: int,
         yield tuple(rng.choice(target_ids, size=3, replace=False))
 
 
-def _agreeing_samples(triple: tuple[int, ...], by_target: dict[int, np.ndarray], t: np.ndarray, s: np.ndarray,
-                      source_ids: np.ndarray, tolerance: float) -> Iterator[list[int]]:
+def _agreeing_samples(triple: tuple[int, ...], by_target: dict[int, np.ndarray], target_distances: np.ndarray,
+                      source_distances: np.ndarray, source_ids: np.ndarray, tolerance: float) -> Iterator[list[int]]:
     """Pair-index triples (one candidate pair per target object of `triple`) whose center
     distances agree between the sessions, and whose source objects are distinct."""
     a, b, c = (by_target[i] for i in triple)
-    ta, tb, tc = t[a[0]], t[b[0]], t[c[0]]
-    d_ab, d_ac, d_bc = np.linalg.norm(ta - tb), np.linalg.norm(ta - tc), np.linalg.norm(tb - tc)
-    ab = np.abs(np.linalg.norm(s[a][:, None] - s[b][None], axis=-1) - d_ab) <= tolerance
+    d_ab, d_ac, d_bc = (target_distances[x[0], y[0]] for x, y in ((a, b), (a, c), (b, c)))
+    ab = np.abs(source_distances[np.ix_(a, b)] - d_ab) <= tolerance
     for i, j in zip(*np.nonzero(ab)):
-        ok = (np.abs(np.linalg.norm(s[c] - s[a[i]], axis=1) - d_ac) <= tolerance) & \
-             (np.abs(np.linalg.norm(s[c] - s[b[j]], axis=1) - d_bc) <= tolerance)
+        ok = (np.abs(source_distances[c, a[i]] - d_ac) <= tolerance) & (np.abs(source_distances[c, b[j]] - d_bc) <= tolerance)
         for k in np.flatnonzero(ok):
             sample = [a[i], b[j], c[k]]
             if len(set(source_ids[sample])) == 3:
                 yield sample
 
 
-def _unique_inliers(transform: np.ndarray, t: np.ndarray, s: np.ndarray, target_ids: np.ndarray,
-                    source_ids: np.ndarray, inlier_m: float) -> np.ndarray:
-    """Inlier pair indices, at most one per target object and per source object (the closest)."""
-    error = np.linalg.norm(apply(transform, t) - s, axis=1)
+def _errors(transform: np.ndarray, t: np.ndarray, s: np.ndarray) -> np.ndarray:
+    error: np.ndarray = np.linalg.norm(apply(transform, t) - s, axis=1)
+    return error
+
+
+def _unique_inliers(error: np.ndarray, target_ids: np.ndarray, source_ids: np.ndarray, inlier_m: float) -> np.ndarray:
+    """Inlier pair indices from each pair's registration error, at most one per target object and
+    per source object (the closest)."""
     used_target, used_source, chosen = set(), set(), []
     for index in np.argsort(error, kind="stable"):
         if error[index] > inlier_m:
@@ -207,11 +218,12 @@ def verify_prior(
     s = np.array([source_centers[b] for _, b in pairs], dtype=np.float64)
     target_ids = np.array([a for a, _ in pairs])
     source_ids = np.array([b for _, b in pairs])
-    inliers = _unique_inliers(transform, t, s, target_ids, source_ids, inlier_m)
-    support = _unique_inliers(transform, t, s, target_ids, source_ids, support_m)
+    error = _errors(transform, t, s)
+    inliers = _unique_inliers(error, target_ids, source_ids, inlier_m)
+    support = _unique_inliers(error, target_ids, source_ids, support_m)
     if len(support) >= 2:
         refined = yaw_transform(apply(transform, t[support]), s[support]) @ transform
-        refined_inliers = _unique_inliers(refined, t, s, target_ids, source_ids, inlier_m)
+        refined_inliers = _unique_inliers(_errors(refined, t, s), target_ids, source_ids, inlier_m)
         if len(refined_inliers) >= len(inliers):
             transform, inliers = refined, refined_inliers
     return Registration(transform, inliers, _rms(transform, t[inliers], s[inliers]), len(pairs), 1, prior.method)

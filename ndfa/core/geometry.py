@@ -104,31 +104,32 @@ def kabsch(moving: np.ndarray, fixed: np.ndarray, *, normalised: bool = False,
     """The (4, 4) transform T and scale s minimising sum_i |s R moving_i + t - fixed_i|^2 over
     corresponding points (N, 3), N >= 3 and not all on one line: Kabsch's SVD fit, with Umeyama's
     scale (PAMI 1991) when `with_scale` (s is applied to T's rotation block; 1.0 without).
+    Stacks of point sets (..., N, 3) give stacks of transforms (..., 4, 4) and scales (...).
 
     The best orthogonal matrix may be a reflection, which is not a motion: then the axis of the
     smallest singular value is flipped. `normalised` divides the cross-covariance by N, as Umeyama
     writes it; the fit is the same, the last bits of it are not, so each caller keeps its form.
     """
     moving, fixed = np.asarray(moving, dtype=np.float64), np.asarray(fixed, dtype=np.float64)
-    moving_mean, fixed_mean = moving.mean(axis=0), fixed.mean(axis=0)
-    moving_centred, fixed_centred = moving - moving_mean, fixed - fixed_mean
-    covariance = fixed_centred.T @ moving_centred
+    moving_mean, fixed_mean = moving.mean(axis=-2), fixed.mean(axis=-2)
+    moving_centred, fixed_centred = moving - moving_mean[..., None, :], fixed - fixed_mean[..., None, :]
+    covariance = np.swapaxes(fixed_centred, -1, -2) @ moving_centred
     if normalised:
-        covariance = covariance / len(moving)
+        covariance = covariance / moving.shape[-2]
     u, singular, vt = np.linalg.svd(covariance)
-    reflection = np.eye(3)
-    if np.linalg.det(u) * np.linalg.det(vt) < 0:
-        reflection[2, 2] = -1.0
-    rotation = u @ reflection @ vt
-    scale = 1.0
+    reflection = np.ones(singular.shape)  # the diagonal of the reflection matrix
+    reflection[..., 2] = np.where(np.linalg.det(u) * np.linalg.det(vt) < 0, -1.0, 1.0)
+    rotation = (u * reflection[..., None, :]) @ vt
+    scale = np.ones(singular.shape[:-1])
     if with_scale:
-        spread = np.sum(moving_centred**2, axis=1)
-        variance = np.mean(spread) if normalised else np.sum(spread)
-        scale = float(np.trace(np.diag(singular) @ reflection) / variance)
-    transform = np.eye(4)
-    transform[:3, :3] = scale * rotation
-    transform[:3, 3] = fixed_mean - scale * rotation @ moving_mean
-    return transform, scale
+        spread = np.sum(moving_centred**2, axis=-1)
+        variance = np.mean(spread, axis=-1) if normalised else np.sum(spread, axis=-1)
+        scale = np.sum(singular * reflection, axis=-1) / variance
+    transform = np.zeros(moving.shape[:-2] + (4, 4))
+    transform[..., 3, 3] = 1.0
+    transform[..., :3, :3] = scale[..., None, None] * rotation
+    transform[..., :3, 3] = fixed_mean - scale[..., None] * (rotation @ moving_mean[..., None])[..., 0]
+    return transform, scale if scale.ndim else float(scale)
 
 
 def project(K: np.ndarray, points_camera: np.ndarray) -> np.ndarray:
