@@ -19,8 +19,8 @@ from ndfa.change.detector import ChangeDetector, DetectorConfig
 from ndfa.core.events import Event, FrameEvent, ObservationEvent, Session, TimingEvent
 from ndfa.core.frame import Frame
 from ndfa.core.geometry import transform_points
-from ndfa.ndf.encoder import EncoderConfig, NDFEncoder
-from ndfa.perception.observations import ObservationConfig, extract_observations
+from ndfa.ndf.encoder import EncoderConfig, NDFEncoder, ObjectCode
+from ndfa.perception.observations import Observation, ObservationConfig, SkippedObservation, extract_observations
 from ndfa.perception.segmentation import SegmentationConfig, segment_frame
 
 SESSIONS = ("source", "target")
@@ -50,7 +50,24 @@ class PipelineConfig:
     min_segment_occupancy: float = 0.63
 
 
+@dataclass(frozen=True)
+class ObservedFrame:
+    """A frame through the stages that do not depend on the detector: its observations (from its
+    masks, or from its segmentation) and, once encoded, their NDF codes."""
+
+    frame: Frame                       # with the segmentation's instances when it was segmented
+    segmented: bool
+    observations: list[Observation]
+    skipped: list[SkippedObservation]
+    stage_ms: dict[str, float]         # segmentation (when segmented), perception, encoding
+    codes: list[ObjectCode] | None = None
+
+
 class ChangeDetectionPipeline:
+    """perceive -> encode -> decide, one frame at a time. The first two are per frame and hold no
+    state (a caller may run them ahead, in other threads: `ndfa.run.detect`); `decide` feeds the
+    detector, in frame order. `process` is the three in a row."""
+
     def __init__(self, config: PipelineConfig = PipelineConfig(), encoder: NDFEncoder | None = None) -> None:
         self.config = config
         self.encoder = encoder or NDFEncoder(config.weights, config.encoder)
@@ -61,39 +78,55 @@ class ChangeDetectionPipeline:
         observation's reconstruction is decoded only as far as the decisions need it
         (`NDFEncoder.encode_batch`); the events and decisions are the same, but an event's
         `mean_occupancy` and `reconstruction_world` are then the coarse grid's."""
-        if session not in SESSIONS:
-            raise ValueError(f"session must be one of {SESSIONS}, got {session!r}")
-        started = time.perf_counter()
-        segmentation_ms = {}
-        segmentation = self.config.segmentation
-        segmented = False
-        if frame.instances is None and segmentation is not None:
-            segmented = True
-            frame = replace(frame, instances=segment_frame(frame, segmentation))
-            segmentation_ms = {"segmentation": (time.perf_counter() - started) * 1e3}
-            started = time.perf_counter()
-        events: list[Event] = [FrameEvent(session=session, frame=frame)]
+        return self.decide(session, self.encode(self.perceive(frame), full_reconstruction))
 
+    def perceive(self, frame: Frame) -> ObservedFrame:
+        """The frame's observations: of its masks, else of its segmentation (if on)."""
+        started = time.perf_counter()
+        stage_ms = {}
+        segmentation = self.config.segmentation
+        segmented = frame.instances is None and segmentation is not None
+        if segmented:
+            assert segmentation is not None
+            frame = replace(frame, instances=segment_frame(frame, segmentation))
+            stage_ms["segmentation"] = (time.perf_counter() - started) * 1e3
+            started = time.perf_counter()
         observations, skipped = extract_observations(frame, self.config.observation)
-        perceived = time.perf_counter()
+        stage_ms["perception"] = (time.perf_counter() - started) * 1e3
+        return ObservedFrame(frame, segmented, observations, skipped, stage_ms)
+
+    def encode(self, observed: ObservedFrame, full_reconstruction: bool = True) -> ObservedFrame:
+        """Its observations' NDF codes (`process` says what `full_reconstruction` does)."""
+        started = time.perf_counter()
         # The mean occupancy decides the objectness gate of segments and, with "best" fusion, which
         # measurement an object keeps; elsewhere only whether the reconstruction is empty decides.
-        full = full_reconstruction or segmented or self.config.detector.association.fusion == "best"
-        codes = self.encoder.encode_batch([o.points_camera for o in observations],
-                                          [frame.pose_world_camera] * len(observations), full_reconstruction=full)
-        encoded = time.perf_counter()
+        full = full_reconstruction or observed.segmented or self.config.detector.association.fusion == "best"
+        codes = self.encoder.encode_batch([o.points_camera for o in observed.observations],
+                                          [observed.frame.pose_world_camera] * len(observed.observations),
+                                          full_reconstruction=full)
+        return replace(observed, codes=codes,
+                       stage_ms=observed.stage_ms | {"encoding": (time.perf_counter() - started) * 1e3})
 
+    def decide(self, session: Session, observed: ObservedFrame) -> list[Event]:
+        """An encoded frame's measurements into the detector of `session`: the frame's events."""
+        if session not in SESSIONS:
+            raise ValueError(f"session must be one of {SESSIONS}, got {session!r}")
+        if observed.codes is None:
+            raise ValueError("decide() needs an encoded frame (encode())")
+        started = time.perf_counter()
+        frame = observed.frame
+        events: list[Event] = [FrameEvent(session=session, frame=frame)]
         measurements: list[Measurement] = []
-        for skipped_observation in skipped:
+        for skipped_observation in observed.skipped:
             events.append(ObservationEvent(session=session, frame_index=frame.index,
                                            instance_id=skipped_observation.instance_id,
                                            n_pixels=skipped_observation.n_pixels, skipped=skipped_observation.reason))
-        for observation, code in zip(observations, codes):
+        for observation, code in zip(observed.observations, observed.codes):
             # No grid point above v0: the NDF does not see a whole object in this view (on the
             # `paper` scene such views gave centers several cm off); logged, not used.
             empty = code.mean_occupancy <= 0.0
             skip: str | None = "empty reconstruction" if empty else None
-            if not empty and segmented and code.mean_occupancy < self.config.min_segment_occupancy:
+            if not empty and observed.segmented and code.mean_occupancy < self.config.min_segment_occupancy:
                 skip = (f"segment not mug-like: mean occupancy {code.mean_occupancy:.2f} "
                         f"< {self.config.min_segment_occupancy}")
             events.append(ObservationEvent(
@@ -110,12 +143,8 @@ class ChangeDetectionPipeline:
                                             code.mean_occupancy, code.heading_rad, code.heading_strength))
         add = self.detector.add_source if session == "source" else self.detector.add_target
         events += add(measurements)
-        detected = time.perf_counter()
-        events.append(TimingEvent(session=session, frame_index=frame.index, stage_ms=segmentation_ms | {
-            "perception": (perceived - started) * 1e3,
-            "encoding": (encoded - perceived) * 1e3,
-            "detection": (detected - encoded) * 1e3,
-        }))
+        events.append(TimingEvent(session=session, frame_index=frame.index, stage_ms=observed.stage_ms | {
+            "detection": (time.perf_counter() - started) * 1e3}))
         return events
 
     def finish(self) -> list[Event]:

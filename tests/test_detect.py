@@ -47,12 +47,15 @@ def test_summary_scores_the_sample_against_its_ground_truth(run):
     assert "TP" in output and "changes" in output
 
 
-def test_a_run_without_sinks_decodes_less_and_decides_the_same(run):
+@pytest.mark.parametrize("overlap", [True, False])
+def test_a_run_without_sinks_decodes_less_and_decides_the_same(run, overlap):
     """Without sinks each reconstruction is decoded only as far as decisions need
-    (`ChangeDetectionPipeline.process`); the reports are those of the run with every output."""
+    (`ChangeDetectionPipeline.process`); with `overlap` the stages run in threads of their own
+    (`ndfa.run.detect.staged`), without one after the other. The reports are those of the run
+    with every output."""
     out, _ = run
     with_sinks = json.loads((out / "summary.json").read_text())
-    without = run_detection(SAMPLE / "source.mcap", SAMPLE / "target.mcap").summary()
+    without = run_detection(SAMPLE / "source.mcap", SAMPLE / "target.mcap", overlap=overlap).summary()
     assert without["changes"] == with_sinks["changes"]
     assert (without["tp"], without["fp"], without["fn"]) == (with_sinks["tp"], with_sinks["fp"], with_sinks["fn"])
 

@@ -26,7 +26,8 @@ def bench_command(
     threads: int = typer.Option(1, help="detect: torch's and ONNX Runtime's CPU threads (docs/speed.md).",
                                 callback=at_least_one),
     compare: bool = typer.Option(False, "--compare", help="detect: first the before (--before-runtime, --before-weights, "
-                                                          "every reconstruction decoded), then now, back to back."),
+                                                          "every reconstruction decoded, the stages one after the "
+                                                          "other), then now, back to back."),
     load: bool = typer.Option(False, "--load", help="detect: once more beside one busy process (while True: pass)."),
     runtime: str = typer.Option("auto", help="detect: the NDF's runtime now: auto, onnxruntime or torch."),
     before_runtime: str = typer.Option("torch", help="detect --compare: the NDF's runtime before."),
@@ -63,9 +64,10 @@ def bench_command(
         table.add_column("ms / frame")
         for row in rows:
             table.add_column(f"{row['label']} ({row['runtime']}, {Path(row['weights']).name})", justify="right")
-        for stage in first["stage_ms"]:
-            table.add_row(stage, *(f"{row['stage_ms'].get(stage, 0.0):.1f}" for row in rows))
-        table.add_row("total", *(f"{row['total_ms']:.1f}" for row in rows))
+        for stage in dict.fromkeys(stage for row in rows for stage in row["stage_ms"]):
+            table.add_row(stage, *(f"{row['stage_ms'][stage]:.1f}" if stage in row["stage_ms"] else "-" for row in rows))
+        table.add_row("wall time", *(f"{row['total_ms']:.1f}" for row in rows))
+        table.add_row("stages", *(row["stages"] for row in rows))
         table.add_row("frames/s", *(f"{row['fps']:.1f}" for row in rows))
         table.add_row("CPU s (both passes)", *(f"{row['cpu_s']:.1f}" for row in rows))
         table.add_row("reconstructions", *(row["reconstruction"] for row in rows))

@@ -12,6 +12,7 @@ the result says which registration was used and with how many inliers.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable, Protocol
@@ -21,11 +22,12 @@ import numpy as np
 from ndfa.change.detector import reported_changes
 from ndfa.core.errors import RecordingError
 from ndfa.core.events import DecisionEvent, Event, FrameEvent, ObservationEvent, RegistrationEvent, TimingEvent
+from ndfa.core.frame import Frame
 from ndfa.core.progress import LabelledProgress
 from ndfa.eval.scoring import Score, is_visible, rotated_reports, score
 from ndfa.io.recording import INSTANCES, RecordingReader
 from ndfa.io.recording.prefetch import prefetched
-from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
+from ndfa.pipeline import ChangeDetectionPipeline, ObservedFrame, PipelineConfig
 from ndfa.run.align import AlignConfig, RegistrationMode, SceneAlignment, registration_prior
 from ndfa.run.world import PoseMode, SessionWorld, UpMode, prepare_session
 
@@ -126,6 +128,7 @@ def run_detection(
     align: AlignConfig = AlignConfig(),
     on_alignment: Callable[[SceneAlignment], None] | None = None,
     full_reconstruction: bool | None = None,
+    overlap: bool = True,
 ) -> DetectionResult:
     """Source pass, target pass, finish. Sinks are closed at the end, also when interrupted.
 
@@ -134,7 +137,9 @@ def run_detection(
     `on_world` hears what was used, as soon as it is known. Then the scene-level hypothesis of
     T_rel that `registration` asks for (`ndfa.run.align.registration_prior`) is computed and,
     when it holds, handed to the detector; `on_alignment` hears it. `full_reconstruction`
-    (`ChangeDetectionPipeline.process`): None, when there are sinks to see the reconstructions."""
+    (`ChangeDetectionPipeline.process`): None, when there are sinks to see the reconstructions.
+    `overlap`: frames are read, perceived and encoded ahead in threads (`staged`); False: one
+    frame after the other in this thread (the same events)."""
     source_reader, target_reader, notes = open_pair(Path(source), Path(target), segment=config.segmentation is not None)
     worlds = {}
     for session, reader in (("source", source_reader), ("target", target_reader)):
@@ -159,8 +164,8 @@ def run_detection(
         for session, reader in (("source", source_reader), ("target", target_reader)):
             total = len(range(0, len(reader), frame_step))
             started, count = time.perf_counter(), 0
-            for frame in prefetched(reader.frames(step=frame_step)):  # the next frames are read meanwhile
-                for event in pipeline.process(session, worlds[session].apply(frame), full):
+            for observed in staged(pipeline, reader.frames(step=frame_step), worlds[session], full, overlap):
+                for event in pipeline.decide(session, observed):
                     _emit(event, sinks)
                     seen[session].count(event)
                     if isinstance(event, DecisionEvent):
@@ -223,6 +228,19 @@ def run_detection(
     elif truth is not None and "objects" in truth:
         result.score = score([i for c in changes for i in c.reported_instances], truth, visible, rotated_reports(changes))
     return result
+
+
+def staged(pipeline: ChangeDetectionPipeline, frames: Iterator[Frame], world: SessionWorld,
+           full_reconstruction: bool, overlap: bool = True) -> Iterator[ObservedFrame]:
+    """The frames read, perceived and encoded for `pipeline.decide`, in frame order. `overlap`:
+    each stage runs ahead in a thread of its own (`ndfa.io.recording.prefetch`). The stages hold
+    no state and the detector sees the frames in order, so the events are those of
+    `pipeline.process`; the NDF's runtime and much of numpy's work release the GIL, so on two
+    cores the stages run at the same time (docs/speed.md)."""
+    depth = 4 if overlap else 0
+    read = prefetched((world.apply(frame) for frame in frames), depth)
+    perceived = prefetched((pipeline.perceive(frame) for frame in read), depth)
+    return prefetched((pipeline.encode(observed, full_reconstruction) for observed in perceived), depth)
 
 
 def _registration_summary(event: RegistrationEvent) -> dict:
