@@ -42,7 +42,7 @@ def train_command(
                                    callback=fraction),
     init: Optional[Path] = typer.Option(None, help="Start from these weights (e.g. the shipped ones) with a fresh optimizer.",
                                         callback=checkpoint),
-    train_only: str = typer.Option("all", help="all, or refit only a fresh code_head or decoder on the --init model's frozen encoder."),
+    train_only: str = typer.Option("all", help="all, or refit only a fresh code_head, center_head or decoder on the --init model's frozen encoder."),
     init_fresh: str = typer.Option("none", help="With --init: none, or decoder / code_head to start that part fresh (e.g. another size); all of it trains."),
     proxy_weight: float = typer.Option(0.0, help="Weight of the proxy identity loss on the shape codes (0: off).",
                                        callback=non_negative),

@@ -177,37 +177,52 @@ class NDFEncoder:
 
     def _grid_occupancy(self, z: np.ndarray, queries: np.ndarray, points: np.ndarray, full: bool = True) -> np.ndarray:
         """Occupancy `[B, G^3]` of the grid queries, decoded coarse to fine (see `EncoderConfig`);
-        not `full`: the fine pass only for observations with no coarse point above v0."""
+        not `full`: the fine pass only for observations with no coarse point above v0, first
+        around their highest coarse point, then, where none of those is above v0 either, the rest."""
         if self.config.coarse_threshold <= 0:
             return self.runtime.occupancy(z, queries, points)
         n = self.config.grid_resolution
         batch = len(queries)
-        fine = np.arange(n ** 3).reshape(n, n, n)
-        coarse = fine[::2, ::2, ::2].ravel()
+        coarse_shape = (batch, *[len(range(0, n, 2))] * 3)
+        coarse = np.arange(n ** 3).reshape(n, n, n)[::2, ::2, ::2].ravel()
         occupancy = np.zeros((batch, n ** 3), dtype=np.float32)
         occupancy[:, coarse] = self.runtime.occupancy(z, np.ascontiguousarray(queries[:, coarse]), points)
-        # Fine points within one coarse step of an occupied coarse point: dilate, then upsample
-        # (fine index i lies between coarse i // 2 and i // 2 + 1).
-        occupied = (occupancy[:, coarse] > self.config.coarse_threshold).reshape(batch, *fine[::2, ::2, ::2].shape)
-        dilated = binary_dilation(occupied, structure=np.ones((1, 3, 3, 3), dtype=bool))
-        up = np.arange(n) // 2
-        near = dilated[:, up][:, :, up][:, :, :, up]
-        near = near.reshape(batch, -1)
+        near = self._fine_near(occupancy[:, coarse].reshape(coarse_shape) > self.config.coarse_threshold)
         near[:, coarse] = False  # already decoded
-        if not full:  # a coarse point above v0 already says the reconstruction is not empty
-            near[(occupancy[:, coarse] > self.config.v0).any(axis=1)] = False
-        counts = near.sum(axis=1)
-        rows = np.flatnonzero(counts)  # the observations with fine points to decode
+        if not full:
+            undecided = ~(occupancy[:, coarse] > self.config.v0).any(axis=1)  # else: not empty
+            near[~undecided] = False
+            highest = np.zeros(coarse_shape, dtype=bool)
+            highest.reshape(batch, -1)[undecided, occupancy[undecided][:, coarse].argmax(axis=1)] = True
+            first = near & self._fine_near(highest)
+            self._decode_fine(occupancy, first, z, queries, points)
+            near &= ~first
+            near[(occupancy > self.config.v0).any(axis=1)] = False
+        self._decode_fine(occupancy, near, z, queries, points)
+        return occupancy
+
+    def _fine_near(self, coarse_mask: np.ndarray) -> np.ndarray:
+        """`[B, G^3]`: the fine grid points within one coarse step of a point of `coarse_mask`
+        `[B, c, c, c]`: dilate, then upsample (fine index i lies between coarse i // 2 and i // 2 + 1)."""
+        dilated = binary_dilation(coarse_mask, structure=np.ones((1, 3, 3, 3), dtype=bool))
+        up = np.arange(self.config.grid_resolution) // 2
+        near: np.ndarray = dilated[:, up][:, :, up][:, :, :, up].reshape(len(coarse_mask), -1)
+        return near
+
+    def _decode_fine(self, occupancy: np.ndarray, chosen: np.ndarray, z: np.ndarray, queries: np.ndarray,
+                     points: np.ndarray) -> None:
+        """Decode the grid points `chosen` `[B, G^3]` into `occupancy`, as one padded batch of the
+        observations with any (each padded with its first point)."""
+        counts = chosen.sum(axis=1)
+        rows = np.flatnonzero(counts)
         if len(rows) == 0:
-            return occupancy
-        # One padded batch: each of those observations' fine queries, padded with its first one.
+            return
         width = counts.max()
-        index = np.stack([np.pad(np.flatnonzero(near[b]), (0, width - counts[b]), mode="edge") for b in rows])
+        index = np.stack([np.pad(np.flatnonzero(chosen[b]), (0, width - counts[b]), mode="edge") for b in rows])
         gathered = np.take_along_axis(queries[rows], index[:, :, None], axis=1)
         values = self.runtime.occupancy(np.ascontiguousarray(z[rows]), gathered, np.ascontiguousarray(points[rows]))
         for row, b in enumerate(rows):
             occupancy[b, index[row, :counts[b]]] = values[row, :counts[b]]
-        return occupancy
 
     def _center(self, head: np.ndarray, queries: np.ndarray, occupancy: np.ndarray, inside: np.ndarray) -> np.ndarray:
         if self.config.center == "head" or not inside.any():
