@@ -1,6 +1,7 @@
 """Instance masks -> cleaned partial point clouds."""
 
 import numpy as np
+import pytest
 
 from ndfa.io.recording import Frame
 from ndfa.perception.observations import ObservationConfig, extract_observations, largest_cluster
@@ -56,3 +57,23 @@ def test_largest_cluster_is_the_biggest_connected_group():
     b = rng.normal(scale=0.005, size=(100, 3)) + [0, 0, 1.0]
     chosen = largest_cluster(np.vstack([a, b]), voxel_m=0.02)
     assert set(chosen) == set(range(300))
+
+
+@pytest.mark.parametrize("seed", range(20))
+def test_component_labels_are_the_connected_components(seed):
+    """`_component_labels` against scipy's connected components on random sparse graphs: the same
+    partition, each component labelled by its smallest node."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    from ndfa.perception.observations import _component_labels
+
+    rng = np.random.default_rng(seed)
+    count = int(rng.integers(1, 300))
+    edges = rng.integers(0, count, size=(2, int(rng.integers(0, 2 * count))))
+    labels = _component_labels(count, edges[0], edges[1])
+    graph = coo_matrix((np.ones(edges.shape[1]), (edges[0], edges[1])), shape=(count, count))
+    _, expected = connected_components(graph, directed=False)
+    for component in np.unique(expected):
+        members = np.flatnonzero(expected == component)
+        assert np.all(labels[members] == members.min())
