@@ -34,6 +34,8 @@ def bench_command(
     before_weights: Optional[Path] = typer.Option(None, help="detect --compare: the NDF's weights before (default: the shipped ones).",
                                                   callback=checkpoint),
     frame_step: int = typer.Option(1, help="detect: use every N-th frame.", callback=at_least_one),
+    overlap: bool = typer.Option(True, "--overlap/--no-overlap",
+                                 help="detect: now, the stages run at the same time in threads (else one after the other)."),
 ) -> None:
     """Time each stage of a pipeline and print milliseconds."""
     from ndfa.eval.bench import bench_detect_runs, bench_detection_scaling, bench_ndf, bench_sim
@@ -57,7 +59,7 @@ def bench_command(
                 raise typer.BadParameter(f"{option} must be one of {', '.join(RUNTIMES)}, got {value!r}")
         rows = bench_detect_runs(source, target, threads=threads, compare=compare, load=load, frame_step=frame_step,
                                  runtime=runtime, weights=weights, before_runtime=before_runtime,
-                                 before_weights=before_weights)
+                                 before_weights=before_weights, overlap=overlap)
         first = rows[0]
         table = Table(title=f"ndfa bench detect: target pass of {target} (no sinks)",
                       caption=f"{first['frames']} frames, {threads} thread(s); {first['machine']}")

@@ -150,7 +150,8 @@ def bench_detect(source: Path, target: Path, threads: int = 1, frame_step: int =
 
 def bench_detect_runs(source: Path, target: Path, threads: int = 1, compare: bool = False, load: bool = False,
                       frame_step: int = 1, runtime: str = "auto", weights: Path | None = None,
-                      before_runtime: str = "torch", before_weights: Path | None = None) -> list[dict]:
+                      before_runtime: str = "torch", before_weights: Path | None = None,
+                      overlap: bool = True) -> list[dict]:
     """`bench_detect` back to back in one process, each row labelled: with `compare` first the
     "before" (`before_runtime` with `before_weights`, default the shipped ones, as the pass ran
     before: every reconstruction decoded, the stages one after the other), then "now"
@@ -161,14 +162,15 @@ def bench_detect_runs(source: Path, target: Path, threads: int = 1, compare: boo
     if compare:
         rows.append({"label": "before"} | bench_detect(source, target, threads, frame_step, before_runtime, before_weights,
                                                        full_reconstruction=True, overlap=False))
-    rows.append({"label": "now"} | bench_detect(source, target, threads, frame_step, runtime, weights))
+    rows.append({"label": "now"} | bench_detect(source, target, threads, frame_step, runtime, weights, overlap=overlap))
     if load:
         import subprocess
         import sys
 
         busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])
         try:
-            rows.append({"label": "beside one busy process"} | bench_detect(source, target, threads, frame_step, runtime, weights))
+            rows.append({"label": "beside one busy process"} | bench_detect(source, target, threads, frame_step, runtime, weights,
+                                                                            overlap=overlap))
         finally:
             busy.kill()
             busy.wait()
