@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import sys
 import threading
 
 import pytest
 
-from ndfa.io.recording.prefetch import OVERLAP_SWITCH_INTERVAL_S, prefetched, short_gil_switches
+from ndfa.io.recording.prefetch import prefetched
 
 
 def test_same_items_in_the_same_order():
@@ -58,14 +57,3 @@ def test_recording_frames_read_ahead_are_the_frames():
     assert len(direct) == len(ahead) == 6
     for a, b in zip(direct, ahead):
         assert a.index == b.index and np.array_equal(a.depth, b.depth) and np.array_equal(a.pose_world_camera, b.pose_world_camera)
-
-
-def test_short_gil_switches_apply_within_and_are_restored_after_an_error():
-    before = sys.getswitchinterval()
-    with pytest.raises(KeyError):
-        with short_gil_switches():
-            assert sys.getswitchinterval() == pytest.approx(OVERLAP_SWITCH_INTERVAL_S)
-            raise KeyError("stop")
-    assert sys.getswitchinterval() == before
-    with short_gil_switches(enabled=False):
-        assert sys.getswitchinterval() == before

@@ -26,7 +26,7 @@ from ndfa.core.frame import Frame
 from ndfa.core.progress import LabelledProgress
 from ndfa.eval.scoring import Score, is_visible, rotated_reports, score
 from ndfa.io.recording import INSTANCES, RecordingReader
-from ndfa.io.recording.prefetch import prefetched, short_gil_switches
+from ndfa.io.recording.prefetch import prefetched
 from ndfa.pipeline import ChangeDetectionPipeline, ObservedFrame, PipelineConfig
 from ndfa.run.align import AlignConfig, RegistrationMode, SceneAlignment, registration_prior
 from ndfa.run.world import PoseMode, SessionWorld, UpMode, prepare_session
@@ -161,31 +161,30 @@ def run_detection(
     # Without sinks nobody sees the reconstructions: they are decoded only as far as decisions need.
     full = bool(sinks) if full_reconstruction is None else full_reconstruction
     try:
-        with short_gil_switches(overlap):
-            for session, reader in (("source", source_reader), ("target", target_reader)):
-                total = len(range(0, len(reader), frame_step))
-                started, count = time.perf_counter(), 0
-                for observed in staged(pipeline, reader.frames(step=frame_step), worlds[session], full, overlap):
-                    for event in pipeline.decide(session, observed):
-                        _emit(event, sinks)
-                        seen[session].count(event)
-                        if isinstance(event, DecisionEvent):
-                            decisions.append(event)
-                        if isinstance(event, RegistrationEvent) and event.accepted:
-                            registration_event = event
-                        if isinstance(event, ObservationEvent) and is_visible(event.n_pixels):
-                            visible[session].add(event.instance_id)
-                        if isinstance(event, TimingEvent) and session == "target":
-                            for stage, ms in event.stage_ms.items():
-                                stage_totals[stage] = stage_totals.get(stage, 0.0) + ms
-                    count += 1
-                    if on_frame is not None:
-                        on_frame(session, count, total)
-                frames[session], seconds[session] = count, time.perf_counter() - started
-            final_events = pipeline.finish()
-            for event in final_events:
-                _emit(event, sinks)
-            changes = reported_changes(decisions + [e for e in final_events if isinstance(e, DecisionEvent)])
+        for session, reader in (("source", source_reader), ("target", target_reader)):
+            total = len(range(0, len(reader), frame_step))
+            started, count = time.perf_counter(), 0
+            for observed in staged(pipeline, reader.frames(step=frame_step), worlds[session], full, overlap):
+                for event in pipeline.decide(session, observed):
+                    _emit(event, sinks)
+                    seen[session].count(event)
+                    if isinstance(event, DecisionEvent):
+                        decisions.append(event)
+                    if isinstance(event, RegistrationEvent) and event.accepted:
+                        registration_event = event
+                    if isinstance(event, ObservationEvent) and is_visible(event.n_pixels):
+                        visible[session].add(event.instance_id)
+                    if isinstance(event, TimingEvent) and session == "target":
+                        for stage, ms in event.stage_ms.items():
+                            stage_totals[stage] = stage_totals.get(stage, 0.0) + ms
+                count += 1
+                if on_frame is not None:
+                    on_frame(session, count, total)
+            frames[session], seconds[session] = count, time.perf_counter() - started
+        final_events = pipeline.finish()
+        for event in final_events:
+            _emit(event, sinks)
+        changes = reported_changes(decisions + [e for e in final_events if isinstance(e, DecisionEvent)])
     finally:
         for sink in sinks:
             sink.close()

@@ -9,9 +9,7 @@ it had iterated itself; a caller that stops early stops the thread too.
 
 from __future__ import annotations
 
-import contextlib
 import queue
-import sys
 import threading
 from collections.abc import Iterator
 from typing import TypeVar
@@ -20,10 +18,6 @@ T = TypeVar("T")
 
 _DONE = object()  # the producer has no more items
 _POLL_S = 0.1     # how often a blocked producer looks whether the caller has gone
-# While threads work side by side: a thread whose C call (ONNX Runtime, numpy) returned waits for
-# the GIL until the thread holding it lets go, which a busy Python thread does every switch
-# interval (5 ms by default). 1 ms: on the `paper` pass 70-75 instead of 65 frames/s (docs/speed.md).
-OVERLAP_SWITCH_INTERVAL_S = 0.001
 
 
 def prefetched(items: Iterator[T], depth: int = 4) -> Iterator[T]:
@@ -71,17 +65,3 @@ def _put(ready: queue.Queue, entry: tuple, stop: threading.Event) -> bool:
         except queue.Full:
             continue
     return False
-
-
-@contextlib.contextmanager
-def short_gil_switches(enabled: bool = True) -> Iterator[None]:
-    """Within: the interpreter's switch interval is `OVERLAP_SWITCH_INTERVAL_S` (restored after)."""
-    if not enabled:
-        yield
-        return
-    before = sys.getswitchinterval()
-    sys.setswitchinterval(OVERLAP_SWITCH_INTERVAL_S)
-    try:
-        yield
-    finally:
-        sys.setswitchinterval(before)
