@@ -237,7 +237,7 @@ def staged(pipeline: ChangeDetectionPipeline, frames: Iterator[Frame], world: Se
     (`ndfa.io.recording.prefetch`), while the caller decides. The stages hold no state and the
     detector sees the frames in order, so the events are those of `pipeline.process`; the NDF's
     runtime and much of numpy's work release the GIL, so on two cores the stages run at the same
-    time (docs/speed.md: a thread per stage, reading apart, was slower)."""
+    time (docs/speed.md)."""
     depth = 4 if overlap else 0
     perceived = prefetched((pipeline.perceive(world.apply(frame)) for frame in frames), depth)
     return prefetched((pipeline.encode(observed, full_reconstruction) for observed in perceived), depth)

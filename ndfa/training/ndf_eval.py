@@ -63,7 +63,9 @@ def evaluate_ndf(
     # the up cue get it from these poses, as the detector's from its camera poses.
     poses = [invert_pose(pose.astype(np.float64)) for pose in views["pose_camera_object"]]
     true_centers = np.stack([transform_points(pose, center[None])[0] for pose, center in zip(poses, views["center"])])
-    encoders = {method: NDFEncoder(weights, EncoderConfig(center=method, v0=v0, grid_resolution=FINE_GRID_RESOLUTION))
+    # Torch, the reference runtime: the model card's figures are the model's, not a runtime's.
+    encoders = {method: NDFEncoder(weights, EncoderConfig(center=method, v0=v0, grid_resolution=FINE_GRID_RESOLUTION,
+                                                          runtime="torch"))
                 for method in CENTER_METHODS}
     codes = {method: encoder.encode_batch(clouds, poses) for method, encoder in encoders.items()}
     shape_codes = np.stack([c.shape_code for c in codes["head"]])

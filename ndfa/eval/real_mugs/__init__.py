@@ -20,7 +20,7 @@ from ndfa.core.progress import Progress
 from ndfa.eval.real_mugs.protocol import ProtocolConfig, encode_views, measure
 from ndfa.eval.real_mugs.source import RealSequence, open_sequence
 from ndfa.eval.real_mugs.tracks import MugTracks, TrackConfig, find_mugs, require_mugs
-from ndfa.ndf.encoder import NDFEncoder
+from ndfa.ndf.encoder import EncoderConfig, NDFEncoder
 
 MIN_MUGS = 2  # the code similarity compares two mugs; one found is a failure to explain, not a result
 
@@ -60,7 +60,8 @@ def evaluate_real_mugs(path: Path, weights: list[Path | None], frame_step: int =
     summaries, views, windows = [], [], []
     for weight in weights:
         name = str(weight) if weight is not None else "shipped"
-        per_view = encode_views(found.views, NDFEncoder(weight))
+        # Torch, the reference runtime, as `ndfa ndf-eval` on rendered mugs: the model's figures.
+        per_view = encode_views(found.views, NDFEncoder(weight, EncoderConfig(runtime="torch")))
         summary, per_window = measure(per_view, protocol)
         summaries.append(summary.with_columns(pl.lit(name).alias("weights")))
         views.append(per_view.with_columns(pl.lit(name).alias("weights")))
