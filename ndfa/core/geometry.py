@@ -7,6 +7,8 @@ convention: x right, y down, z forward (the optical axis). The world is z-up, in
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 
@@ -100,7 +102,7 @@ def matrix_from_quaternion_xyzw(q: np.ndarray) -> np.ndarray:
 
 
 def kabsch(moving: np.ndarray, fixed: np.ndarray, *, normalised: bool = False,
-           with_scale: bool = False) -> tuple[np.ndarray, float]:
+           with_scale: bool = False) -> tuple[np.ndarray, Any]:
     """The (4, 4) transform T and scale s minimising sum_i |s R moving_i + t - fixed_i|^2 over
     corresponding points (N, 3), N >= 3 and not all on one line: Kabsch's SVD fit, with Umeyama's
     scale (PAMI 1991) when `with_scale` (s is applied to T's rotation block; 1.0 without).
@@ -129,7 +131,7 @@ def kabsch(moving: np.ndarray, fixed: np.ndarray, *, normalised: bool = False,
     transform[..., 3, 3] = 1.0
     transform[..., :3, :3] = scale[..., None, None] * rotation
     transform[..., :3, 3] = fixed_mean - scale[..., None] * (rotation @ moving_mean[..., None])[..., 0]
-    return transform, scale if scale.ndim else float(scale)
+    return transform, scale if scale.ndim else float(scale)  # a float for one point set, an array for a stack
 
 
 def project(K: np.ndarray, points_camera: np.ndarray) -> np.ndarray:
