@@ -44,7 +44,7 @@ from ndfa.eval.scoring import changed_instances, is_visible, score
 from ndfa.io.recording import INSTANCES, RecordingReader
 from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
 from ndfa.run.align import AlignConfig, RegistrationMode, SceneAlignment, registration_prior
-from ndfa.run.detect import SessionCounts, Sink, _registration_summary
+from ndfa.run.detect import SessionCounts, Sink, _registration_summary, staged
 from ndfa.run.history import LinkConfig, SessionObjects, compose_placements, link_history
 from ndfa.run.world import PoseMode, SessionWorld, UpMode, prepare_session
 
@@ -199,9 +199,10 @@ def run_sessions(
             masks.append({})
             total = len(range(0, len(reader), frame_step))
             started, count = time.perf_counter(), 0
-            for frame in reader.frames(step=frame_step):
+            # Every reconstruction in full: the measurements kept here are replayed into the next pair's detector.
+            for observed in staged(pipeline, reader.frames(step=frame_step), worlds[name], full_reconstruction=True):
                 measurements: list[Measurement] = []
-                for event in pipeline.process(role, worlds[name].apply(frame)):
+                for event in pipeline.decide(role, observed):
                     seen[index].count(event)
                     if isinstance(event, ObservationEvent):
                         if event.skipped is None:
