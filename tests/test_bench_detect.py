@@ -17,8 +17,9 @@ def test_bench_detect_compares_before_and_now_and_under_load():
     result = CliRunner(env={"COLUMNS": "220"}).invoke(app, [
         "bench", "detect", "--source", str(SAMPLE / "source.mcap"), "--target", str(SAMPLE / "target.mcap"),
         "--frame-step", "30", "--compare", "--load", "--before-weights", str(DEFAULT_WEIGHTS),
-        "--before-runtime", "torch", "--runtime", "onnxruntime"])
+        "--before-runtime", "torch", "--runtime", "onnxruntime", "--repeat", "3"])
     assert result.exit_code == 0, result.output
+    assert "now, 3 runs: frames/s median" in result.output
     assert "before (torch, ndf_mugs.pt)" in result.output and "now (onnxruntime, shipped)" in result.output
     assert "speed-up of the target pass over the before" in result.output
     assert "beside one busy process:" in result.output

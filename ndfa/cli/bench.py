@@ -34,6 +34,8 @@ def bench_command(
     before_weights: Optional[Path] = typer.Option(None, help="detect --compare: the NDF's weights before (default: the shipped ones).",
                                                   callback=checkpoint),
     frame_step: int = typer.Option(1, help="detect: use every N-th frame.", callback=at_least_one),
+    repeat: int = typer.Option(1, help="detect: run now this many times; its column is the run of median frames/s.",
+                               callback=at_least_one),
     overlap: bool = typer.Option(True, "--overlap/--no-overlap",
                                  help="detect: now, the stages run at the same time in threads (else one after the other)."),
 ) -> None:
@@ -59,7 +61,7 @@ def bench_command(
                 raise typer.BadParameter(f"{option} must be one of {', '.join(RUNTIMES)}, got {value!r}")
         rows = bench_detect_runs(source, target, threads=threads, compare=compare, load=load, frame_step=frame_step,
                                  runtime=runtime, weights=weights, before_runtime=before_runtime,
-                                 before_weights=before_weights, overlap=overlap)
+                                 before_weights=before_weights, overlap=overlap, repeat=repeat)
         first = rows[0]
         table = Table(title=f"ndfa bench detect: target pass of {target} (no sinks)",
                       caption=f"{first['frames']} frames, {threads} thread(s); {first['machine']}")
@@ -76,6 +78,10 @@ def bench_command(
         table.add_row("TP / FP / FN", *("-" if row["score"] is None else "/".join(map(str, row["score"])) for row in rows))
         console.print(table)
         now = next(row for row in rows if row["label"] == "now")
+        if repeat > 1:
+            fps = sorted(now["fps_runs"])
+            console.print(f"now, {repeat} runs: frames/s median {now['fps']:.1f}, min {fps[0]:.1f}, max {fps[-1]:.1f} "
+                          f"({', '.join(f'{f:.1f}' for f in now['fps_runs'])})")
         if compare:
             console.print(f"speed-up of the target pass over the before: {now['fps'] / rows[0]['fps']:.2f}x "
                           f"(encoding {rows[0]['stage_ms']['encoding'] / now['stage_ms']['encoding']:.2f}x)")

@@ -151,18 +151,22 @@ def bench_detect(source: Path, target: Path, threads: int = 1, frame_step: int =
 def bench_detect_runs(source: Path, target: Path, threads: int = 1, compare: bool = False, load: bool = False,
                       frame_step: int = 1, runtime: str = "auto", weights: Path | None = None,
                       before_runtime: str = "torch", before_weights: Path | None = None,
-                      overlap: bool = True) -> list[dict]:
+                      overlap: bool = True, repeat: int = 1) -> list[dict]:
     """`bench_detect` back to back in one process, each row labelled: with `compare` first the
     "before" (`before_runtime` with `before_weights`, default the shipped ones, as the pass ran
     before: every reconstruction decoded, the stages one after the other), then "now"
-    (`weights`, default the shipped ones, on `runtime`); with `load` "now" once more beside one busy process (`python -c
-    'while True: pass'`, started here and stopped after), the question being whether the pass keeps
-    its speed when the machine is shared."""
+    (`weights`, default the shipped ones, on `runtime`) `repeat` times, its row the run of median
+    frames/s with every run's in `fps_runs` (the overlapping stages vary from run to run); with
+    `load` "now" once more beside one busy process (`python -c 'while True: pass'`, started here
+    and stopped after), the question being whether the pass keeps its speed when the machine is
+    shared."""
     rows = []
     if compare:
         rows.append({"label": "before"} | bench_detect(source, target, threads, frame_step, before_runtime, before_weights,
                                                        full_reconstruction=True, overlap=False))
-    rows.append({"label": "now"} | bench_detect(source, target, threads, frame_step, runtime, weights, overlap=overlap))
+    runs = [bench_detect(source, target, threads, frame_step, runtime, weights, overlap=overlap) for _ in range(repeat)]
+    median_run = sorted(runs, key=lambda run: run["fps"])[(len(runs) - 1) // 2]
+    rows.append({"label": "now"} | median_run | {"fps_runs": [run["fps"] for run in runs]})
     if load:
         import subprocess
         import sys
