@@ -78,7 +78,8 @@ def yaw_transform(target: np.ndarray, source: np.ndarray) -> np.ndarray:
 
 
 def apply(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
-    moved: np.ndarray = points @ transform[:3, :3].T + transform[:3, 3]
+    """`points` (N, 3) moved by `transform` (4, 4), or by each of a stack (H, 4, 4): (H, N, 3)."""
+    moved: np.ndarray = points @ np.swapaxes(transform[..., :3, :3], -1, -2) + transform[..., None, :3, 3]
     return moved
 
 
@@ -120,7 +121,7 @@ def ransac_registration(
     if len(samples) == 0:
         return None
     transforms, _ = kabsch(t[samples], s[samples])  # every hypothesis at once
-    errors = np.linalg.norm(t @ np.swapaxes(transforms[:, :3, :3], 1, 2) + transforms[:, None, :3, 3] - s, axis=-1)
+    errors = _errors(transforms, t, s)
     # A hypothesis' inliers (one pair per object) are at most its pairs within inlier_m: score the
     # hypotheses in that order and stop where none left can reach the best. The winner: most
     # inliers, then lowest residual, then the first drawn.
@@ -170,7 +171,8 @@ def _agreeing_samples(triple: tuple[int, ...], by_target: dict[int, np.ndarray],
 
 
 def _errors(transform: np.ndarray, t: np.ndarray, s: np.ndarray) -> np.ndarray:
-    error: np.ndarray = np.linalg.norm(apply(transform, t) - s, axis=1)
+    """Each pair's registration error (P,), or per transform of a stack (H, P)."""
+    error: np.ndarray = np.linalg.norm(apply(transform, t) - s, axis=-1)
     return error
 
 

@@ -199,8 +199,8 @@ def run_sessions(
             masks.append({})
             total = len(range(0, len(reader), frame_step))
             started, count = time.perf_counter(), 0
-            # Every reconstruction in full: the measurements kept here are replayed into the next pair's detector.
-            for observed in staged(pipeline, reader.frames(step=frame_step), worlds[name], full_reconstruction=True):
+            # Without sinks, reconstructions only as far as decisions need (`ChangeDetectionPipeline.encode`).
+            for observed in staged(pipeline, reader.frames(step=frame_step), worlds[name], full_reconstruction=bool(sinks)):
                 measurements: list[Measurement] = []
                 for event in pipeline.decide(role, observed):
                     seen[index].count(event)
