@@ -140,3 +140,26 @@ def test_without_the_full_grid_the_fine_pass_still_decides_emptiness(with_decoy)
     cloud = np.random.default_rng(0).normal(0.0, 0.02, (300, 3)) + [0.0, 0.0, 1.0]
     full, decided = (encoder.encode_batch([cloud], [np.eye(4)], full_reconstruction=f)[0] for f in (True, False))
     assert full.mean_occupancy > encoder.config.v0 and decided.mean_occupancy > encoder.config.v0
+
+
+@pytest.mark.parametrize("near_center", [True, False])
+def test_the_coarse_points_near_the_center_are_decoded_first(near_center):
+    """An occupied coarse point within `probe_radius_m` of the center: the probe decides and no
+    other point is decoded. One only at the grid's corner: the other coarse points are decoded
+    too, and find it."""
+    encoder = NDFEncoder(config=EncoderConfig(runtime="torch"))
+    coarse_points = encoder._grid[encoder._coarse]
+    distance = np.linalg.norm(coarse_points, axis=1)
+    occupied = coarse_points[distance.argmin() if near_center else distance.argmax()]
+    encoder.runtime = _BallsRuntime([(occupied, 1.0, 1e-5)], encoder.model.config.latent)
+    decoded = []
+    occupancy = encoder.runtime.occupancy
+    encoder.runtime.occupancy = lambda z, queries, points: decoded.append(len(queries[0])) or occupancy(z, queries, points)
+    cloud = np.random.default_rng(0).normal(0.0, 0.02, (300, 3)) + [0.0, 0.0, 1.0]
+    code = encoder.encode_batch([cloud], [np.eye(4)], full_reconstruction=False)[0]
+    probe = int((distance <= encoder.config.probe_radius_m).sum())
+    assert 0 < probe < len(coarse_points)
+    assert decoded == ([probe] if near_center else [probe, len(coarse_points) - probe])
+    full = encoder.encode_batch([cloud], [np.eye(4)])[0]
+    assert len(full.reconstruction) == 1
+    np.testing.assert_array_equal(code.reconstruction, full.reconstruction)

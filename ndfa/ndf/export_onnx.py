@@ -99,7 +99,7 @@ class InferenceEncode(nn.Module):
         k = min(self.model.encoder.knn, points.shape[1])
         norm_sq = (points * points).sum(-1).unsqueeze(-2)  # as `knn_edge_features`: the same neighbours
         ranking = torch.baddbmm(norm_sq, points, points.transpose(-1, -2), alpha=-2.0)
-        neighbour_index = ranking.topk(k, largest=False).indices  # [B, N, K]
+        neighbour_index = ranking.topk(k, largest=False, sorted=False).indices  # [B, N, K]
         batch_index = torch.arange(points.shape[0])[:, None, None]
         offsets = points[batch_index, neighbour_index] - points.unsqueeze(2)  # n = p_j - p_i, [B, N, K, 3]
         p = points.unsqueeze(2)  # [B, N, 1, 3]
