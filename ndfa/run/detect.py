@@ -67,11 +67,7 @@ class DetectionResult:
             "objects_source": self.objects["source"], "objects_target": self.objects["target"],
             "fps": self.target_fps,
             "stage_ms": self.stage_ms,
-            "changes": [{"object": c.object_id, "session": c.session, "kind": c.kind, "frame": c.frame_index,
-                         "position": [round(float(v), 4) for v in (c.center_source if c.center_source is not None
-                                                                   else c.center_world)],
-                         "instance_ids": list(c.instance_ids)}
-                        | ({} if c.angle_deg is None else {"angle_deg": round(c.angle_deg, 1)}) for c in self.changes],
+            "changes": [change_summary(c) for c in self.changes],
             "notes": self.notes,
             "world": {session: world.as_dict() for session, world in self.worlds.items()},
             "registration": self.registration,
@@ -87,6 +83,15 @@ class DetectionResult:
         residual = "" if r["residual_m"] is None else f", residual {r['residual_m'] * 100:.1f} cm"
         return (f"registration: {r['method']}, {r['inliers']} inlier object pairs of {r['pairs']}{residual}, "
                 f"from target frame {r['frame']}")
+
+
+def change_summary(c: DecisionEvent) -> dict:
+    """A reported change as the `--json` summaries list it (of `ndfa detect` with two sessions or more)."""
+    position = c.center_source if c.center_source is not None else c.center_world
+    return {"object": c.object_id, "session": c.session, "kind": c.kind, "frame": c.frame_index,
+            "position": [round(float(v), 4) for v in position], "instance_ids": list(c.instance_ids),
+            "score": None if np.isnan(c.score) else round(float(c.score), 4)} \
+        | ({} if c.angle_deg is None else {"angle_deg": round(c.angle_deg, 1)})
 
 
 def open_pair(source: Path, target: Path, segment: bool = True) -> tuple[RecordingReader, RecordingReader, list[str]]:

@@ -44,7 +44,7 @@ from ndfa.eval.scoring import changed_instances, is_visible, score
 from ndfa.io.recording import INSTANCES, RecordingReader
 from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
 from ndfa.run.align import AlignConfig, RegistrationMode, SceneAlignment, registration_prior
-from ndfa.run.detect import SessionCounts, Sink, _registration_summary, staged
+from ndfa.run.detect import SessionCounts, Sink, _registration_summary, change_summary, staged
 from ndfa.run.history import LinkConfig, SessionObjects, compose_placements, link_history
 from ndfa.run.world import PoseMode, SessionWorld, UpMode, prepare_session
 
@@ -118,14 +118,6 @@ class SessionsResult:
         if self.history_score is not None:
             out["history_score"] = self.history_score.as_dict()  # type: ignore[attr-defined]
         return out
-
-
-def change_summary(c: DecisionEvent) -> dict:
-    """A reported change as the JSON summary lists it (as `DetectionResult.summary` does)."""
-    position = c.center_source if c.center_source is not None else c.center_world
-    return {"object": c.object_id, "session": c.session, "kind": c.kind, "frame": c.frame_index,
-            "position": [round(float(v), 4) for v in position], "instance_ids": list(c.instance_ids),
-            "score": None if np.isnan(c.score) else round(float(c.score), 4)}
 
 
 def session_names(n: int) -> list[str]:
