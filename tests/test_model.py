@@ -141,6 +141,8 @@ def test_bad_config_is_refused():
         NDFConfig(latent=0)
     with pytest.raises(ModelError, match="center_head"):
         NDFConfig(center_head="mlp")
+    with pytest.raises(ModelError, match="center_heads"):
+        NDFConfig(center_heads=3)  # an ensemble of linear heads is one linear head
     with pytest.raises(ModelError, match="direction cue"):
         NDFConfig(latent=2, up_cue=True, view_cue=True)
 
@@ -240,3 +242,21 @@ def test_a_tiny_model_learns_toy_occupancy():
     constant_guess = -(rate * math.log(rate) + (1 - rate) * math.log(1 - rate))  # best loss without looking
     final = sum(losses[-5:]) / 5
     assert final < 0.7 * constant_guess, (losses[0], final, constant_guess)  # about 0.36 vs 0.64
+
+
+def test_an_ensemble_of_center_heads_predicts_its_members_mean():
+    model = trained_looking(NDFModel(NDFConfig(up_cue=True, view_cue=True, center_head="gated", center_heads=3)), 0)
+    up, view_ray = torch.randn(2, 2, 3, generator=torch.Generator().manual_seed(200))
+    rotation = random_rotation(0)
+    with torch.no_grad():
+        z = model.encode(view(0), up, view_ray)
+        members = model.center_offset_members(z)
+        assert members.shape == (3, 2, 3)
+        assert torch.allclose(model.center_offset(z), members.mean(0), atol=1e-7)
+        assert (members[0] - members[1]).abs().max() > 1e-4  # each from its own start
+        turned = model.center_offset_members(model.encode(view(0) @ rotation.T, up @ rotation.T, view_ray @ rotation.T))
+        assert relative_error(turned, members @ rotation.T) <= 1e-4  # each member rotates with the view
+    single = trained_looking(NDFModel(NDFConfig(center_head="gated")), 0)
+    with torch.no_grad():
+        z = single.encode(view(0))
+        assert torch.equal(single.center_offset_members(z)[0], single.center_offset(z))

@@ -1,5 +1,5 @@
 """The NDF's heads on z besides the decoder: the learned shape code (`GramCode`) and the gated
-center head (`GatedCenterHead`). Both are equivariant in z: the code is invariant, the center
+center head (`GatedCenterHead`, or several averaged: `CenterHeadEnsemble`). Both are equivariant in z: the code is invariant, the center
 offset rotates with z."""
 
 from __future__ import annotations
@@ -67,3 +67,18 @@ class GatedCenterHead(nn.Module):
         # [B, 3, 1], as VNLinear(k, 1)
         offset: torch.Tensor = self.linear(z) + z @ self.weights(invariants).unsqueeze(-1)
         return offset
+
+
+class CenterHeadEnsemble(nn.Module):
+    """`NDFConfig.center_heads` gated center heads, `[B, 3, k] -> [B, 3, 1]`: their mean offset."""
+
+    def __init__(self, config: NDFConfig) -> None:
+        super().__init__()
+        self.members = nn.ModuleList(GatedCenterHead(config) for _ in range(config.center_heads))
+
+    def each(self, z: torch.Tensor) -> torch.Tensor:
+        """Every member's offset, `[K, B, 3, 1]` (training fits each on its own loss)."""
+        return torch.stack([member(z) for member in self.members])
+
+    def forward(self, z: torch.Tensor) -> torch.Tensor:
+        return self.each(z).mean(0)

@@ -32,7 +32,7 @@ from ndfa.core.errors import ModelError
 from ndfa.ndf.config import NDFConfig
 from ndfa.ndf.decoder import OccupancyDecoder
 from ndfa.ndf.encoder_net import Encoder
-from ndfa.ndf.heads import GatedCenterHead, GramCode
+from ndfa.ndf.heads import CenterHeadEnsemble, GatedCenterHead, GramCode
 from ndfa.ndf.vn import VNLinear
 
 
@@ -49,7 +49,9 @@ class NDFModel(nn.Module):
         self.encoder = Encoder(config)
         self.decoder = OccupancyDecoder(config)
         self.gram_code = GramCode(config) if config.code_head == "gram" else None
-        self.center_head = VNLinear(config.latent, 1) if config.center_head == "linear" else GatedCenterHead(config)
+        self.center_head: nn.Module = (VNLinear(config.latent, 1) if config.center_head == "linear"
+                                       else GatedCenterHead(config) if config.center_heads == 1
+                                       else CenterHeadEnsemble(config))
 
     def encode(self, points: torch.Tensor, up: torch.Tensor | None = None,
                view_ray: torch.Tensor | None = None) -> torch.Tensor:
@@ -105,6 +107,13 @@ class NDFModel(nn.Module):
         """
         offset: torch.Tensor = self.center_head(z.transpose(-1, -2)).squeeze(-1) / self.config.input_scale
         return offset
+
+    def center_offset_members(self, z: torch.Tensor) -> torch.Tensor:
+        """`[K, B, 3]`: each center head's offset (K = `NDFConfig.center_heads`; `center_offset` is their mean)."""
+        if isinstance(self.center_head, CenterHeadEnsemble):
+            members: torch.Tensor = self.center_head.each(z.transpose(-1, -2)).squeeze(-1) / self.config.input_scale
+            return members
+        return self.center_offset(z).unsqueeze(0)
 
     def occupancy_logits(self, z: torch.Tensor, queries: torch.Tensor, points: torch.Tensor | None = None) -> torch.Tensor:
         """z `[B, k, 3]`, zero-centred queries `[B, Q, 3]` (metres) -> occupancy logits `[B, Q]`.

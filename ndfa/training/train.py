@@ -141,7 +141,7 @@ def train(
             picked = torch.from_numpy(batch_rows(train_set, config.batch_mugs, rng))
             centroid = torch.from_numpy(train_set["points"][picked.numpy()]).mean(dim=1)
             target = torch.from_numpy(train_set["center"][picked.numpy()]) - centroid
-            terms = {"center": center_loss(model.center_offset(frozen_z[picked]), target, config.model.input_scale)}
+            terms = {"center": _center_term(model, frozen_z[picked], target, config)}
         else:
             picked = batch_rows(train_set, config.batch_mugs, rng)
             terms = _decoder_terms(model, frozen_z[torch.from_numpy(picked)], sample_rows(train_set, picked), config)
@@ -229,10 +229,16 @@ def _loss_terms(model: NDFModel, batch: dict[str, torch.Tensor], config: TrainCo
     out = model(batch["points"] - centroid, batch["queries"] - centroid, up, centroid[:, 0])
     return {
         "occ": occupancy_loss(out["occupancy_logits"], batch["occupancy"]),
-        "center": center_loss(out["center_offset"], batch["center"] - centroid[:, 0], config.model.input_scale),
+        "center": _center_term(model, out["z"], batch["center"] - centroid[:, 0], config),
     } | _shape_terms(out["shape_code"], batch["mug_index"], config, heads) | (
         {"frame": frame_loss(out["frame_vectors"], batch["rotation"])}
         if "frame_vectors" in out and config.frame_weight > 0 else {})
+
+
+def _center_term(model: NDFModel, z: torch.Tensor, target: torch.Tensor, config: TrainConfig) -> torch.Tensor:
+    """The center loss of each center head, averaged: an ensemble's members learn apart."""
+    return torch.stack([center_loss(offset, target, config.model.input_scale)
+                        for offset in model.center_offset_members(z)]).mean()
 
 
 def tilted(up: torch.Tensor, std_deg: float) -> torch.Tensor:
