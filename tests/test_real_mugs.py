@@ -27,6 +27,7 @@ from ndfa.eval.real_mugs.protocol import (
     measure,
     pooled_spreads,
     time_windows,
+    wall_circle,
 )
 from ndfa.eval.real_mugs.source import open_sequence
 from ndfa.eval.real_mugs.tracks import MugTracks, TrackConfig, find_mugs, no_mugs_message, require_mugs
@@ -124,6 +125,22 @@ def _rendered_table(n_views: int = 25):
     return frames, np.array(centers)
 
 
+def test_the_wall_circle_finds_the_axis_of_a_mug_seen_from_one_side():
+    rng = np.random.default_rng(0)
+    axis_xy, radius = np.array([0.3, -0.2]), 0.04
+    angle = rng.uniform(np.radians(-75), np.radians(75), 2000)  # the half facing the camera, at +x
+    height = rng.uniform(0.0, 0.095, 2000)
+    wall = np.column_stack([axis_xy + radius * np.column_stack([np.cos(angle), np.sin(angle)]), height - 0.75])
+    wall += rng.normal(0.0, 0.001, wall.shape)
+    handle = np.column_stack([rng.normal(0.3, 0.004, 150), rng.normal(-0.25, 0.004, 150), rng.uniform(-0.71, -0.67, 150)])
+    stray = rng.uniform([0.2, -0.3, -0.75], [0.5, 0.0, -0.65], (60, 3))  # background at the silhouette
+    points = np.vstack([wall, handle, stray])
+    x, y, fitted = wall_circle(points)
+    assert np.hypot(x - axis_xy[0], y - axis_xy[1]) < 0.0015 and abs(fitted - radius) < 0.0015
+    assert np.linalg.norm(points[:, :2].mean(axis=0) - axis_xy) > 0.015  # where the visible centroid is
+    assert np.isnan(wall_circle(points[:20])).all()  # too few points in the band
+
+
 @pytest.fixture(scope="module")
 def rendered():
     frames, centers = _rendered_table()
@@ -167,6 +184,26 @@ def test_on_a_rendered_table_the_azimuths_are_the_cameras_directions_and_the_ndf
     assert len(windows) >= 2 and (windows["azimuth_span_deg"] >= 45.0).all() and (windows["seconds"] <= 3.0).all()
     assert summary.filter(pl.col("mug") == "all")["windows"][0] == len(windows)
     assert summary.filter(pl.col("mug") == "all")["same_pairs"][0] > 0
+
+
+def test_pose_errors_cancel_in_the_pose_free_spreads(rendered):
+    frames, centers, found, per_view = rendered
+    for mug, center in enumerate(centers):  # exact poses: each view's wall circle is on the mug's axis
+        wall = per_view.filter(pl.col("track") == mug).select("wall_x", "wall_y").to_numpy()
+        assert np.median(np.linalg.norm(wall - center[:2], axis=1)) < 0.005
+    config = ProtocolConfig(max_window_s=3.0, min_centroid_move_m=0.0)  # windows by time and azimuth only
+    summary, windows = measure(per_view, config)
+    # A pose error moves every estimate of one view alike: the plain spreads grow, the pose-free do not.
+    shift = np.random.default_rng(1).normal(0.0, 0.01, (len(per_view), 2))
+    shifted = per_view.with_columns(*[(pl.col(f"{name}_{axis}") + shift[:, i]).alias(f"{name}_{axis}")
+                                      for name in ("centroid", "center", "wall") for i, axis in enumerate("xy")])
+    moved, _ = measure(shifted, config)
+    row, moved_row = summary.filter(pl.col("mug") == "all").to_dicts()[0], moved.filter(pl.col("mug") == "all").to_dicts()[0]
+    assert moved_row["windowed_center_mm"] > row["windowed_center_mm"] + 3.0
+    for name in ("windowed_pose_free_centroid_mm", "windowed_pose_free_center_mm", "windowed_pose_free_ratio"):
+        assert moved_row[name] == pytest.approx(row[name], rel=1e-6)
+    assert 0.0 < row["windowed_pose_free_ratio"] < 0.5 and row["windowed_pose_free_centroid_mm"] > 2.0
+    assert windows["pose_free_ratio"].is_finite().all()
 
 
 def test_a_recording_of_the_table_gives_the_same_views_through_the_whole_protocol(rendered, tmp_path):

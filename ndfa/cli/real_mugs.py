@@ -22,6 +22,9 @@ FIGURES = [
     ("windowed_center_mm", "windowed: NDF center spread (mm)", "{:.1f}"),
     ("windowed_ratio", "windowed: ratio center / centroid", "{:.2f}"),
     ("windowed_centroid_height_mm", "windowed: centroid height spread (mm)", "{:.1f}"),
+    ("windowed_pose_free_centroid_mm", "windowed, pose-free: centroid - wall circle (mm)", "{:.1f}"),
+    ("windowed_pose_free_center_mm", "windowed, pose-free: NDF center - wall circle (mm)", "{:.1f}"),
+    ("windowed_pose_free_ratio", "windowed, pose-free: ratio", "{:.2f}"),
     ("windowed_center_height_mm", "windowed: center height spread (mm)", "{:.1f}"),
     ("all_views_centroid_mm", "all views: visible centroid spread (mm)", "{:.1f}"),
     ("all_views_center_mm", "all views: NDF center spread (mm)", "{:.1f}"),
@@ -70,7 +73,8 @@ def real_mugs_command(real: Path, weights: list[Path] | None, out: Path, frame_s
                 f"{row['weights']}: NDF center spread {_format('{:.1f}', row['windowed_center_mm'])} mm vs visible centroid "
                 f"{_format('{:.1f}', row['windowed_centroid_mm'])} mm over {row['windows']} windows of views >= "
                 f"{config.min_angle_deg:g} deg apart: ratio {_format('{:.2f}', row['windowed_ratio'])} (target <= 0.5; "
-                f"all views {_format('{:.2f}', row['all_views_ratio'])}); codes: same-mug median "
+                f"all views {_format('{:.2f}', row['all_views_ratio'])}; pose-free, against each view's wall circle: "
+                f"{_format('{:.2f}', row['windowed_pose_free_ratio'])}); codes: same-mug median "
                 f"{_format('{:.2f}', row['same_cosine_median'])}, cross-mug {_format('{:.2f}', row['cross_cosine_median'])} "
                 f"({_format('{:.0%}', row['cross_above_delta_s'])} above delta_s {config.delta_s:g}), AUC "
                 f"{_format('{:.2f}', row['code_auc'])}", highlight=False)

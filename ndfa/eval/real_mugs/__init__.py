@@ -61,7 +61,7 @@ def evaluate_real_mugs(path: Path, weights: list[Path | None], frame_step: int =
     for weight in weights:
         name = str(weight) if weight is not None else "shipped"
         # Torch, the reference runtime, as `ndfa ndf-eval` on rendered mugs: the model's figures.
-        per_view = encode_views(found.views, NDFEncoder(weight, EncoderConfig(runtime="torch")))
+        per_view = encode_views(found.views, NDFEncoder(weight, EncoderConfig(runtime="torch")), protocol)
         summary, per_window = measure(per_view, protocol)
         summaries.append(summary.with_columns(pl.lit(name).alias("weights")))
         views.append(per_view.with_columns(pl.lit(name).alias("weights")))
