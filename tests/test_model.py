@@ -141,8 +141,8 @@ def test_bad_config_is_refused():
         NDFConfig(latent=0)
     with pytest.raises(ModelError, match="center_head"):
         NDFConfig(center_head="mlp")
-    with pytest.raises(ModelError, match="center_heads"):
-        NDFConfig(center_heads=3)  # an ensemble of linear heads is one linear head
+    with pytest.raises(ModelError, match="center_refits"):
+        NDFConfig(center_refits=-1)
     with pytest.raises(ModelError, match="direction cue"):
         NDFConfig(latent=2, up_cue=True, view_cue=True)
 
@@ -244,19 +244,22 @@ def test_a_tiny_model_learns_toy_occupancy():
     assert final < 0.7 * constant_guess, (losses[0], final, constant_guess)  # about 0.36 vs 0.64
 
 
-def test_an_ensemble_of_center_heads_predicts_its_members_mean():
-    model = trained_looking(NDFModel(NDFConfig(up_cue=True, view_cue=True, center_head="gated", center_heads=3)), 0)
+def test_refitted_center_heads_give_the_center_and_leave_the_decoder_its_origin():
+    config = NDFConfig(up_cue=True, view_cue=True, center_head="gated", decoder="frame", local_points=4)
+    model = trained_looking(NDFModel(dataclasses.replace(config, center_refits=3)), 0)
+    single = NDFModel(config).eval()
+    single.load_state_dict({k: v for k, v in model.state_dict().items() if not k.startswith("center_refit.")})
     up, view_ray = torch.randn(2, 2, 3, generator=torch.Generator().manual_seed(200))
+    queries = 0.08 * torch.randn(2, 64, 3, generator=torch.Generator().manual_seed(100))
     rotation = random_rotation(0)
     with torch.no_grad():
-        z = model.encode(view(0), up, view_ray)
-        members = model.center_offset_members(z)
+        out, alone = model(view(0), queries, up, view_ray), single(view(0), queries, up, view_ray)
+        members = model.center_offset_members(out["z"])
         assert members.shape == (3, 2, 3)
-        assert torch.allclose(model.center_offset(z), members.mean(0), atol=1e-7)
+        assert torch.allclose(out["center_offset"], members.mean(0), atol=1e-7)
         assert (members[0] - members[1]).abs().max() > 1e-4  # each from its own start
+        assert (out["center_offset"] - alone["center_offset"]).abs().max() > 1e-4  # the refits give the center
+        assert torch.equal(out["occupancy_logits"], alone["occupancy_logits"])  # the decoder's origin is the head's
+        assert torch.equal(model.frame_origin(out["z"]), alone["center_offset"])
         turned = model.center_offset_members(model.encode(view(0) @ rotation.T, up @ rotation.T, view_ray @ rotation.T))
-        assert relative_error(turned, members @ rotation.T) <= 1e-4  # each member rotates with the view
-    single = trained_looking(NDFModel(NDFConfig(center_head="gated")), 0)
-    with torch.no_grad():
-        z = single.encode(view(0))
-        assert torch.equal(single.center_offset_members(z)[0], single.center_offset(z))
+        assert relative_error(turned, members @ rotation.T) <= 1e-4  # each refit rotates with the view

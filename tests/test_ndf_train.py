@@ -246,22 +246,26 @@ def test_headline_counts_the_detector_regime_and_box_twins(tiny_run):
     assert twins.shape == (3, 3) and np.all(np.diag(twins)) and np.array_equal(twins, twins.T)
 
 
-def test_refitting_an_ensemble_of_center_heads_fits_each_and_keeps_the_rest(tiny_run, tmp_path):
+def test_refitting_the_center_fits_each_head_and_keeps_the_rest(tiny_run, tmp_path):
     import dataclasses
 
     from ndfa.ndf.checkpoint import load_model
 
     config, out, _ = tiny_run
-    refit = dataclasses.replace(config, model=dataclasses.replace(TINY, center_heads=3),
-                                init_weights=str(out / "checkpoint.pt"), train_only="center_head", steps=20, batch_mugs=6,
+    refit = dataclasses.replace(config, model=dataclasses.replace(TINY, center_refits=3),
+                                init_weights=str(out / "checkpoint.pt"), train_only="center_refit", steps=20, batch_mugs=6,
                                 steps_per_epoch=5)
     metrics = train(refit, tmp_path / "centers")
     before = load_model(out / "checkpoint.pt")[0].state_dict()
     after, _ = load_model(tmp_path / "centers" / "checkpoint.pt")
-    assert after.config.center_heads == 3
+    assert after.config.center_refits == 3
     weights = after.state_dict()
-    assert all(torch.equal(weights[name], value) for name, value in before.items() if not name.startswith("center_head."))
-    last = [weights[f"center_head.members.{k}.weights.2.weight"] for k in range(3)]
-    assert all(w.abs().max() > 0 for w in last)  # each member left its zero start
+    assert all(torch.equal(weights[name], value) for name, value in before.items())  # the center head too
+    last = [weights[f"center_refit.members.{k}.weights.2.weight"] for k in range(3)]
+    assert all(w.abs().max() > 0 for w in last)  # each head left its zero start
     assert not torch.equal(last[0], last[1])
     assert metrics["train_center"][-1] < metrics["train_center"][0]
+    with pytest.raises(ModelError, match="center_refits > 0"):
+        train(dataclasses.replace(refit, model=TINY), tmp_path / "none")
+    with pytest.raises(ModelError, match="train_only center_refit"):
+        train(dataclasses.replace(refit, train_only="all"), tmp_path / "all")

@@ -42,7 +42,7 @@ def train_command(
                                    callback=fraction),
     init: Optional[Path] = typer.Option(None, help="Start from these weights (e.g. the shipped ones) with a fresh optimizer.",
                                         callback=checkpoint),
-    train_only: str = typer.Option("all", help="all, or refit only a fresh code_head, center_head or decoder on the --init model's frozen encoder."),
+    train_only: str = typer.Option("all", help="all, or refit only a fresh code_head, center_head, center_refit (see --center-refits) or decoder on the --init model's frozen encoder."),
     init_fresh: str = typer.Option("none", help="With --init: none, or decoder / code_head to start that part fresh (e.g. another size); all of it trains."),
     proxy_weight: float = typer.Option(0.0, help="Weight of the proxy identity loss on the shape codes (0: off).",
                                        callback=non_negative),
@@ -63,7 +63,7 @@ def train_command(
     up_cue: bool = typer.Option(False, help="The encoder also gets world up in the camera frame (from the pose)."),
     view_cue: bool = typer.Option(False, help="The encoder also gets the direction from the camera to the view."),
     center_head: str = typer.Option("linear", help="Center head: linear (one VN-linear channel) or gated (z weighted by its invariants)."),
-    center_heads: int = typer.Option(1, help="Gated center heads averaged, each fitted on its own loss (NDFConfig.center_heads)."),
+    center_refits: int = typer.Option(0, help="With --train-only center_refit: gated center heads refitted and averaged into the center (NDFConfig.center_refits)."),
     up_tilt: float = typer.Option(3.0, help="With --up-cue: random tilt of the true up per training view, degrees.",
                                   callback=in_range(ge=0, lt=90)),
     gram_eps: float = typer.Option(1e-10, help="Epsilon of the batch norm on the Gram invariants (see NDFConfig).",
@@ -85,7 +85,7 @@ def train_command(
 
     config = TrainConfig(
         model=NDFConfig(code_head=code_head, pooling=pooling, decoder=decoder, local_points=local_points,
-                        gram_eps=gram_eps, up_cue=up_cue, view_cue=view_cue, center_head=center_head, center_heads=center_heads,
+                        gram_eps=gram_eps, up_cue=up_cue, view_cue=view_cue, center_head=center_head, center_refits=center_refits,
                         decoder_width=decoder_width, decoder_blocks=decoder_blocks),
         view=ViewConfig(distance_range_m=(0.2, max_distance), n_points=points, min_points=min_points,
                         artifacts=SensorArtifacts() if sensor_artifacts else None),

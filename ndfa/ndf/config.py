@@ -61,10 +61,11 @@ class NDFConfig:
     center_head: "linear" maps z linearly to the center offset (one VN-linear channel); "gated"
         adds a combination of z's vectors weighted by an MLP of z's rotation invariants, so the
         offset can grow with the mug's size (equivariant: invariant weights times vectors).
-    center_heads: with the gated head, how many heads are averaged: an ensemble, each member
-        trained on its own center loss from its own random start (`ndfa train --train-only
-        center_head --center-heads K` refits them on a trained encoder), so their errors are
-        partly independent and their mean errs less than each.
+    center_refits: gated center heads refitted on a trained encoder (`ndfa train --train-only
+        center_refit --center-refits K`), each from its own random start on its own center loss;
+        their mean is the model's center (their errors are partly independent). The decoder keeps
+        the center head it was trained with as its frame's origin (`NDFModel.frame_origin`), so
+        refitting the center leaves every occupancy as it was. 0: the center head is the center.
     input_scale: fixed factor on the zero-centred metric input (and queries): 10 turns a
         6-13 cm mug into about unit size, the scale the layers are initialised for.
     gram_eps: the epsilon of the batch norm that standardises the Gram invariants. z is small
@@ -90,7 +91,7 @@ class NDFConfig:
     up_cue: bool = False
     view_cue: bool = False
     center_head: str = "linear"
-    center_heads: int = 1
+    center_refits: int = 0
 
     @property
     def cues(self) -> int:
@@ -112,8 +113,8 @@ class NDFConfig:
             raise ModelError("local_points needs the frame decoder (offsets are made invariant in its frame)")
         if self.center_head not in CENTER_HEADS:
             raise ModelError(f"unknown center_head {self.center_head!r}; expected one of {CENTER_HEADS}")
-        if self.center_heads < 1 or (self.center_heads > 1 and self.center_head != "gated"):
-            raise ModelError(f"center_heads must be 1, or more with the gated center head, got {self.center_heads}")
+        if self.center_refits < 0:
+            raise ModelError(f"center_refits must be >= 0, got {self.center_refits}")
         if self.pooling not in POOLINGS:
             raise ModelError(f"unknown pooling {self.pooling!r}; expected one of {POOLINGS}")
         sizes = (self.hidden, self.latent, self.knn, self.decoder_width, self.code_dim, self.gram_channels)

@@ -142,7 +142,7 @@ class InferenceOccupancy(nn.Module):
         model, decoder = self.model, self.model.decoder
         scale = model.config.input_scale
         z_channels, queries, points = z.transpose(-1, -2), queries * scale, points * scale
-        center = model.center_offset(z) * scale if decoder.use_frame else None
+        center = model.frame_origin(z) * scale if decoder.use_frame else None
         if center is not None:
             queries = queries - center.unsqueeze(1)
         query_features = [(queries * queries).sum(-1, keepdim=True), queries @ z_channels]

@@ -1,5 +1,5 @@
 """The NDF's heads on z besides the decoder: the learned shape code (`GramCode`) and the gated
-center head (`GatedCenterHead`, or several averaged: `CenterHeadEnsemble`). Both are equivariant in z: the code is invariant, the center
+center head (`GatedCenterHead`; several averaged: `CenterHeadEnsemble`). Both are equivariant in z: the code is invariant, the center
 offset rotates with z."""
 
 from __future__ import annotations
@@ -70,11 +70,11 @@ class GatedCenterHead(nn.Module):
 
 
 class CenterHeadEnsemble(nn.Module):
-    """`NDFConfig.center_heads` gated center heads, `[B, 3, k] -> [B, 3, 1]`: their mean offset."""
+    """`NDFConfig.center_refits` gated center heads, `[B, 3, k] -> [B, 3, 1]`: their mean offset."""
 
     def __init__(self, config: NDFConfig) -> None:
         super().__init__()
-        self.members = nn.ModuleList(GatedCenterHead(config) for _ in range(config.center_heads))
+        self.members = nn.ModuleList(GatedCenterHead(config) for _ in range(config.center_refits))
 
     def each(self, z: torch.Tensor) -> torch.Tensor:
         """Every member's offset, `[K, B, 3, 1]` (training fits each on its own loss)."""

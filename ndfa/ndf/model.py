@@ -49,9 +49,8 @@ class NDFModel(nn.Module):
         self.encoder = Encoder(config)
         self.decoder = OccupancyDecoder(config)
         self.gram_code = GramCode(config) if config.code_head == "gram" else None
-        self.center_head: nn.Module = (VNLinear(config.latent, 1) if config.center_head == "linear"
-                                       else GatedCenterHead(config) if config.center_heads == 1
-                                       else CenterHeadEnsemble(config))
+        self.center_head = VNLinear(config.latent, 1) if config.center_head == "linear" else GatedCenterHead(config)
+        self.center_refit = CenterHeadEnsemble(config) if config.center_refits else None
 
     def encode(self, points: torch.Tensor, up: torch.Tensor | None = None,
                view_ray: torch.Tensor | None = None) -> torch.Tensor:
@@ -105,21 +104,29 @@ class NDFModel(nn.Module):
         A partial view's centroid sits on the visible side; this equivariant estimate moves it to
         the center of the whole object (the paper takes the mean of the reconstructed occupancy).
         """
+        if self.center_refit is not None:  # the refitted heads' mean (`NDFConfig.center_refits`)
+            return self.center_offset_members(z).mean(0)
+        return self.frame_origin(z)
+
+    def frame_origin(self, z: torch.Tensor) -> torch.Tensor:
+        """The center head's offset `[B, 3]` (metres): the origin of the frame decoder's queries, as
+        it was trained; the model's center too unless it has refitted heads."""
         offset: torch.Tensor = self.center_head(z.transpose(-1, -2)).squeeze(-1) / self.config.input_scale
         return offset
 
     def center_offset_members(self, z: torch.Tensor) -> torch.Tensor:
-        """`[K, B, 3]`: each center head's offset (K = `NDFConfig.center_heads`; `center_offset` is their mean)."""
-        if isinstance(self.center_head, CenterHeadEnsemble):
-            members: torch.Tensor = self.center_head.each(z.transpose(-1, -2)).squeeze(-1) / self.config.input_scale
-            return members
-        return self.center_offset(z).unsqueeze(0)
+        """`[K, B, 3]`: each refitted head's offset (`NDFConfig.center_refits`), or the center head's
+        alone (K = 1): what the center loss is taken over."""
+        if self.center_refit is None:
+            return self.frame_origin(z).unsqueeze(0)
+        members: torch.Tensor = self.center_refit.each(z.transpose(-1, -2)).squeeze(-1) / self.config.input_scale
+        return members
 
     def occupancy_logits(self, z: torch.Tensor, queries: torch.Tensor, points: torch.Tensor | None = None) -> torch.Tensor:
         """z `[B, k, 3]`, zero-centred queries `[B, Q, 3]` (metres) -> occupancy logits `[B, Q]`.
         `points`: the zero-centred input `[B, N, 3]` z was encoded from; needed with `local_points`."""
         scale = self.config.input_scale
-        center = self.center_offset(z) * scale if self.decoder.use_frame else None
+        center = self.frame_origin(z) * scale if self.decoder.use_frame else None
         logits: torch.Tensor = self.decoder(z.transpose(-1, -2), queries * scale, center,
                                             None if points is None else points * scale)
         return logits

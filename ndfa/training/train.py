@@ -63,7 +63,7 @@ class TrainConfig:
     lr: float = 6e-4                 # the paper's Adam learning rate
     lr_final_fraction: float = 1.0   # cosine decay of lr to this fraction at the last step (1: constant, the paper's)
     init_weights: str | None = None  # start from this checkpoint's weights (a fresh optimizer), e.g. to continue a shipped model
-    train_only: str = "all"          # "all", or refit only a fresh "code_head", "center_head" or "decoder" on init_weights' frozen encoder
+    train_only: str = "all"          # "all", or refit only a fresh "code_head", "center_head", "center_refit" or "decoder" on init_weights' frozen encoder
     init_fresh: str = "none"         # "none", or "decoder" / "code_head": that part starts fresh (e.g. another size), the rest from init_weights; all of it trains
     alpha: float = 0.01              # the paper's shape-loss weight
     shape_margin: float | None = None  # None: the paper's loss; a number: hinge with this margin
@@ -91,11 +91,12 @@ def train(
     `data_dir` caches rendered views (default `out_dir/data`); a cache is reused only when it
     was made with the same view settings, mugs and seed.
 
-    With `train_only` "code_head", "center_head" or "decoder", the model of `init_weights` keeps everything else
+    With `train_only` "code_head", "center_head", "center_refit" or "decoder", the model of `init_weights` keeps everything else
     and only a fresh part is fitted, to the frozen encoder's z of every training view, computed
     once. The code head then costs about a millisecond a step, so it can see many mugs per batch
     (`batch_mugs`) and many steps in minutes; only the shape losses apply. The center head, as
-    cheap, learns with the center loss alone. The decoder (of this
+    cheap, learns with the center loss alone; "center_refit" fits `NDFConfig.center_refits` new heads
+    whose mean becomes the center while the decoder keeps the center head. The decoder (of this
     run's model config, e.g. another decoder kind) learns with the occupancy and frame losses.
     """
     out_dir = Path(out_dir)
@@ -137,7 +138,7 @@ def train(
             picked = torch.from_numpy(batch_rows(train_set, config.batch_mugs, rng))
             labels = torch.from_numpy(train_set["mug_index"].astype(np.int64))[picked]
             terms = _shape_terms(model.shape_code(frozen_z[picked]), labels, config, heads)
-        elif config.train_only == "center_head":
+        elif config.train_only in ("center_head", "center_refit"):
             picked = torch.from_numpy(batch_rows(train_set, config.batch_mugs, rng))
             centroid = torch.from_numpy(train_set["points"][picked.numpy()]).mean(dim=1)
             target = torch.from_numpy(train_set["center"][picked.numpy()]) - centroid
@@ -236,9 +237,10 @@ def _loss_terms(model: NDFModel, batch: dict[str, torch.Tensor], config: TrainCo
 
 
 def _center_term(model: NDFModel, z: torch.Tensor, target: torch.Tensor, config: TrainConfig) -> torch.Tensor:
-    """The center loss of each center head, averaged: an ensemble's members learn apart."""
-    return torch.stack([center_loss(offset, target, config.model.input_scale)
-                        for offset in model.center_offset_members(z)]).mean()
+    """The center loss of the head being fitted; of each refitted head, averaged, so that they
+    learn apart (`NDFConfig.center_refits`)."""
+    offsets = model.center_offset_members(z) if config.train_only == "center_refit" else model.frame_origin(z)[None]
+    return torch.stack([center_loss(offset, target, config.model.input_scale) for offset in offsets]).mean()
 
 
 def tilted(up: torch.Tensor, std_deg: float) -> torch.Tensor:
@@ -261,7 +263,8 @@ def _shape_terms(codes: torch.Tensor, mug_index: torch.Tensor, config: TrainConf
 
 
 def _trainable(model: NDFModel, heads: TrainingHeads, config: TrainConfig) -> list[torch.nn.Parameter]:
-    parts = {"all": model, "code_head": model.gram_code, "center_head": model.center_head, "decoder": model.decoder}
+    parts = {"all": model, "code_head": model.gram_code, "center_head": model.center_head, "center_refit": model.center_refit,
+             "decoder": model.decoder}
     return list(parts[config.train_only].parameters()) + list(heads.parameters())
 
 
@@ -269,8 +272,12 @@ def _initial_model(config: TrainConfig) -> NDFModel:
     """A fresh model, or `init_weights`' weights in this run's model; with `train_only`, the part
     to refit starts fresh (the others must fit)."""
     model = NDFModel(config.model)
-    if config.train_only not in ("all", "code_head", "center_head", "decoder"):
-        raise ModelError(f"train_only must be all, code_head, center_head or decoder, not {config.train_only!r}")
+    if config.train_only not in ("all", "code_head", "center_head", "center_refit", "decoder"):
+        raise ModelError(f"train_only must be all, code_head, center_head, center_refit or decoder, not {config.train_only!r}")
+    if config.train_only == "center_refit" and not config.model.center_refits:
+        raise ModelError("refitting the center needs center_refits > 0 (how many heads to average)")
+    if config.train_only == "all" and config.model.center_refits:
+        raise ModelError("refitted center heads are fitted with train_only center_refit, on a trained model")
     if config.init_weights is None:
         if config.train_only != "all":
             raise ModelError(f"refitting the {config.train_only} needs --init weights")
@@ -280,7 +287,8 @@ def _initial_model(config: TrainConfig) -> NDFModel:
     if config.init_fresh not in ("none", "code_head", "decoder"):
         raise ModelError(f"init_fresh must be none, code_head or decoder, not {config.init_fresh!r}")
     part = config.train_only if config.train_only != "all" else config.init_fresh
-    fresh = {"all": "", "none": "", "code_head": "gram_code.", "center_head": "center_head.", "decoder": "decoder."}[part]
+    fresh = {"all": "", "none": "", "code_head": "gram_code.", "center_head": "center_head.", "center_refit": "center_refit.",
+             "decoder": "decoder."}[part]
     initial = load_model(config.init_weights)[0].state_dict()
     kept = {name: value for name, value in initial.items() if not (fresh and name.startswith(fresh))}
     try:
