@@ -129,8 +129,9 @@ class NDFEncoder:
         reconstruction from a non-empty one needs (`_grid_occupancy`): the coarse points near the
         center, the other coarse ones only where none of those exceeds v0, the fine ones only where
         no coarse point does. `mean_occupancy` and `reconstruction` are then those of the points
-        decoded; whether a reconstruction is empty is the same either way. For callers that use no more than that (`ndfa.pipeline`
-        without sinks, on masked frames); the fine pass was most of the decoding."""
+        decoded; whether a reconstruction is empty is the same either way. For callers that use no
+        more than that (`ndfa.pipeline` without sinks, on masked frames); the fine pass was most of
+        the decoding."""
         if len(clouds) != len(poses_world_camera):
             raise ModelError(f"{len(clouds)} point clouds but {len(poses_world_camera)} camera poses")
         if len(clouds) > MAX_BATCH:

@@ -1,6 +1,6 @@
 """The NDF's heads on z besides the decoder: the learned shape code (`GramCode`) and the gated
-center head (`GatedCenterHead`; several averaged: `CenterHeadEnsemble`). Both are equivariant in z: the code is invariant, the center
-offset rotates with z."""
+center head (`GatedCenterHead`; several averaged: `CenterHeadEnsemble`). Both are equivariant in
+z: the code is invariant, the center offset rotates with z."""
 
 from __future__ import annotations
 

@@ -112,7 +112,7 @@ def largest_move(points: np.ndarray) -> float:
     return float(np.max(np.linalg.norm(xy[:, None] - xy[None], axis=-1))) if len(xy) > 1 else 0.0
 
 
-def wall_circle(points_world: np.ndarray, band_top_m: float = 0.06, inlier_m: float = 0.004,
+def wall_circle(points_world: np.ndarray, band_top_m: float = ProtocolConfig.wall_band_m, inlier_m: float = 0.004,
                 min_points: int = 30) -> np.ndarray:
     """`[x, y, radius]` of a circle fitted to the points `(N, 3)` (z up) between 1.5 cm and
     `band_top_m` above their lowest (2nd percentile): algebraic least squares (x^2 + y^2 = 2 a x +
@@ -292,14 +292,14 @@ def measure(per_view: pl.DataFrame, config: ProtocolConfig = ProtocolConfig()) -
 def _about_wall(views: pl.DataFrame) -> tuple[np.ndarray, np.ndarray]:
     """(visible centroid - wall circle, NDF center - wall circle) `(N, 3)` of the views with a wall
     circle (height differences 0): what the pose-free spreads pool (see the module docstring)."""
-    if "wall_x" not in views.columns:
-        return np.zeros((0, 3)), np.zeros((0, 3))
-    wall = np.column_stack([views["wall_x"].to_numpy(), views["wall_y"].to_numpy(), np.zeros(len(views))])
+    wall = views.select("wall_x", "wall_y").to_numpy()
     found = np.isfinite(wall).all(axis=1)
-    centroid = views.select("centroid_x", "centroid_y").to_numpy()
-    center = views.select("center_x", "center_y").to_numpy()
-    flat = np.zeros((len(views), 1))
-    return (np.hstack([centroid, flat]) - wall)[found], (np.hstack([center, flat]) - wall)[found]
+
+    def about_wall(name: str) -> np.ndarray:
+        horizontal = views.select(f"{name}_x", f"{name}_y").to_numpy() - wall
+        return np.column_stack([horizontal, np.zeros(len(views))])[found]
+
+    return about_wall("centroid"), about_wall("center")
 
 
 def _pose_free_figures(sets: list[tuple[np.ndarray, np.ndarray]]) -> dict[str, float]:
