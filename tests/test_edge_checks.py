@@ -75,6 +75,7 @@ BAD_OPTIONS = [
     (["train", "--out", "o", "--steps", "0"], "--steps", "got 0"),
     (["train", "--out", "o", "--lr", "nan"], "--lr", "got nan"),
     (["train", "--out", "o", "--batch-mugs", "1"], "--batch-mugs", "got 1"),
+    (["train", "--out", "o", "--center-weight", "-1"], "--center-weight", "got -1.0"),
     (["ndf-eval", "--out", "o", "--v0", "1"], "--v0", "got 1.0"),
     (["ndf-eval", "--out", "o", "--mugs", "0"], "--mugs", "got 0"),
 ]

@@ -52,6 +52,8 @@ def train_command(
                                      callback=non_negative),
     frame_weight: float = typer.Option(1.0, help="Weight of the frame loss: the frame decoder's axes vs the true pose (0: off).",
                                        callback=non_negative),
+    center_weight: float = typer.Option(1.0, help="Weight of the center loss (the occupancy loss weighs 1).",
+                                        callback=non_negative),
     decoder_width: int = typer.Option(128, help="Width of the occupancy MLP.", callback=at_least_one),
     decoder_blocks: int = typer.Option(3, help="Residual blocks of the occupancy MLP.", callback=non_negative),
     points: int = typer.Option(400, help="Points per training view (the encoder then resamples observations to this).",
@@ -92,7 +94,7 @@ def train_command(
         train_mugs=train_mugs, views_per_mug=views_per_mug, batch_mugs=batch_mugs, steps=steps, lr=lr,
         lr_final_fraction=lr_final, alpha=alpha, shape_margin=shape_margin, proxy_weight=proxy_weight,
         param_weight=param_weight, up_tilt_deg=up_tilt,
-        frame_weight=frame_weight, seed=seed, threads=threads, init_weights=str(init) if init else None,
+        frame_weight=frame_weight, center_weight=center_weight, seed=seed, threads=threads, init_weights=str(init) if init else None,
         train_only=train_only, init_fresh=init_fresh)
     recorder = None
     if log is not None:
