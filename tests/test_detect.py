@@ -14,7 +14,7 @@ from ndfa.core.errors import RecordingError
 from ndfa.io.recording import Frame, RecordingWriter
 from ndfa.log.table_sink import TABLES, TableSink
 from ndfa.pipeline import PipelineConfig
-from ndfa.run.detect import run_detection
+from ndfa.run.detect import RunOptions, run_detection
 
 SAMPLE = Path(__file__).parents[1] / "recordings" / "sample"
 SUMMARY_KEYS = {"tp", "fp", "fn", "precision", "recall", "frames", "objects_source", "objects_target", "fps",
@@ -139,7 +139,7 @@ def _write(path: Path, frames: list[Frame]) -> Path:
 def test_a_target_without_objects_reports_nothing_and_says_why(tmp_path):
     source = _write(tmp_path / "source.mcap", _frames(3, with_objects=True))
     target = _write(tmp_path / "target.mcap", _frames(3, with_objects=False))
-    result = run_detection(source, target, up="z")  # hand-made z-up frames with no floor to find up from
+    result = run_detection(source, target, options=RunOptions(up="z"))  # hand-made z-up frames with no floor to find up from
     assert result.changes == [] and result.objects["target"] == 0
     assert any("no objects" in note for note in result.notes)
 
@@ -194,7 +194,7 @@ def test_sessions_from_different_cameras_are_compared_and_noted(tmp_path):
     other = [Frame(f.index, f.timestamp, None, f.depth, f.K * [[1.1], [1.1], [1]], f.pose_world_camera, f.instances)
              for f in _frames(2, with_objects=True)]
     target = _write(tmp_path / "target.mcap", other)
-    result = run_detection(source, target, up="z")  # hand-made z-up frames with no floor to find up from
+    result = run_detection(source, target, options=RunOptions(up="z"))  # hand-made z-up frames with no floor to find up from
     assert any("cameras differ" in note for note in result.notes)
     assert result.frames == {"source": 2, "target": 2}
 

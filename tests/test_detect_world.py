@@ -12,7 +12,7 @@ import pytest
 from ndfa.core.errors import RecordingError
 from ndfa.core.geometry import axis_angle_to_matrix, make_pose
 from ndfa.io.recording import RecordingReader, RecordingWriter
-from ndfa.run.detect import run_detection
+from ndfa.run.detect import RunOptions, run_detection
 from ndfa.run.world import prepare_session
 
 SAMPLE = Path(__file__).resolve().parents[1] / "recordings" / "sample"
@@ -66,7 +66,7 @@ def test_detection_on_a_tilted_world_matches_the_z_up_one(tmp_path):
     assert abs(tilted.score.tp - reference.score.tp) <= 1
     assert abs(tilted.score.fp - reference.score.fp) <= 1
     # Without levelling (the user insists on z) the tilted world loses objects or changes.
-    assert run_detection(*pair, up="z").summary() != tilted.summary()
+    assert run_detection(*pair, options=RunOptions(up="z")).summary() != tilted.summary()
 
 
 def test_no_up_stops_with_the_reason(tmp_path):

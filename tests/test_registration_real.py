@@ -12,7 +12,7 @@ import pytest
 from ndfa.core.frame import Frame
 from ndfa.core.geometry import make_pose
 from ndfa.io.recording import RecordingWriter
-from ndfa.run.detect import run_detection
+from ndfa.run.detect import RunOptions, run_detection
 
 REDKITCHEN = Path(__file__).resolve().parents[2] / "shared" / "data" / "redkitchen_7scenes"
 
@@ -76,7 +76,7 @@ def test_redkitchen_start_against_end_with_estimated_poses_reports_no_change(tmp
     # shared, the scene alignment proposes T_rel, and the mugs verify it.
     source = _write_slice(tmp_path / "first.mcap", range(126, 166, 2), "first")
     target = _write_slice(tmp_path / "last.mcap", range(460, 500, 2), "last")
-    result = run_detection(source, target, poses="estimate")
+    result = run_detection(source, target, options=RunOptions(poses="estimate"))
     assert result.worlds["source"].poses is not None and result.worlds["target"].poses is not None
     assert result.registration is not None and result.registration["inliers"] >= 2
     assert result.changes == []

@@ -82,7 +82,7 @@ def detect_command(
     from ndfa.io.recording import RecordingReader
     from ndfa.ndf.encoder import EncoderConfig
     from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
-    from ndfa.run.detect import run_detection
+    from ndfa.run.detect import RunOptions, run_detection
 
     association = {"distance_m": association_distance, "shape_similarity": shape_similarity, "tree_length_m": tree_length}
     defaults = DetectorConfig.paper() if paper_parameters else DetectorConfig()
@@ -104,9 +104,9 @@ def detect_command(
 
     if registration not in REGISTRATION_MODES:
         raise typer.BadParameter(f"--registration must be one of {', '.join(REGISTRATION_MODES)}, got {registration!r}")
+    options = RunOptions(frame_step=frame_step, up=up, poses=poses, registration=registration)
     if len(recordings) > 2:
-        _detect_sessions(recordings, config, pipeline, runtime, log, tables, json_out, no_images, frame_step, up,
-                         poses, registration)
+        _detect_sessions(recordings, config, pipeline, runtime, log, tables, json_out, no_images, options)
         return
     source, target = recordings
     sinks = []
@@ -120,9 +120,8 @@ def detect_command(
         truth = RecordingReader(target).ground_truth
         sinks.append(TableSink(tables, changed_instances(truth) if truth and "objects" in truth else None))
     with progress_bar() as progress:
-        result = run_detection(source, target, config, sinks, frame_step=frame_step, on_frame=bar_per_label(progress),
+        result = run_detection(source, target, config, sinks, options, on_frame=bar_per_label(progress),
                                pipeline=pipeline,
-                               up=up, poses=poses, registration=registration,
                                on_world=lambda world: err_console.print(f"world {world.describe()}", highlight=False),
                                on_alignment=lambda a: err_console.print(f"registration prior: {a.describe()}",
                                                                         highlight=False))
@@ -159,8 +158,7 @@ def detect_command(
 
 
 def _detect_sessions(recordings: list[Path], config, pipeline, runtime: str, log: Optional[Path],  # noqa: ANN001
-                     tables: Optional[Path], json_out: Optional[Path], no_images: bool, frame_step: int, up: str,
-                     poses: str, registration: str) -> None:
+                     tables: Optional[Path], json_out: Optional[Path], no_images: bool, options) -> None:  # noqa: ANN001
     """`ndfa detect S0 S1 S2 ...`: each consecutive pair, and every object's history (`ndfa.run.sessions`)."""
     import json
 
@@ -176,8 +174,8 @@ def _detect_sessions(recordings: list[Path], config, pipeline, runtime: str, log
 
         sinks.append(TableSink(tables))  # each pair's ground truth arrives with the pair
     with progress_bar() as progress:
-        result = run_sessions(recordings, config, sinks, frame_step=frame_step, on_frame=bar_per_label(progress),
-                              pipeline=pipeline, up=up, poses=poses, registration=registration,
+        result = run_sessions(recordings, config, sinks, options, on_frame=bar_per_label(progress),
+                              pipeline=pipeline,
                               on_world=lambda world: err_console.print(f"world {world.describe()}", highlight=False),
                               on_alignment=lambda pair, a: err_console.print(f"pair {pair}: registration prior: "
                                                                              f"{a.describe()}", highlight=False))
@@ -380,10 +378,11 @@ def _eval_history(recordings: list[Path], out: Path, frame_step: int) -> None:
 
     from ndfa.io.atomic import write_parquet
     from ndfa.log.table_sink import HISTORY_SCHEMA, _history_row
+    from ndfa.run.detect import RunOptions
     from ndfa.run.sessions import run_sessions
 
     with progress_bar() as progress:
-        result = run_sessions(recordings, frame_step=frame_step, on_frame=bar_per_label(progress))
+        result = run_sessions(recordings, options=RunOptions(frame_step=frame_step), on_frame=bar_per_label(progress))
     if result.history_score is None:
         raise NdfaError(f"{recordings[-1]}: has no ground truth of the sessions (made by `ndfa ingest sim --sessions "
                         "N`, N > 2) to score the history against")

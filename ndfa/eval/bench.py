@@ -126,13 +126,13 @@ def bench_detect(source: Path, target: Path, threads: int = 1, frame_step: int =
 
     from ndfa.ndf.encoder import EncoderConfig
     from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
-    from ndfa.run.detect import run_detection
+    from ndfa.run.detect import RunOptions, run_detection
 
     torch.set_num_threads(threads)
     config = PipelineConfig(encoder=EncoderConfig(runtime=runtime, threads=threads), weights=weights)
     pipeline = ChangeDetectionPipeline(config)
     cpu_started = time.process_time()
-    result = run_detection(source, target, config, sinks=[], frame_step=frame_step, pipeline=pipeline,
+    result = run_detection(source, target, config, sinks=[], options=RunOptions(frame_step=frame_step), pipeline=pipeline,
                            full_reconstruction=full_reconstruction, overlap=overlap)
     per_frame_ms = result.seconds["target"] / result.frames["target"] * 1e3
     stages = dict(result.stage_ms)

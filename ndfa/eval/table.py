@@ -108,7 +108,7 @@ def evaluate_methods(source: Path, target: Path, nn: NNConfig = NNConfig(), tsdf
     each method's pass over each session, labelled "METHOD SESSION" (e.g. "NN source"); `sinks`
     hear ndfa's run (as `ndfa detect`'s)."""
     from ndfa.pipeline import PipelineConfig
-    from ndfa.run.detect import run_detection
+    from ndfa.run.detect import RunOptions, run_detection
 
     source_reader, target_reader, truth = open_for_baselines(Path(source), Path(target))
     visible: dict[str, set[int]] = {"source": set(), "target": set()}
@@ -126,8 +126,8 @@ def evaluate_methods(source: Path, target: Path, nn: NNConfig = NNConfig(), tsdf
 
     started = time.perf_counter()
     progress = None if on_frame is None else (lambda session, done, total: on_frame(f"ndfa {session}", done, total))
-    detection = run_detection(Path(source), Path(target), PipelineConfig(), sinks=list(sinks), frame_step=frame_step,
-                              on_frame=progress)
+    detection = run_detection(Path(source), Path(target), PipelineConfig(), sinks=list(sinks),
+                              options=RunOptions(frame_step=frame_step), on_frame=progress)
     seconds["ndfa"] = time.perf_counter() - started
     reported["ndfa"] = [i for change in detection.changes for i in change.reported_instances]
 

@@ -37,6 +37,24 @@ class Sink(Protocol):
     def close(self) -> None: ...
 
 
+@dataclass(frozen=True)
+class RunOptions:
+    """How recordings are run, beside the pipeline's config: the same for a pair (`run_detection`)
+    and for many sessions (`ndfa.run.sessions.run_sessions`).
+
+    frame_step: every n-th frame of each recording.
+    up, poses: what each session's world gets when it lacks it (`ndfa.run.world.prepare_session`).
+    registration, align: the scene-level hypothesis of T_rel offered to the detector
+        (`ndfa.run.align.registration_prior`).
+    """
+
+    frame_step: int = 1
+    up: UpMode = "auto"
+    poses: PoseMode = "auto"
+    registration: RegistrationMode = "auto"
+    align: AlignConfig = field(default_factory=AlignConfig)
+
+
 @dataclass
 class DetectionResult:
     changes: list[DecisionEvent]                 # reported changes: added / moved (target), removed (source)
@@ -123,14 +141,10 @@ def run_detection(
     target: Path,
     config: PipelineConfig = PipelineConfig(),
     sinks: list[Sink] = (),
-    frame_step: int = 1,
+    options: RunOptions = RunOptions(),
     on_frame: LabelledProgress | None = None,  # (session, frames done, frames in session)
     pipeline: ChangeDetectionPipeline | None = None,
-    up: UpMode = "auto",
-    poses: PoseMode = "auto",
     on_world: Callable[[SessionWorld], None] | None = None,
-    registration: RegistrationMode = "auto",
-    align: AlignConfig = AlignConfig(),
     on_alignment: Callable[[SceneAlignment], None] | None = None,
     full_reconstruction: bool | None = None,
     overlap: bool = True,
@@ -138,9 +152,9 @@ def run_detection(
     """Source pass, target pass, finish. Sinks are closed at the end, also when interrupted.
 
     Before its pass, each session gets what it lacks (`ndfa.run.world`): poses when it has none,
-    world up when its world is not known to be z-up (`up`, `poses`: the modes there);
-    `on_world` hears what was used, as soon as it is known. Then the scene-level hypothesis of
-    T_rel that `registration` asks for (`ndfa.run.align.registration_prior`) is computed and,
+    world up when its world is not known to be z-up (`options.up`, `options.poses`: the modes
+    there); `on_world` hears what was used, as soon as it is known. Then the scene-level hypothesis
+    of T_rel that `options.registration` asks for (`ndfa.run.align.registration_prior`) is computed and,
     when it holds, handed to the detector; `on_alignment` hears it. `full_reconstruction`
     (`ChangeDetectionPipeline.process`): None, when there are sinks to see the reconstructions.
     `overlap`: frames are read, perceived and encoded ahead in threads (`staged`); False: one
@@ -148,11 +162,11 @@ def run_detection(
     source_reader, target_reader, notes = open_pair(Path(source), Path(target), segment=config.segmentation is not None)
     worlds = {}
     for session, reader in (("source", source_reader), ("target", target_reader)):
-        worlds[session] = prepare_session(reader, session, up=up, poses=poses)
+        worlds[session] = prepare_session(reader, session, up=options.up, poses=options.poses)
         if on_world is not None:
             on_world(worlds[session])
     pipeline = pipeline or ChangeDetectionPipeline(config)
-    alignment = registration_prior(source_reader, target_reader, worlds, registration, align)
+    alignment = registration_prior(source_reader, target_reader, worlds, options.registration, options.align)
     if alignment is not None:
         if on_alignment is not None:
             on_alignment(alignment)
@@ -167,9 +181,9 @@ def run_detection(
     full = bool(sinks) if full_reconstruction is None else full_reconstruction
     try:
         for session, reader in (("source", source_reader), ("target", target_reader)):
-            total = len(range(0, len(reader), frame_step))
+            total = len(range(0, len(reader), options.frame_step))
             started, count = time.perf_counter(), 0
-            for observed in staged(pipeline, reader.frames(step=frame_step), worlds[session], full, overlap):
+            for observed in staged(pipeline, reader.frames(step=options.frame_step), worlds[session], full, overlap):
                 for event in pipeline.decide(session, observed):
                     _emit(event, sinks)
                     seen[session].count(event)
@@ -204,7 +218,7 @@ def run_detection(
         if alignment is not None and not alignment.ok:
             notes.append(f"the scene-level hypothesis did not hold ({alignment.describe()})")
         if alignment is not None and not alignment.ok and alignment.method == "shared world" \
-                and registration == "auto":
+                and options.registration == "auto":
             notes.append("the sessions' poses are given but do not share one world: --registration scene "
                          "aligns their scene clouds instead")
     result = DetectionResult(

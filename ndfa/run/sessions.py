@@ -43,10 +43,10 @@ from ndfa.core.sessions import HistoryEvent, HistoryRow, PairEvent, SessionStart
 from ndfa.eval.scoring import changed_instances, is_visible, score
 from ndfa.io.recording import INSTANCES, RecordingReader
 from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
-from ndfa.run.align import AlignConfig, RegistrationMode, SceneAlignment, registration_prior
-from ndfa.run.detect import SessionCounts, Sink, _registration_summary, change_summary, staged
+from ndfa.run.align import SceneAlignment, registration_prior
+from ndfa.run.detect import RunOptions, SessionCounts, Sink, _registration_summary, change_summary, staged
 from ndfa.run.history import LinkConfig, SessionObjects, compose_placements, link_history
-from ndfa.run.world import PoseMode, SessionWorld, UpMode, prepare_session
+from ndfa.run.world import SessionWorld, prepare_session
 
 
 @dataclass
@@ -143,14 +143,10 @@ def run_sessions(
     paths: list[Path],
     config: PipelineConfig = PipelineConfig(),
     sinks: list[Sink] = (),
-    frame_step: int = 1,
+    options: RunOptions = RunOptions(),
     on_frame: LabelledProgress | None = None,  # (session name, frames done, frames in session)
     pipeline: ChangeDetectionPipeline | None = None,
-    up: UpMode = "auto",
-    poses: PoseMode = "auto",
     on_world: Callable[[SessionWorld], None] | None = None,
-    registration: RegistrationMode = "auto",
-    align: AlignConfig = AlignConfig(),
     on_alignment: Callable[[str, SceneAlignment], None] | None = None,  # (pair label, hypothesis)
 ) -> SessionsResult:
     """The sessions' passes in order (see the module docstring); sinks are closed at the end, also
@@ -162,7 +158,7 @@ def run_sessions(
     names = session_names(len(paths))
     worlds: dict[str, SessionWorld] = {}
     for name, reader in zip(names, readers):
-        worlds[name] = prepare_session(reader, name, up=up, poses=poses)
+        worlds[name] = prepare_session(reader, name, up=options.up, poses=options.poses)
         if on_world is not None:
             on_world(worlds[name])
     pipeline = pipeline or ChangeDetectionPipeline(config)
@@ -179,7 +175,7 @@ def run_sessions(
             if index == 0:
                 pipeline.detector = ChangeDetector(config.detector)
             else:
-                pair = PairRun.start(index - 1, names, readers, worlds, kept[-1], config, registration, align,
+                pair = PairRun.start(index - 1, names, readers, worlds, kept[-1], config, options,
                                      compose_placements(transforms)[index - 1])
                 if pair.alignment is not None and on_alignment is not None:
                     on_alignment(pair.label, pair.alignment)
@@ -189,10 +185,10 @@ def run_sessions(
             kept.append([])
             visible.append(set())
             masks.append({})
-            total = len(range(0, len(reader), frame_step))
+            total = len(range(0, len(reader), options.frame_step))
             started, count = time.perf_counter(), 0
             # Without sinks, reconstructions only as far as decisions need (`ChangeDetectionPipeline.encode`).
-            for observed in staged(pipeline, reader.frames(step=frame_step), worlds[name], full_reconstruction=bool(sinks)):
+            for observed in staged(pipeline, reader.frames(step=options.frame_step), worlds[name], full_reconstruction=bool(sinks)):
                 measurements: list[Measurement] = []
                 for event in pipeline.decide(role, observed):
                     seen[index].count(event)
@@ -276,12 +272,13 @@ class PairRun:
 
     @classmethod
     def start(cls, index: int, names: list[str], readers: list[RecordingReader], worlds: dict[str, SessionWorld],
-              source: list[list[Measurement]], config: PipelineConfig, registration: RegistrationMode,
-              align: AlignConfig, placement: np.ndarray | None) -> PairRun:
+              source: list[list[Measurement]], config: PipelineConfig, options: RunOptions,
+              placement: np.ndarray | None) -> PairRun:
         """The pair's detector with the source session replayed into it and the pair's registration prior."""
         detector = ChangeDetector(config.detector)
         pair_worlds = {"source": worlds[names[index]], "target": worlds[names[index + 1]]}
-        alignment = registration_prior(readers[index], readers[index + 1], pair_worlds, registration, align)
+        alignment = registration_prior(readers[index], readers[index + 1], pair_worlds, options.registration,
+                                       options.align)
         if alignment is not None:
             prior = alignment.prior()
             if prior is not None:
