@@ -26,6 +26,7 @@ import numpy as np
 from ndfa.core.frame import Frame
 from ndfa.trajectory.checks import InputCheckConfig, InputMonitor, InputReport, fill_untracked
 from ndfa.trajectory.kiss import DepthOdometry, OdometryConfig
+from ndfa.trajectory.open3d_threads import open3d_threads
 from ndfa.trajectory.rgbd import RgbdOdometry, RgbdOdometryConfig
 
 SESSION_METHODS = ("rgbd", "kiss-icp")
@@ -84,9 +85,10 @@ def estimate_session_poses(frames: Iterable[Frame], method: str, source: object,
     odometry: RgbdOdometry | DepthOdometry
     if method == "rgbd":
         odometry = RgbdOdometry(rgbd_config)
-        for frame in tracked_frames():
-            odometry.update(frame)
-        estimate = odometry.finish()
+        with open3d_threads():  # the same frames, the same poses (`ndfa.trajectory.open3d_threads`)
+            for frame in tracked_frames():
+                odometry.update(frame)
+            estimate = odometry.finish()
     else:
         odometry = DepthOdometry(kiss_config)
         estimate = [odometry.update(frame) for frame in tracked_frames()]
