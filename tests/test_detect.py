@@ -42,7 +42,7 @@ def test_summary_scores_the_sample_against_its_ground_truth(run):
     assert summary["ndf_runtime"] == "onnxruntime"  # the default where it is installed (docs/speed.md)
     # the added mug (instance 14) stands where the source had nothing: it must be found
     assert any(14 in change["instance_ids"] for change in summary["changes"])
-    # measured with the shipped weights: TP 5, FP 1, FN 0 (README); a worse model or detector fails here
+    # measured with the shipped weights: TP 5, FP 1, FN 0 (docs/results.md); a worse model or detector fails here
     assert summary["recall"] == 1.0 and summary["fp"] <= 2
     assert "TP" in output and "changes" in output
 
