@@ -15,7 +15,7 @@ demo: setup
 # Layering (import-linter: the core imports no I/O), lint (ruff) and types (mypy, strict on the core).
 lint: setup
 	$(VENV)/bin/lint-imports
-	$(VENV)/bin/ruff check ndfa tests scripts
+	$(VENV)/bin/ruff check ndfa tests scripts studies
 	$(VENV)/bin/mypy
 
 test: setup lint

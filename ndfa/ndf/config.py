@@ -28,7 +28,7 @@ class NDFConfig:
     pooling: "mean" (as NDF) or "max" (VN max-pool: per channel the point furthest along a
         learned direction). With a zero-centred input the mean of anything linear in the points
         is zero, so mean pooling passes on only what the nonlinearities make; max learnt the mug's
-        axis and center faster (`scripts/ndf_axis_study.py`, 200 steps: axis 53 vs 67 degrees,
+        axis and center faster (`studies/ndf_axis_study.py`, 200 steps: axis 53 vs 67 degrees,
         center 17 vs 20 mm). Mean is less sensitive to single outlying points.
     decoder: "dots" feeds the occupancy MLP |x|^2 and the dot products x . z_j; "frame" also
         gives it x in an orthonormal frame built from z (see `object_frame`): the object's own

@@ -179,7 +179,7 @@ def segment_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig(
 def explain_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig()
                   ) -> tuple[np.ndarray, list[ClusterVerdict]]:
     """`segment_frame`'s labels, and a verdict for every cluster of at least `min_cluster_points`
-    (why the others were not kept: for studies such as scripts/segmentation_study.py)."""
+    (why the others were not kept: for studies such as studies/segmentation_study.py)."""
     verdicts: list[ClusterVerdict] = []
     height, width = frame.depth.shape
     labels = np.zeros((height, width), dtype=np.uint16)

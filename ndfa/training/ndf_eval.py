@@ -116,7 +116,7 @@ def evaluate_ndf(
 
 def box_twins(split: str, mug_indices: np.ndarray) -> np.ndarray:
     """[M, M] bool over mug indices 0..max(mug_indices): same mug, or boxes within `TWIN_M` in
-    every dimension (a view then shows the same size; `scripts/ndf_limits.py`)."""
+    every dimension (a view then shows the same size; `studies/ndf_limits.py`)."""
     size = int(mug_indices.max()) + 1
     extents = np.full((size, 3), np.inf)
     for index in mug_indices:

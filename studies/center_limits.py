@@ -2,7 +2,7 @@
 frozen latent z, or knowing the table, would do better. The figures the model card's "Tried on top
 of v2" quotes for the center.
 
-    python scripts/center_limits.py WEIGHTS TRAIN_VIEWS.npz [--held-out-from 900] [--steps 4000]
+    python studies/center_limits.py WEIGHTS TRAIN_VIEWS.npz [--held-out-from 900] [--steps 4000]
     # TRAIN_VIEWS: the view cache `ndfa train` wrote under --data-dir (train-*.npz)
 
 1. The model's own head on the views of the held-out mugs (mug index >= --held-out-from) within

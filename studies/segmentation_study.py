@@ -1,7 +1,7 @@
 """Per-frame figures of the geometric segmentation: which clusters pass, their shapes, and what the
 objectness gate (`ndfa.perception.objectness`) makes of them.
 
-    python scripts/segmentation_study.py REC.mcap [--start 0] [--stop N] [--step 10] [--clusters]
+    python studies/segmentation_study.py REC.mcap [--start 0] [--stop N] [--step 10] [--clusters]
 
 Each frame is segmented with the gate off (`objectness=None`), so every cluster that passes the
 size filters gets a label; the gate's verdict is then printed next to it. With `--clusters` every

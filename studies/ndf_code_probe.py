@@ -3,7 +3,7 @@ the mug's `MugParams` numbers (standardised), fitted on views of training mugs a
 views of held-out mugs. A parameter the codes cannot predict is one the encoder does not perceive
 (or one no partial view shows), so two mugs differing only there will be confused.
 
-    python scripts/ndf_code_probe.py [WEIGHTS]        # default: the shipped weights
+    python studies/ndf_code_probe.py [WEIGHTS]        # default: the shipped weights
     # 2026-11-23, shipped weights: height 0.80, handle_top_z 0.53, rim_radius 0.37, belly 0.31, the rest < 0.2
 
 Uses the views `ndfa train --data-dir out/ndf-data` caches (the default 400-mug cache; run that

@@ -1,9 +1,9 @@
 """How fast an NDF encoder learns a mug's axis and center: train only the frame and center losses
 for a few hundred steps and print the validation errors every 50 steps.
 
-    python scripts/ndf_axis_study.py STEPS [NDFConfig field=JSON value ...] [lr=...]   (decoder "frame" always)
-    python scripts/ndf_axis_study.py 200 pooling='"mean"'   # 2026-11-23: axis 67 deg, center 20 mm
-    python scripts/ndf_axis_study.py 200 pooling='"max"'    #             axis 53 deg, center 17 mm
+    python studies/ndf_axis_study.py STEPS [NDFConfig field=JSON value ...] [lr=...]   (decoder "frame" always)
+    python studies/ndf_axis_study.py 200 pooling='"mean"'   # 2026-11-23: axis 67 deg, center 20 mm
+    python studies/ndf_axis_study.py 200 pooling='"max"'    #             axis 53 deg, center 17 mm
 
 Uses the views `ndfa train --data-dir out/ndf-data` caches (run that first; the figures above are
 from the default 400-mug cache, pass train='"out/ndf-data/train-....npz"' to choose); one thread.

@@ -1,6 +1,6 @@
 """Re-tune the detector's delta_s (association.shape_similarity) by replay over several scenes.
 
-    python scripts/retune_shape_threshold.py TABLES_DIR [TABLES_DIR ...] [--values 0.5,0.55,...]
+    python studies/retune_shape_threshold.py TABLES_DIR [TABLES_DIR ...] [--values 0.5,0.55,...]
 
 Each TABLES_DIR holds the tables of one `ndfa detect SRC TGT --tables TABLES_DIR` run (with the
 weights under study). The detector is replayed on each run's observations (`ndfa.run.replay`: no

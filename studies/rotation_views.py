@@ -4,8 +4,8 @@ against the ground truth's handle direction, plus what the simulator knows of th
 mask size, the angle between the handle and the direction to the camera); then the error by
 handle view, distance, mask size and strength.
 
-    python scripts/rotation_views.py OUT.parquet STEP REC.mcap [REC.mcap ...]
-    python scripts/rotation_views.py out/views.parquet 2 out/paper/source.mcap out/paper/target.mcap \\
+    python studies/rotation_views.py OUT.parquet STEP REC.mcap [REC.mcap ...]
+    python studies/rotation_views.py out/views.parquet 2 out/paper/source.mcap out/paper/target.mcap \\
         out/random{1,2,3,4,5}/source.mcap          # the figures of docs/rotation.md, ~3 min
 
 Views that touch the image border are left out of the figures (the detector skips them).

@@ -4,7 +4,7 @@ the first camera's frame (what odometry gives), and degenerate input.
 
     PYTHONPATH=$PWD python -m ndfa.cli ingest tum /work/shared/data/redkitchen_7scenes --out /tmp/rk.mcap \
         --intrinsics 585,585,320,240 --depth-scale 1000
-    PYTHONPATH=$PWD python scripts/world_up.py /tmp/rk.mcap /work/shared/data/redkitchen_7scenes/gravity-direction.txt \
+    PYTHONPATH=$PWD python studies/world_up.py /tmp/rk.mcap /work/shared/data/redkitchen_7scenes/gravity-direction.txt \
         /work/baseline/paper/source.mcap /work/baseline/random1/source.mcap
 
 Each line: case, frames given, ok, angle error to the true up (degrees), seconds of the estimate

@@ -2,7 +2,7 @@
 a model's wrong retrievals land. The figures the model card's "Why the IoU and retrieval targets
 are out of this model's reach" quotes.
 
-    python scripts/ndf_limits.py [out/ndf-eval/views-1.parquet]
+    python studies/ndf_limits.py [out/ndf-eval/views-1.parquet]
     # 2026-12-01: true shape shifted 1/2/3/5 mm -> IoU 0.82/0.65/0.54/0.36; 14/20 test mugs have a
     # twin within 1 cm in every box dimension; shipped weights: 22 % of wrong retrievals land on such
     # a mug (4 % of all pairs are), median largest box difference 2.0 cm (3.0 over all pairs)
