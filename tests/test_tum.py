@@ -213,11 +213,17 @@ def test_depth_65535_is_no_reading(tmp_path):
     assert frame.depth[0, 0] == pytest.approx(1.5) and int((frame.depth == 0).sum()) == 6
 
 
-def test_no_groundtruth_and_no_estimator_asks_for_kiss_icp(tmp_path):
+def test_no_groundtruth_and_no_estimator_keeps_the_recording_without_poses(tmp_path):
+    # A sensor's folder has no groundtruth.txt: the recording says "poses": "none" (ndfa detect estimates them).
     folder = make_folder(tmp_path / "tum", groundtruth=None)
-    with pytest.raises(IngestError, match="--poses kiss-icp"):
-        ingest_tum(folder, tmp_path / "out.mcap")
-    assert not (tmp_path / "out.mcap").exists()
+    summary = ingest_tum(folder, tmp_path / "out.mcap")
+    assert summary.written == 5 and summary.poses == "none"
+    assert len(summary.notes) == 1 and "no groundtruth.txt" in summary.notes[0] and "ndfa detect" in summary.notes[0]
+    reader = RecordingReader(tmp_path / "out.mcap")
+    assert not reader.has_poses and reader.meta["poses"] == "none" and reader.meta["poses_note"] == summary.notes[0]
+    assert len(list(reader.frames())) == 5
+    with pytest.raises(IngestError, match="no groundtruth.txt"):  # a reader that needs poses still says so
+        read(folder)
 
 
 def test_an_estimator_gives_the_poses(tmp_path):

@@ -243,8 +243,9 @@ def ingest_tum_command(
                                                     "(default: the folder's masks/ if any).", callback=input_dir),
     max_dt: float = typer.Option(MAX_DT_S, help="Largest rgb-depth timestamp difference to pair them, seconds.",
                                  callback=positive),
-    poses: str = typer.Option("given", help="given (groundtruth.txt) | estimate | rgbd | kiss-icp (estimated; "
-                                            "groundtruth.txt, if any, is kept as the true poses)."),
+    poses: str = typer.Option("given", help="given (groundtruth.txt; without it the recording keeps no poses and "
+                                            "`ndfa detect` estimates them) | estimate | rgbd | kiss-icp (estimated "
+                                            "now; groundtruth.txt, if any, is kept as the true poses)."),
     session: Optional[str] = typer.Option(None, help="Session name (default: the folder's name)."),
 ) -> None:
     """Import a TUM RGB-D folder into one recording, and say what was dropped and why."""
@@ -281,6 +282,8 @@ def ingest_tum_command(
     console.print(table)
     for message in summary.warnings + input_warnings:
         console.print(f"[yellow]warning:[/yellow] {message}", highlight=False, soft_wrap=True)
+    for message in summary.notes:
+        console.print(f"note: {message}", highlight=False, soft_wrap=True)
     _estimate_session_poses(out, poses)
 
 
@@ -424,6 +427,8 @@ def info_command(
             table.add_row("world up", world.describe_up())
         except RecordingError as error:
             table.add_row("world up", f"not found: {error}")
+    else:
+        table.add_row("world up", "estimated by `ndfa detect` once it has estimated the poses (the recording has none)")
     imu = meta.get("imu")
     if isinstance(imu, dict):  # a bag's IMU: what it gave for world up (ndfa.io.ingest.bag_imu)
         rotated = f"; into the camera by {imu['camera_from_imu']}" if imu.get("camera_from_imu") else ""

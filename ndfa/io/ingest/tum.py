@@ -17,9 +17,13 @@ import ndfa
 from ndfa.core.errors import IngestError, NdfaError
 from ndfa.core.progress import Progress
 from ndfa.io.ingest import MAX_DT_S, PoseEstimator
-from ndfa.io.ingest.tum_folder import TumFolder, no_poses_message
+from ndfa.io.ingest.tum_folder import TumFolder
 from ndfa.io.ingest.tum_layout import DEPTH_LIST, DEPTH_SCALE, GROUNDTRUTH, Intrinsics
 from ndfa.io.recording import RecordingWriter
+
+# What an import without groundtruth.txt says (the summary's notes, the recording's meta "poses_note").
+NO_POSES_NOTE = ("{folder} has no " + GROUNDTRUTH + ": the recording keeps no camera poses (as a sensor records); "
+                 "`ndfa detect` estimates them (RGB-D odometry), or `--poses estimate` does it once now")
 
 
 class TumWarning(UserWarning):
@@ -32,7 +36,8 @@ class TumSummary:
 
     indexed: depth frames listed in depth.txt; written: frames in the recording;
     dropped: reason -> frames left out; depth_without_rgb: depth frames with no rgb partner within
-    max_dt (kept, without colour); warnings: what was worked around.
+    max_dt (kept, without colour); warnings: what was worked around; notes: what the user should
+    know about the recording (e.g. that it has no poses and who estimates them).
     """
 
     path: Path
@@ -47,6 +52,7 @@ class TumSummary:
     has_instances: bool
     has_ground_truth: bool
     warnings: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
 
 
 def ingest_tum(
@@ -70,7 +76,8 @@ def ingest_tum(
     session: the recording's session name (default: the folder's name).
     estimate_poses: when given, the recording's poses are estimated with it (e.g. ndfa.trajectory's
         KISS-ICP) and groundtruth.txt's, if any, are kept as the true poses (/ndfa/ground_truth/pose).
-        Without it the folder must have groundtruth.txt.
+        Without it, a folder without groundtruth.txt (a sensor's recording) is kept without poses
+        (meta "poses": "none", as a sensor records): `ndfa detect` estimates them (ndfa.run.world).
     Problems the reader works around are warned about (TumWarning) and listed in the summary.
     """
     tum = TumFolder(Path(folder), intrinsics=intrinsics, depth_scale=depth_scale,
@@ -82,7 +89,7 @@ def ingest_tum(
     if not tum.entries:  # "empty results are errors": a recording of no frames would only fail later
         raise IngestError(_nothing_to_import(tum.folder, indexed, tum.dropped))
     if tum.needs_poses and estimate_poses is None:
-        raise IngestError(no_poses_message(tum.folder))
+        poses = "none"
     if estimate_poses is not None:
         try:
             # Frames without rgb and instances (the estimator needs depth and K), one at a time.
@@ -105,6 +112,7 @@ def ingest_tum(
         "generator": f"ndfa {ndfa.__version__} ingest tum",
         **tum.info,
         "poses": poses,
+        **({"poses_note": NO_POSES_NOTE.format(folder=tum.folder)} if poses == "none" else {}),
         "frames_indexed": indexed,
         "dropped": dict(tum.dropped),
     }
@@ -125,7 +133,7 @@ def ingest_tum(
         path=out, session=session, indexed=indexed, written=written, dropped=dict(tum.dropped),
         depth_without_rgb=tum.info["depth_without_rgb"], poses=poses, intrinsics=tum.info["intrinsics"]["source"],
         timestamps=tum.info["timestamps"], has_instances=has_instances, has_ground_truth=ground_truth is not None,
-        warnings=list(tum.warnings),
+        warnings=list(tum.warnings), notes=[meta["poses_note"]] if "poses_note" in meta else [],
     )
 
 

@@ -145,10 +145,10 @@ class TumFolder:
 
     def frames(self, images: bool = True) -> Iterator[Frame]:
         """Decode the indexed frames in order, numbered from 0. With images=False only depth is read
-        (rgb and instances None) and every pose is an identity placeholder: what a pose estimator needs."""
+        (rgb and instances None) and every pose is an identity placeholder: what a pose estimator needs.
+        A folder without poses (`needs_poses`) gives identity placeholders too: a recording written
+        from it says "poses": "none", and the writer leaves them out."""
         for index, entry in enumerate(self.entries):
-            if entry.pose is None and images:
-                raise IngestError(no_poses_message(self.folder))
             yield self._load(entry, index, images)
 
     def set_poses(self, poses: list[np.ndarray]) -> None:
@@ -284,7 +284,7 @@ class TumFolder:
         if images and entry.mask_path is not None:
             instances = read_mask(entry.mask_path)
             check_size(entry.mask_path, instances.shape, entry.depth_path, depth.shape)
-        pose, true_pose = (entry.pose, entry.true_pose) if images else (np.eye(4), None)
+        pose, true_pose = (entry.pose, entry.true_pose) if images and entry.pose is not None else (np.eye(4), None)
         try:
             return Frame(index=index, timestamp=entry.timestamp, rgb=rgb, depth=depth, K=self.K,
                          pose_world_camera=pose, instances=instances, pose_world_camera_true=true_pose)
@@ -301,5 +301,5 @@ def read_tum_folder(folder: str | Path, **options: Any) -> Iterator[Frame]:
 
 
 def no_poses_message(folder: Path) -> str:
-    return (f"{folder} has no {GROUNDTRUTH}, so the frames have no poses: estimate them with "
-            "`--poses kiss-icp` (or pass estimate_poses=... to ingest_tum)")
+    return (f"{folder} has no {GROUNDTRUTH}, so its frames have no poses: import it with `ndfa ingest tum` "
+            "(`ndfa detect` then estimates them) or with `--poses estimate`")
