@@ -13,12 +13,13 @@ import pytest
 from typer.testing import CliRunner
 
 from ndfa.cli import app
+from ndfa.core.conventions import STANDARD_GRAVITY
 from ndfa.core.geometry import axis_angle_to_matrix, invert_pose, make_pose
 from ndfa.io.export.bag import LINK_FROM_OPTICAL, _BagWriter, _write_frame
 from ndfa.io.ingest.bag import ingest_bag, list_topics
 from ndfa.io.recording import RecordingReader
 from ndfa.run.world import prepare_session
-from ndfa.trajectory.up import STANDARD_GRAVITY, angle_deg, imu_gravity
+from ndfa.trajectory.up import angle_deg, imu_gravity
 
 SAMPLE = Path(__file__).resolve().parents[1] / "recordings" / "sample"
 STAMP0 = 1_767_600_000 * 10**9  # ns

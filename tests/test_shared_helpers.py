@@ -10,14 +10,14 @@ import polars as pl
 import pytest
 
 from ndfa.core import conventions
+from ndfa.core.conventions import is_visible
 from ndfa.core.geometry import axis_angle_to_matrix, backproject, interpolate_pose, make_pose, project, rotation_z
 from ndfa.eval.baselines.nn import NNConfig
 from ndfa.eval.baselines.tsdf import TSDFConfig
-from ndfa.eval.scoring import is_visible
 from ndfa.io.atomic import Staged, atomic_dir, atomic_path
+from ndfa.io.tum_format import pose_from_fields, pose_line
 from ndfa.perception.observations import ObservationConfig
 from ndfa.sim.camera import PinholeCamera
-from ndfa.trajectory.tum_format import pose_from_fields, pose_line
 
 K = np.array([[525.0, 0.0, 319.5], [0.0, 520.0, 239.5], [0.0, 0.0, 1.0]])
 

@@ -213,8 +213,7 @@ def test_world_tilt_keeps_the_trajectory_and_tilts_up_by_the_angle(recordings, s
 
 
 def test_ground_truth_lists_the_visible_instances_a_raw_recording_has_no_masks_for(recordings, tmp_path):
-    from ndfa.core.conventions import depth_in_range
-    from ndfa.eval.scoring import is_visible
+    from ndfa.core.conventions import depth_in_range, is_visible
 
     # The same scene with masks: what `is_visible` makes of them, frame by frame.
     ingest_sim(small_config(textures=True, clutter_per_table=2, world_tilt_deg=12.0), tmp_path)

@@ -9,6 +9,7 @@ from ndfa.core.errors import TrajectoryError
 from ndfa.core.geometry import axis_angle_to_matrix, look_at, make_pose
 from ndfa.io.ingest.synthetic import render_objects
 from ndfa.io.recording import Frame, RecordingReader, RecordingWriter
+from ndfa.io.tum_format import read_tum, write_tum
 from ndfa.sim.presets import make_config
 from ndfa.sim.render import SceneRenderer
 from ndfa.sim.trajectory import camera_poses
@@ -18,10 +19,8 @@ from ndfa.trajectory import (
     absolute_trajectory_error,
     depth_points,
     estimate_poses,
-    read_tum,
     relative_pose_error,
     rewrite_poses,
-    write_tum,
 )
 
 

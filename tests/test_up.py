@@ -12,8 +12,8 @@ from ndfa.core.errors import TrajectoryError
 from ndfa.core.frame import Frame
 from ndfa.core.geometry import axis_angle_to_matrix, invert_pose, make_pose
 from ndfa.io.recording import RecordingReader
+from ndfa.io.tum_format import read_tum
 from ndfa.trajectory.level import level_frame, level_poses, levelling_rotation
-from ndfa.trajectory.tum_format import read_tum
 from ndfa.trajectory.up import angle_deg, estimate_up, up_from_accelerations
 
 REPO = Path(__file__).resolve().parents[1]

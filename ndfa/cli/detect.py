@@ -499,7 +499,8 @@ def poses_command(
     no_refine: bool = typer.Option(False, "--no-refine", help="KISS-ICP alone, without the point-to-plane refinement."),
 ) -> None:
     """Estimate camera poses from colour and depth, write a copy of the recording with them, and print ATE/RPE."""
-    from ndfa.trajectory import OdometryConfig, rewrite_poses, write_tum
+    from ndfa.io.tum_format import write_tum
+    from ndfa.trajectory import OdometryConfig, rewrite_poses
 
     overrides = {"voxel_size_m": voxel_size, "max_range_m": max_range, "pixel_stride": stride}
     config = OdometryConfig(**{k: v for k, v in overrides.items() if v is not None}, refine=not no_refine)

@@ -12,12 +12,19 @@ Frames:
 
 Thresholds that several stages must agree on:
 - `VISIBLE_PIXELS`: a view of an object is encoded (perception) and counts as the object being
-  visible (scoring, the baselines) from this many mask pixels with valid depth in range.
+  visible (scoring, the baselines, the simulator's ground truth) from this many mask pixels with
+  valid depth in range; `is_visible` applies it.
 - `MIN_DEPTH_M`, `MAX_DEPTH_M`: the depth range the method uses. Beyond ~4 m a mug covers a few
   hundred pixels and the depth noise of a Kinect-class sensor reaches centimetres.
+
+Physical constants:
+- `STANDARD_GRAVITY`: the magnitude of gravity an accelerometer at rest reads, for the estimate
+  of up (trajectory) and the IMU readings of a bag (io).
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -29,6 +36,8 @@ UP_AXIS = 2                  # the world axis along WORLD_UP
 VISIBLE_PIXELS = 300
 MIN_DEPTH_M = 0.1
 MAX_DEPTH_M = 4.0
+
+STANDARD_GRAVITY = 9.80665  # m/s^2
 
 
 def world_up() -> np.ndarray:
@@ -46,3 +55,11 @@ def depth_in_range(depth: np.ndarray, min_depth_m: float = MIN_DEPTH_M,
     """Mask of the depth pixels the method uses: finite and within [min_depth_m, max_depth_m]."""
     in_range: npt.NDArray[np.bool_] = np.isfinite(depth) & (depth >= min_depth_m) & (depth <= max_depth_m)
     return in_range
+
+
+def is_visible(n_pixels: Any) -> Any:
+    """Whether a view whose mask holds `n_pixels` pixels with depth in range shows its object:
+    the one rule of every visible set (the detector's observations, the evaluation's masks, a
+    replayed table, the simulator's ground truth). Elementwise on arrays and on a polars
+    expression, hence `Any`."""
+    return n_pixels >= VISIBLE_PIXELS

@@ -28,8 +28,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from ndfa.core.conventions import VISIBLE_PIXELS
-
 
 @dataclass(frozen=True)
 class Score:
@@ -69,13 +67,6 @@ def changed_instances(ground_truth: dict) -> dict[int, str]:
     """Instance id -> change kind, from a recording's ground-truth JSON."""
     return {int(o["instance_id"]): o["change"] for o in ground_truth.get("objects", [])
             if o.get("change") not in (None, "unchanged")}
-
-
-def is_visible(n_pixels):
-    """Whether a view whose mask holds `n_pixels` pixels with depth in range shows its object:
-    the one rule of every visible set (the detector's observations, the evaluation's masks, a
-    replayed table). Elementwise on arrays and on a polars expression."""
-    return n_pixels >= VISIBLE_PIXELS
 
 
 def scorable_instances(ground_truth: dict, visible: dict[str, set[int]]) -> set[int]:

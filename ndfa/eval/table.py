@@ -18,12 +18,12 @@ from pathlib import Path
 import numpy as np
 import polars as pl
 
-from ndfa.core.conventions import depth_in_range
+from ndfa.core.conventions import depth_in_range, is_visible
 from ndfa.core.progress import LabelledProgress
 from ndfa.eval.baselines.common import BaselineError, run_baseline
 from ndfa.eval.baselines.nn import NNBaseline, NNConfig
 from ndfa.eval.baselines.tsdf import TSDFBaseline, TSDFConfig
-from ndfa.eval.scoring import is_visible, rotated_reports, score
+from ndfa.eval.scoring import rotated_reports, score
 from ndfa.io.atomic import atomic_path, write_parquet
 from ndfa.io.recording import Frame, RecordingReader
 from ndfa.perception.observations import ObservationConfig

@@ -20,11 +20,12 @@ from typing import Callable, Protocol
 import numpy as np
 
 from ndfa.change.detector import reported_changes
+from ndfa.core.conventions import is_visible
 from ndfa.core.errors import RecordingError
 from ndfa.core.events import DecisionEvent, Event, FrameEvent, ObservationEvent, RegistrationEvent, TimingEvent
 from ndfa.core.frame import Frame
 from ndfa.core.progress import LabelledProgress
-from ndfa.eval.scoring import Score, is_visible, rotated_reports, score
+from ndfa.eval.scoring import Score, rotated_reports, score
 from ndfa.io.recording import INSTANCES, RecordingReader
 from ndfa.io.recording.prefetch import prefetched
 from ndfa.pipeline import ChangeDetectionPipeline, ObservedFrame, PipelineConfig

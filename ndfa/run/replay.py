@@ -30,8 +30,9 @@ import polars as pl
 from ndfa.change.associate import Measurement
 from ndfa.change.detector import ChangeDetector, DetectorConfig, reported_changes
 from ndfa.change.register import RegistrationPrior
+from ndfa.core.conventions import is_visible
 from ndfa.core.events import CHANGE_SCORE, DecisionEvent
-from ndfa.eval.scoring import Score, is_visible, rotated_reports, score
+from ndfa.eval.scoring import Score, rotated_reports, score
 
 
 @dataclass

@@ -27,6 +27,7 @@ import numpy as np
 
 from ndfa.change.associate import Measurement
 from ndfa.change.detector import ChangeDetector, reported_changes
+from ndfa.core.conventions import is_visible
 from ndfa.core.errors import RecordingError
 from ndfa.core.events import (
     AssociationEvent,
@@ -40,7 +41,7 @@ from ndfa.core.events import (
 from ndfa.core.geometry import transform_points
 from ndfa.core.progress import LabelledProgress
 from ndfa.core.sessions import HistoryEvent, HistoryRow, PairEvent, SessionStartEvent
-from ndfa.eval.scoring import changed_instances, is_visible, score
+from ndfa.eval.scoring import changed_instances, score
 from ndfa.io.recording import INSTANCES, RecordingReader
 from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
 from ndfa.run.align import SceneAlignment, registration_prior

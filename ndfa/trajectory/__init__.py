@@ -1,9 +1,9 @@
 """Poses for a recording: KISS-ICP odometry on depth (kiss.py, refined point-to-plane in refine.py),
 RGB-D odometry on colour and depth with loop closure (rgbd.py, pose_graph.py), one session's
 poses with the input checks and the frames it could not track (session.py),
-trajectory errors (metrics.py), TUM trajectory files (tum_format.py), `rewrite_poses`, which
+trajectory errors (metrics.py), `rewrite_poses`, which
 writes a copy of a recording with estimated poses (rewrite.py), and world up from the data with
-the rotation that levels a session's world (level.py)."""
+the rotation that levels a session's world (level.py). TUM trajectory files are ndfa.io.tum_format."""
 
 from ndfa.trajectory.kiss import DepthOdometry, OdometryConfig, depth_points, estimate_poses
 from ndfa.trajectory.level import level_frame, level_poses, levelling_rotation
@@ -11,7 +11,6 @@ from ndfa.trajectory.metrics import AbsoluteError, RelativeError, absolute_traje
 from ndfa.trajectory.rewrite import METHODS, PoseReport, rewrite_poses
 from ndfa.trajectory.rgbd import RgbdOdometry, RgbdOdometryConfig
 from ndfa.trajectory.session import SessionPoses, estimate_session_poses
-from ndfa.trajectory.tum_format import read_tum, write_tum
 from ndfa.trajectory.up import UpConfig, UpEstimate, estimate_up, up_from_accelerations
 
 __all__ = [
@@ -34,9 +33,7 @@ __all__ = [
     "level_frame",
     "level_poses",
     "levelling_rotation",
-    "read_tum",
     "relative_pose_error",
     "rewrite_poses",
     "up_from_accelerations",
-    "write_tum",
 ]

@@ -35,13 +35,11 @@ import numpy as np
 from scipy import ndimage, sparse
 from scipy.spatial import cKDTree
 
-from ndfa.core.conventions import depth_in_range, world_up
+from ndfa.core.conventions import STANDARD_GRAVITY, depth_in_range, world_up
 from ndfa.core.errors import TrajectoryError
 from ndfa.core.frame import Frame
 from ndfa.core.geometry import backproject
 from ndfa.trajectory.level import levelling_rotation
-
-STANDARD_GRAVITY = 9.80665  # m/s^2
 
 # The cameras' mean -y axis (the prior for up) must be at least this long: for upright cameras it
 # is about the cosine of their mean pitch; for cameras (or poses) pointing every way, about 1/sqrt(n).

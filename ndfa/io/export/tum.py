@@ -36,7 +36,7 @@ from ndfa.io.ingest.tum_layout import (
     TRUE_POSES,
 )
 from ndfa.io.recording import RecordingReader
-from ndfa.trajectory.tum_format import POSE_FIELDS, pose_line
+from ndfa.io.tum_format import POSE_FIELDS, pose_line
 
 _POSE_HEADER = f"# {POSE_FIELDS} (pose_world_camera: camera optical frame in world)"
 

@@ -24,9 +24,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from ndfa.core.conventions import STANDARD_GRAVITY
 from ndfa.io.ingest.bag_scan import BagScan
 from ndfa.io.ingest.tf_buffer import TfLookupError, frame_name
-from ndfa.trajectory.up import STANDARD_GRAVITY
 
 WINDOW_S = 0.05  # readings this close to a frame's stamp count for it (a few at 100-400 Hz)
 STILL_TOLERANCE = 0.3  # m/s^2: a reading this close to g in magnitude is taken as still

@@ -29,10 +29,9 @@ from pathlib import Path
 import numpy as np
 
 import ndfa
-from ndfa.core.conventions import depth_in_range
+from ndfa.core.conventions import depth_in_range, is_visible
 from ndfa.core.errors import IngestError
 from ndfa.core.progress import LabelledProgress
-from ndfa.eval.scoring import is_visible
 from ndfa.io.recording import Frame, RecordingWriter
 from ndfa.io.recording.channels import DEPTH_SCALE_M
 from ndfa.io.recording.writer import depth_to_millimetres
@@ -214,7 +213,7 @@ def _render_session(plan: SessionPlan, config: SimConfig, path: Path, ground_tru
 def visible_pixels(instance: np.ndarray, depth: np.ndarray) -> dict[int, int]:
     """Instance id (mugs and clutter) -> its mask pixels with depth in range in one frame, counted on
     the depth as a reader gets it back (millimetres), so that the ground truth's `visible` is what
-    the masks of the same recording would give `ndfa.eval.scoring.is_visible`: a raw recording has
+    the masks of the same recording would give `ndfa.core.conventions.is_visible`: a raw recording has
     no masks to count later."""
     recorded = (depth_to_millimetres(depth) * DEPTH_SCALE_M).astype(np.float32)
     ids = instance[(instance > 0) & depth_in_range(recorded)]

@@ -61,7 +61,7 @@ from ndfa.io.ingest.tum_layout import (
 from ndfa.io.ingest.tum_lists import StampedList, associate, poses_at, read_list
 from ndfa.io.recording import Frame
 from ndfa.io.recording.ground_truth import ground_truth_problem
-from ndfa.trajectory.tum_format import pose_from_fields
+from ndfa.io.tum_format import pose_from_fields
 
 # Frame rate of the synthetic stamps when the folder's own stamps cannot be used (TUM's Kinect rate).
 FALLBACK_RATE_HZ = 30.0
