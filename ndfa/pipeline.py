@@ -129,18 +129,17 @@ class ChangeDetectionPipeline:
             if not empty and observed.segmented and code.mean_occupancy < self.config.min_segment_occupancy:
                 skip = (f"segment not mug-like: mean occupancy {code.mean_occupancy:.2f} "
                         f"< {self.config.min_segment_occupancy}")
-            events.append(ObservationEvent(
+            event = ObservationEvent(
                 session=session, frame_index=frame.index, instance_id=observation.instance_id,
                 n_pixels=observation.n_pixels, skipped=skip,
                 n_points=len(observation.points_camera), touches_border=observation.touches_border,
                 points_world=transform_points(frame.pose_world_camera, observation.points_camera),
                 shape_code=code.shape_code, center_world=code.center_world, mean_occupancy=code.mean_occupancy,
                 reconstruction_world=code.reconstruction, heading_rad=code.heading_rad,
-                heading_strength=code.heading_strength))
-            if skip is not None:
-                continue
-            measurements.append(Measurement(frame.index, observation.instance_id, code.shape_code, code.center_world,
-                                            code.mean_occupancy, code.heading_rad, code.heading_strength))
+                heading_strength=code.heading_strength)
+            events.append(event)
+            if skip is None:
+                measurements.append(Measurement.of(event))
         add = self.detector.add_source if session == "source" else self.detector.add_target
         events += add(measurements)
         events.append(TimingEvent(session=session, frame_index=frame.index, stage_ms=observed.stage_ms | {

@@ -23,6 +23,7 @@ import numpy as np
 from ndfa.change.config import AssociationConfig
 from ndfa.change.tree import ObjectTree
 from ndfa.core.conventions import UP_AXIS, horizontal
+from ndfa.core.events import ObservationEvent
 
 
 @dataclass(frozen=True)
@@ -36,6 +37,17 @@ class Measurement:
     mean_occupancy: float
     heading_rad: float = float("nan")  # the handle's azimuth about up, and how sure (`ndfa.ndf.heading`)
     heading_strength: float = 0.0
+
+    @classmethod
+    def of(cls, observation: ObservationEvent) -> Measurement:
+        """The measurement of an encoded observation: the one way the pipeline, a replayed table
+        and a many-session run turn what the NDF saw into what the detector takes."""
+        if observation.skipped is not None or observation.shape_code is None or observation.center_world is None:
+            raise ValueError(f"frame {observation.frame_index}, instance {observation.instance_id}: "
+                             f"a skipped or unencoded observation is no measurement ({observation.skipped})")
+        return cls(observation.frame_index, observation.instance_id, observation.shape_code,
+                   observation.center_world, observation.mean_occupancy, observation.heading_rad,
+                   observation.heading_strength)
 
 
 @dataclass

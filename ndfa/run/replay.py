@@ -31,7 +31,7 @@ from ndfa.change.associate import Measurement
 from ndfa.change.detector import ChangeDetector, DetectorConfig, reported_changes
 from ndfa.change.register import RegistrationPrior
 from ndfa.core.conventions import is_visible
-from ndfa.core.events import CHANGE_SCORE, DecisionEvent
+from ndfa.core.events import CHANGE_SCORE, DecisionEvent, ObservationEvent
 from ndfa.eval.scoring import Score, rotated_reports, score
 
 
@@ -72,12 +72,20 @@ def measurements_by_frame(observations: pl.DataFrame, session: str) -> list[list
     used = observations.filter((pl.col("session") == session) & pl.col("skipped").is_null()).sort("frame", "instance_id")
     frames: dict[int, list[Measurement]] = {}
     for row in used.iter_rows(named=True):
-        frames.setdefault(row["frame"], []).append(Measurement(
-            row["frame"], row["instance_id"], np.asarray(row["shape_code"]),
-            np.array([row["center_x"], row["center_y"], row["center_z"]]), row["mean_occupancy"],
-            # the handle heading (docs/rotation.md); a table written before it had none
-            np.radians(np.nan if row.get("heading_deg") is None else row["heading_deg"]), row.get("heading_strength") or 0.0))
+        frames.setdefault(row["frame"], []).append(Measurement.of(observation_of(row)))
     return [frames[f] for f in sorted(frames)]
+
+
+def observation_of(row: dict) -> ObservationEvent:
+    """An encoded observation as the observations table holds it (what the detector needs of it)."""
+    return ObservationEvent(
+        session=row["session"], frame_index=row["frame"], instance_id=row["instance_id"], n_pixels=row["n_pixels"],
+        skipped=row["skipped"], shape_code=np.asarray(row["shape_code"]),
+        center_world=np.array([row["center_x"], row["center_y"], row["center_z"]]),
+        mean_occupancy=row["mean_occupancy"],
+        # the handle heading (docs/rotation.md); a table written before it had none
+        heading_rad=np.radians(np.nan if row.get("heading_deg") is None else row["heading_deg"]),
+        heading_strength=row.get("heading_strength") or 0.0)
 
 
 def replay(observations: pl.DataFrame, config: DetectorConfig = DetectorConfig(),

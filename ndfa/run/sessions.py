@@ -195,8 +195,7 @@ def run_sessions(
                     seen[index].count(event)
                     if isinstance(event, ObservationEvent):
                         if event.skipped is None:
-                            measurements.append(Measurement(event.frame_index, event.instance_id, event.shape_code,
-                                                            event.center_world, event.mean_occupancy))
+                            measurements.append(Measurement.of(event))
                         if is_visible(event.n_pixels):
                             visible[index].add(event.instance_id)
                     if isinstance(event, AssociationEvent):
