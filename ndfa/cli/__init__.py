@@ -10,6 +10,7 @@ from ndfa.cli import environment  # noqa: F401  (first: before anything imports 
 from ndfa.cli import ingest  # noqa: F401
 from ndfa.cli import ndf  # noqa: F401
 from ndfa.cli import detect  # noqa: F401
+from ndfa.cli import plant  # noqa: F401
 from ndfa.cli import view  # noqa: F401
 from ndfa.cli import bench  # noqa: F401
 # isort: on
