@@ -23,11 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ndfa.core.conventions import MAX_DEPTH_M, MIN_DEPTH_M
+from ndfa.core.conventions import MAX_DEPTH_M, MIN_DEPTH_M, is_visible
 from ndfa.core.errors import OptionError, RecordingError
 from ndfa.core.geometry import invert_pose, make_pose, rotation_z
 from ndfa.core.progress import LabelledProgress
-from ndfa.eval.scoring import is_visible
 from ndfa.io.recording import RecordingReader, RecordingWriter
 from ndfa.run.plant_plan import CLEARANCE_M, PlantedObject, auto_plan, load_mesh, mesh_color
 from ndfa.run.world import prepare_session
