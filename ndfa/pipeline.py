@@ -21,7 +21,8 @@ from ndfa.core.frame import Frame
 from ndfa.core.geometry import transform_points
 from ndfa.ndf.encoder import EncoderConfig, NDFEncoder, ObjectCode
 from ndfa.perception.observations import Observation, ObservationConfig, SkippedObservation, extract_observations
-from ndfa.perception.segmentation import SegmentationConfig, segment_frame
+from ndfa.perception.segmentation import segment_frame
+from ndfa.perception.segmentation_config import SegmentationConfig
 
 SESSIONS = ("source", "target")
 

@@ -23,7 +23,8 @@ import numpy as np
 from ndfa.eval.segmentation import match_segments
 from ndfa.io.recording import RecordingReader
 from ndfa.perception.objectness import ObjectnessConfig, rejection
-from ndfa.perception.segmentation import SegmentationConfig, explain_frame
+from ndfa.perception.segmentation import explain_frame
+from ndfa.perception.segmentation_config import SegmentationConfig
 
 
 def main() -> None:

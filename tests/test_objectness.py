@@ -14,7 +14,8 @@ from ndfa.core.frame import Frame
 from ndfa.core.geometry import make_pose, matrix_from_quaternion_xyzw
 from ndfa.perception.dbscan import dbscan
 from ndfa.perception.objectness import ObjectnessConfig, cluster_shape, judge, rejection
-from ndfa.perception.segmentation import SegmentationConfig, _world_points, explain_frame
+from ndfa.perception.segmentation import _world_points, explain_frame
+from ndfa.perception.segmentation_config import SegmentationConfig
 from ndfa.perception.split import split_in_two
 
 REDKITCHEN = Path(__file__).resolve().parents[2] / "shared" / "data" / "redkitchen_7scenes"

@@ -12,8 +12,9 @@ from typer.testing import CliRunner
 
 import ndfa.eval.sweep as sweep
 from ndfa.cli import app
+from ndfa.core.errors import SweepError
 from ndfa.eval.plots import plot_sweep
-from ndfa.eval.sweep import SweepError, SweepSpec, cell_config, load_results, parse_seeds, run_sweep
+from ndfa.eval.sweep import SweepSpec, cell_config, load_results, parse_seeds, run_sweep
 
 TINY = dict(preset="sample", step_m=0.6)  # the sample scene with half its frames
 

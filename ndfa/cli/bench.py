@@ -46,7 +46,7 @@ def bench_command(
     if what == "segment":
         from ndfa.eval.segmentation import segmentation_recall
         from ndfa.io.recording import RecordingReader
-        from ndfa.perception.segmentation import SegmentationConfig
+        from ndfa.perception.segmentation_config import SegmentationConfig
 
         reader = RecordingReader(recording)
         r = segmentation_recall(reader.frames(step=step), SegmentationConfig())

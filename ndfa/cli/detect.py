@@ -263,7 +263,7 @@ def segment_command(
                                          callback=at_least_one),
 ) -> None:
     """Copy a recording with its instance masks replaced by the geometric segmentation (planes + DBSCAN)."""
-    from ndfa.perception.segmentation import SegmentationConfig
+    from ndfa.perception.segmentation_config import SegmentationConfig
     from ndfa.run.segment import segment_recording
 
     with progress_bar() as progress:

@@ -43,5 +43,9 @@ class OutputError(NdfaError):
     """An output cannot be written where asked (a directory or special file in the way, no writable folder)."""
 
 
+class SweepError(NdfaError):
+    """A sweep (`ndfa eval --sweep`) cannot be set up, resumed or run as asked."""
+
+
 class ViewerError(NdfaError):
     """A recording cannot be shown: no display for the desktop viewer, or the web viewer cannot serve."""

@@ -10,7 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ndfa.core.conventions import depth_in_range
-from ndfa.perception.segmentation import SegmentationConfig, segment_frame
+from ndfa.perception.segmentation import segment_frame
+from ndfa.perception.segmentation_config import SegmentationConfig
 
 
 def relabel_to_truth(segments: np.ndarray, truth: np.ndarray, valid: np.ndarray | None = None,

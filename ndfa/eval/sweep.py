@@ -28,7 +28,8 @@ from pathlib import Path
 
 import polars as pl
 
-from ndfa.core.errors import NdfaError
+from ndfa.core.errors import SweepError
+from ndfa.eval.sweep_ray import run_cells_on_ray
 from ndfa.io.atomic import write_parquet
 
 METHODS = ("NN", "PMT", "ndfa")
@@ -41,10 +42,6 @@ SCHEMA = {
     "precision": pl.Float64, "recall": pl.Float64, "f1": pl.Float64, "seconds": pl.Float64,
     "render_seconds": pl.Float64,
 }
-
-
-class SweepError(NdfaError):
-    """A sweep cannot be set up, resumed or run as asked."""
 
 
 @dataclass(frozen=True)
@@ -303,8 +300,6 @@ def run_sweep(spec: SweepSpec, out: Path, workers: int | None = None, address: s
         if not pending:
             pass
         elif ray is not None:
-            from ndfa.eval.sweep_ray import run_cells_on_ray
-
             run_one = functools.partial(_run_cell_safely, workdir=workdir, threads=1, compute=compute)
             lost = run_cells_on_ray(pending, run_one, collect, address)
         elif workers == 1:

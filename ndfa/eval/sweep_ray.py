@@ -16,17 +16,25 @@ removes at the end.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol, TypeVar
 
-if TYPE_CHECKING:
-    from ndfa.eval.sweep import Cell
+from ndfa.core.errors import SweepError
 
 LOST_CELL_RESUBMITS = 3  # a cell whose worker or node died is run again this many times before it counts as failed
 
-CellResult = tuple["Cell", "list[dict[str, Any]] | None", "str | None"]
+
+class KeyedCell(Protocol):
+    """What this module needs of a cell (`ndfa.eval.sweep.Cell`): a key naming it in the results."""
+
+    @property
+    def key(self) -> str: ...
 
 
-def _run(run_one: Callable[[Cell], CellResult], cell: Cell) -> CellResult:
+C = TypeVar("C", bound=KeyedCell)
+CellResult = tuple[C, list[dict[str, Any]] | None, str | None]  # the cell, its rows or None, its error or None
+
+
+def _run(run_one: Callable[[C], CellResult[C]], cell: C) -> CellResult[C]:
     """The Ray task: a module-level function, so that workers import it instead of unpickling code."""
     return run_one(cell)
 
@@ -59,8 +67,6 @@ def connect(address: str | None) -> bool:
     connected. Returns whether it connected, i.e. whether the caller should `ray.shutdown()`."""
     import ray
 
-    from ndfa.eval.sweep import SweepError
-
     if ray.is_initialized():
         return False
     if address is not None and not _answers(address):
@@ -74,8 +80,8 @@ def connect(address: str | None) -> bool:
     return True
 
 
-def run_cells_on_ray(cells: Sequence[Cell], run_one: Callable[[Cell], CellResult],
-                     collect: Callable[[Cell, "list[dict[str, Any]] | None", "str | None"], None],
+def run_cells_on_ray(cells: Sequence[C], run_one: Callable[[C], CellResult[C]],
+                     collect: Callable[[C, list[dict[str, Any]] | None, str | None], None],
                      address: str | None = None, resubmits: int = LOST_CELL_RESUBMITS) -> dict[str, str]:
     """Run `run_one(cell)` for every cell on Ray and hand each result to `collect` as it arrives.
 

@@ -9,12 +9,10 @@ consensus search is exhaustive rather than random. Pure numpy; no I/O.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-if TYPE_CHECKING:
-    from ndfa.perception.segmentation import SegmentationConfig
+from ndfa.perception.segmentation_config import SegmentationConfig
 
 _REFIT_WINDOWS = (2.5, 1.5, 1.0, 1.0)  # inlier windows of the successive refits, in plane_distance_m
 _THIN = 4  # the plane search uses every 4th sampled point: its counts only rank levels

@@ -17,7 +17,8 @@ from ndfa.core.errors import RecordingError
 from ndfa.core.progress import Progress
 from ndfa.eval.segmentation import relabel_to_truth
 from ndfa.io.recording import RecordingReader, RecordingWriter
-from ndfa.perception.segmentation import SegmentationConfig, segment_frame
+from ndfa.perception.segmentation import segment_frame
+from ndfa.perception.segmentation_config import SegmentationConfig
 
 FRESH_ID = 60000  # segments matching no ground-truth instance get FRESH_ID + label (no mug has such an id)
 

@@ -26,7 +26,8 @@ from ndfa.core.errors import DataError
 from ndfa.core.frame import Frame
 from ndfa.core.geometry import transform_points
 from ndfa.perception.observations import ObservationConfig, extract_observations
-from ndfa.perception.segmentation import SegmentationConfig, segment_frame
+from ndfa.perception.segmentation import segment_frame
+from ndfa.perception.segmentation_config import SegmentationConfig
 
 
 @dataclass(frozen=True)
