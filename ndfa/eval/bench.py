@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ndfa.change.associate import Measurement
+from ndfa.change.detector import ChangeDetector
 from ndfa.io.ingest.synthetic import SESSION_START, render_objects
 from ndfa.io.recording import Frame, RecordingReader, RecordingWriter
 from ndfa.sim.presets import make_config
@@ -78,6 +80,7 @@ def bench_ndf(weights: Path | None = None, repeats: int = 30, points: int = 1000
     with the reconstruction grid at the encoder's default resolution and at the detector's 12^3."""
     import torch
 
+    # torch, with the NDF: here and not at the top, so that `ndfa bench sim` and `scaling` run without it
     from ndfa.ndf.encoder import FINE_GRID_RESOLUTION, EncoderConfig, NDFEncoder
 
     torch.set_num_threads(threads)
@@ -124,6 +127,7 @@ def bench_detect(source: Path, target: Path, threads: int = 1, frame_step: int =
     without, reading is the pass's wall time minus the stages."""
     import torch
 
+    # torch, with the NDF: here and not at the top, so that `ndfa bench sim` and `scaling` run without it
     from ndfa.ndf.encoder import EncoderConfig
     from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
     from ndfa.run.detect import RunOptions, run_detection
@@ -185,9 +189,6 @@ def bench_detection_scaling(sizes: tuple[int, ...] = (40, 100, 1000, 10_000), fr
                             per_frame: int = 4, seed: int = 0) -> list[dict]:
     """ms per target frame of the detection step alone (tree, association, graphs) with maps of
     `size` objects: mugs in groups of four on tables 1.5 m apart, the target revisiting them."""
-    from ndfa.change.associate import Measurement
-    from ndfa.change.detector import ChangeDetector
-
     rows = []
     for size in sizes:
         rng = np.random.default_rng(seed)

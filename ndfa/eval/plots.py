@@ -7,7 +7,8 @@ from pathlib import Path
 
 import polars as pl
 
-from ndfa.eval.sweep import METHODS, SweepError
+from ndfa.core.errors import SweepError
+from ndfa.eval.sweep import METHODS
 from ndfa.io.atomic import atomic_path
 
 COLOURS = {"NN": (31, 119, 180), "PMT": (255, 127, 14), "ndfa": (44, 160, 44)}

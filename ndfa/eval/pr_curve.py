@@ -29,6 +29,7 @@ import polars as pl
 from ndfa.core.events import CHANGE_SCORE
 from ndfa.eval.scoring import score
 from ndfa.io.atomic import atomic_path, write_parquet
+from ndfa.run.replay import replay, reported_at
 
 COLUMNS = ("method", "threshold", "default", "tp", "fp", "fn", "precision", "recall")
 COLOURS = {"NN": (31, 119, 180), "PMT": (255, 127, 14), "ndfa": (44, 160, 44)}
@@ -75,8 +76,6 @@ def pr_curves(decisions: list, baselines: dict[str, tuple[dict[int, float], floa
               visible: dict[str, set[int]]) -> PRCurves:
     """ndfa's curve from its decisions (a replay's, with scores), the baselines' from their
     candidate scores and default thresholds (name -> (scores, threshold))."""
-    from ndfa.run.replay import reported_at
-
     thresholds = [float(d.score) for d in decisions if np.isfinite(d.score)]
     parts = [sweep("ndfa", lambda t: reported_at(decisions, t), thresholds, CHANGE_SCORE, truth, visible)]
     for name, (scores, default) in baselines.items():
@@ -91,8 +90,6 @@ def evaluation_curves(result, observations: pl.DataFrame) -> PRCurves:
     """The curves of an `ndfa.eval.table.evaluate_methods` run: ndfa's by replaying `observations`
     (its run's observations table) with the run's registration prior, the baselines' from the
     baselines it ran. A note says when the replay's default point differs from the run's."""
-    from ndfa.run.replay import replay
-
     alignment = result.detection.alignment if result.detection is not None else None
     replayed = replay(observations, prior=None if alignment is None else alignment.prior())
     baselines = {name: (b.candidate_scores(), b.threshold) for name, b in result.baselines.items()}

@@ -31,6 +31,8 @@ import polars as pl
 from ndfa.core.errors import SweepError
 from ndfa.eval.sweep_ray import run_cells_on_ray
 from ndfa.io.atomic import write_parquet
+from ndfa.sim.noise import DepthNoise
+from ndfa.sim.presets import make_config
 
 METHODS = ("NN", "PMT", "ndfa")
 ROUTES_FOR_OVERLAP = ("perimeter", "corridor", "weave", "circles")
@@ -97,8 +99,6 @@ def _drift(config, value: str) -> dict:
 
 
 def _noise(config, value: str) -> dict:
-    from ndfa.sim.noise import DepthNoise
-
     k = float(value)
     return {"depth_noise": DepthNoise.off() if k == 0 else DepthNoise().scaled(k)}
 
@@ -162,8 +162,6 @@ def parse_seeds(text: str) -> tuple[int, ...]:
 
 
 def cell_config(cell: Cell):
-    from ndfa.sim.presets import make_config
-
     base = make_config(cell.preset, cell.seed)
     overrides = AXES[cell.axis](base, cell.value)
     if cell.step_m is not None:
@@ -175,6 +173,7 @@ def run_cell(cell: Cell, workdir: Path, threads: int | None = None) -> list[dict
     """Render the cell's scene into a temporary directory under `workdir` (on a cluster node that
     cannot make it: the node's temporary folder), evaluate the three methods on it and return one row
     per method. The recordings are deleted afterwards."""
+    # torch and open3d (the methods, the renderer) load only where cells are computed, not in the driver or plots
     from ndfa.eval.table import evaluate_methods
     from ndfa.io.ingest.synthetic import ingest_sim
 

@@ -27,6 +27,8 @@ from ndfa.eval.scoring import rotated_reports, score
 from ndfa.io.atomic import atomic_path, write_parquet
 from ndfa.io.recording import Frame, RecordingReader
 from ndfa.perception.observations import ObservationConfig
+from ndfa.pipeline import PipelineConfig
+from ndfa.run.detect import RunOptions, run_detection
 
 
 @dataclass(frozen=True)
@@ -107,9 +109,6 @@ def evaluate_methods(source: Path, target: Path, nn: NNConfig = NNConfig(), tsdf
     """Run ndfa, NN and PMT on the pair and score them alike. `on_frame(label, done, total)` follows
     each method's pass over each session, labelled "METHOD SESSION" (e.g. "NN source"); `sinks`
     hear ndfa's run (as `ndfa detect`'s)."""
-    from ndfa.pipeline import PipelineConfig
-    from ndfa.run.detect import RunOptions, run_detection
-
     source_reader, target_reader, truth = open_for_baselines(Path(source), Path(target))
     visible: dict[str, set[int]] = {"source": set(), "target": set()}
     reported: dict[str, list[int]] = {}

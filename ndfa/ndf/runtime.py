@@ -23,6 +23,7 @@ import numpy as np
 import torch
 
 from ndfa.core.errors import ModelError
+from ndfa.ndf.export_onnx import export_onnx
 from ndfa.ndf.model import NDFModel
 
 RUNTIMES = ("auto", "onnxruntime", "torch")
@@ -69,8 +70,6 @@ class OnnxRuntime:
 
     def __init__(self, model: NDFModel, n_points: int, threads: int = 1) -> None:
         import onnxruntime
-
-        from ndfa.ndf.export_onnx import export_onnx
 
         options = onnxruntime.SessionOptions()
         options.intra_op_num_threads = threads

@@ -30,6 +30,7 @@ from ndfa.core.errors import TrajectoryError
 from ndfa.core.frame import Frame
 from ndfa.core.geometry import backproject, project
 from ndfa.trajectory.checks import GapClock
+from ndfa.trajectory.refine import refine_point_to_plane
 
 # Below this many valid depth points a frame is not registered: its pose is the constant-velocity
 # prediction (the camera keeps its last motion), and the frame is counted as starved.
@@ -217,11 +218,7 @@ class DepthOdometry:
         """Point-to-plane refinement (`refine.py`) of KISS-ICP's pose against the map points the
         camera can see. Rejected (KISS-ICP's pose kept) when less than half of the points find a
         plane or the correction exceeds twice the refinement distance."""
-        import open3d as o3d
-
-        # Imported here, as open3d: scipy is slow to import, and the CLI imports this module for
-        # OdometryConfig's defaults on every call.
-        from ndfa.trajectory.refine import refine_point_to_plane
+        import open3d as o3d  # here: slow to import, and the CLI imports this module for OdometryConfig's defaults
 
         config = self.config
         visible = _visible(self._kiss.local_map.point_cloud(), pose, K, image_size, config)

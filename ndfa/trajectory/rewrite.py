@@ -27,6 +27,7 @@ from ndfa.core.errors import TrajectoryError
 from ndfa.core.progress import Progress
 from ndfa.io.atomic import Staged
 from ndfa.io.recording import RecordingReader, RecordingWriter
+from ndfa.io.recording.writer import _WRITER_META_KEYS
 from ndfa.trajectory.checks import InputWarning
 from ndfa.trajectory.kiss import OdometryConfig
 from ndfa.trajectory.metrics import AbsoluteError, RelativeError, absolute_trajectory_error, relative_pose_error
@@ -202,8 +203,6 @@ def _add_errors(report: PoseReport, estimate: list[np.ndarray], reference: list[
 
 def _output_meta(meta: dict, method: str, config: OdometryConfig | RgbdOdometryConfig) -> dict:
     """The input's meta (less what the writer sets itself), with the poses' provenance."""
-    from ndfa.io.recording.writer import _WRITER_META_KEYS
-
     output = {key: value for key, value in meta.items() if key not in _WRITER_META_KEYS}
     output["poses"] = method
     output["pose_estimation"] = {"method": method, "config": config.to_dict(), "input_poses": meta.get("poses"),
