@@ -1,4 +1,4 @@
-"""`ndfa train`, `ndfa ndf-export` and `ndfa ndf-eval`: the NDF model."""
+"""`ndfa train`: train the NDF on rendered partial views of procedural mugs."""
 
 from __future__ import annotations
 
@@ -7,7 +7,6 @@ from typing import Optional
 
 import typer
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-from rich.table import Table
 
 from ndfa.cli.app import app, console, err_console
 from ndfa.cli.checks import (
@@ -21,6 +20,8 @@ from ndfa.cli.checks import (
     output_file,
     positive,
 )
+from ndfa.ndf.config import NDFConfig
+from ndfa.sim.sensor_artifacts import SensorArtifacts
 
 
 @app.command("train")
@@ -80,8 +81,7 @@ def train_command(
                                        callback=output_file),
 ) -> None:
     """Train the NDF on rendered partial views of train-split procedural mugs (CPU)."""
-    from ndfa.ndf.config import NDFConfig
-    from ndfa.sim.sensor_artifacts import SensorArtifacts
+    # lazy: training imports torch and open3d (seconds)
     from ndfa.training.train import TrainConfig, train
     from ndfa.training.views import ViewConfig
 
@@ -98,7 +98,7 @@ def train_command(
         train_only=train_only, init_fresh=init_fresh)
     recorder = None
     if log is not None:
-        import rerun as rr
+        import rerun as rr  # lazy: about a second to import
 
         recorder = rr.RecordingStream("ndfa_train")
         recorder.save(str(log))
@@ -129,77 +129,3 @@ def train_command(
 
         train(config, out, resume=resume, data_dir=data_dir, on_step=on_step, on_epoch=on_epoch)
     console.print(f"checkpoint and metrics in {out}")
-
-
-@app.command("ndf-export")
-def ndf_export_command(
-    checkpoint: Path = typer.Argument(..., help="A training checkpoint (RUN/checkpoint.pt).", callback=checkpoint),
-    to: Optional[Path] = typer.Option(None, help="Destination (default: the package's shipped weights).",
-                                      callback=output_file),
-) -> None:
-    """Strip a training checkpoint to the weights the package ships and loads by default."""
-    from ndfa.ndf.encoder import DEFAULT_WEIGHTS
-    from ndfa.training.checkpoint import export_weights
-
-    destination = to or DEFAULT_WEIGHTS
-    export_weights(checkpoint, destination)
-    console.print(f"wrote {destination} ({destination.stat().st_size / 1e6:.2f} MB)")
-
-
-@app.command("ndf-eval")
-def ndf_eval_command(
-    weights: list[Path] = typer.Option(None, "--weights", "-w", help="Checkpoint(s) to evaluate (default: the shipped weights).",
-                                       callback=checkpoint),
-    out: Path = typer.Option(Path("out/ndf-eval"), "--out", "-o", help="Directory for summary.parquet and views.parquet.",
-                             callback=output_dir),
-    mugs: int = typer.Option(20, help="Held-out test-split mugs.", callback=at_least_one),
-    views_per_mug: int = typer.Option(50, help="Partial views per mug.", callback=at_least_one),
-    seed: int = typer.Option(0, help="Seed of the test views.", callback=at_least(0)),
-    v0: float = typer.Option(0.5, help="Occupancy threshold of the reconstruction (the IoU is also swept over a few).",
-                             callback=in_range(gt=0, lt=1)),
-    split: str = typer.Option("test", help="Mug split: test (held out), or train to tune on validation mugs the run did not fit."),
-    first_mug: int = typer.Option(0, help="Index of the first mug in the split (e.g. 1000: the validation mugs after 1,000 training ones).",
-                                  callback=at_least(0)),
-    iou: bool = typer.Option(True, help="Also the reconstruction IoU on a 32^3 grid (most of the time)."),
-    real: Optional[Path] = typer.Option(None, "--real", help="Instead: the real-mug protocol on this TUM folder or .mcap "
-                                        "with given poses (docs/real_mugs.md)."),
-    frame_step: int = typer.Option(2, help="With --real: segment every n-th frame.", callback=at_least_one),
-) -> None:
-    """Model quality on unseen test-split mugs: center error, shape-code retrieval, IoU (--real: on real mugs)."""
-    if real is not None:
-        from ndfa.cli.real_mugs import real_mugs_command
-
-        return real_mugs_command(real, weights, out, frame_step)
-    import polars as pl
-
-    from ndfa.io.atomic import write_parquet
-    from ndfa.training.dataset import generate_views
-    from ndfa.training.ndf_eval import evaluate_ndf
-    from ndfa.training.views import ViewConfig
-
-    if split not in ("test", "train"):
-        raise typer.BadParameter(f"--split must be test or train, got {split!r}")
-    views = generate_views(split, list(range(first_mug, first_mug + mugs)), views_per_mug, seed, ViewConfig())
-    rows = []
-    out.mkdir(parents=True, exist_ok=True)
-    for path in weights or [None]:
-        summary, per_view = evaluate_ndf(path, views=views, v0=v0, iou_grid=32 if iou else 0)
-        name = str(path) if path is not None else "shipped"
-        rows.append({"weights": name, **summary})
-        write_parquet(per_view.with_columns(pl.lit(name).alias("weights")), out / f"views-{len(rows)}.parquet")
-    table = Table(title=f"ndfa ndf-eval: {split}-split mugs {first_mug}-{first_mug + mugs - 1} x {views_per_mug} views")
-    table.add_column("figure")
-    for row in rows:
-        table.add_column(Path(row["weights"]).parent.name or row["weights"], justify="right")
-    for key in rows[0]:
-        if key != "weights":
-            table.add_row(key, *(f"{row[key]:.3f}" for row in rows))
-    console.print(table)
-    for row in rows:  # the headline: the detector's regime
-        console.print(
-            f"[bold]{row['weights']}[/bold], {row['views_within_2m']:.0f} views with the mug within 2 m and >= 300 points: "
-            f"center {row['center_median_mm_head_within_2m']:.1f} / {row['center_p90_mm_head_within_2m']:.1f} mm (median / p90), "
-            f"retrieval top-1 {row.get('retrieval_top1_within_2m', float('nan')):.3f}, "
-            f"box twins merged {row.get('retrieval_top1_within_2m_twins_merged', float('nan')):.3f}")
-    write_parquet(pl.DataFrame(rows), out / "summary.parquet")
-    console.print(f"tables in {out}")

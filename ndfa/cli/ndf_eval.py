@@ -1,0 +1,71 @@
+"""`ndfa ndf-eval`: the model's quality on unseen mugs, or on real ones (`--real`: `ndfa.cli.real_mugs`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.table import Table
+
+from ndfa.cli.app import app, console
+from ndfa.cli.checks import at_least, at_least_one, checkpoint, in_range, output_dir
+from ndfa.cli.real_mugs import real_mugs_command
+from ndfa.io.atomic import write_parquet
+
+
+@app.command("ndf-eval")
+def ndf_eval_command(
+    weights: list[Path] = typer.Option(None, "--weights", "-w", help="Checkpoint(s) to evaluate (default: the shipped weights).",
+                                       callback=checkpoint),
+    out: Path = typer.Option(Path("out/ndf-eval"), "--out", "-o", help="Directory for summary.parquet and views.parquet.",
+                             callback=output_dir),
+    mugs: int = typer.Option(20, help="Held-out test-split mugs.", callback=at_least_one),
+    views_per_mug: int = typer.Option(50, help="Partial views per mug.", callback=at_least_one),
+    seed: int = typer.Option(0, help="Seed of the test views.", callback=at_least(0)),
+    v0: float = typer.Option(0.5, help="Occupancy threshold of the reconstruction (the IoU is also swept over a few).",
+                             callback=in_range(gt=0, lt=1)),
+    split: str = typer.Option("test", help="Mug split: test (held out), or train to tune on validation mugs the run did not fit."),
+    first_mug: int = typer.Option(0, help="Index of the first mug in the split (e.g. 1000: the validation mugs after 1,000 training ones).",
+                                  callback=at_least(0)),
+    iou: bool = typer.Option(True, help="Also the reconstruction IoU on a 32^3 grid (most of the time)."),
+    real: Optional[Path] = typer.Option(None, "--real", help="Instead: the real-mug protocol on this TUM folder or .mcap "
+                                        "with given poses (docs/real_mugs.md)."),
+    frame_step: int = typer.Option(2, help="With --real: segment every n-th frame.", callback=at_least_one),
+) -> None:
+    """Model quality on unseen test-split mugs: center error, shape-code retrieval, IoU (--real: on real mugs)."""
+    if real is not None:
+        return real_mugs_command(real, weights, out, frame_step)
+    # lazy: polars, and the views' renderer and the model's torch and open3d (seconds)
+    import polars as pl
+
+    from ndfa.training.dataset import generate_views
+    from ndfa.training.ndf_eval import evaluate_ndf
+    from ndfa.training.views import ViewConfig
+
+    if split not in ("test", "train"):
+        raise typer.BadParameter(f"--split must be test or train, got {split!r}")
+    views = generate_views(split, list(range(first_mug, first_mug + mugs)), views_per_mug, seed, ViewConfig())
+    rows = []
+    out.mkdir(parents=True, exist_ok=True)
+    for path in weights or [None]:
+        summary, per_view = evaluate_ndf(path, views=views, v0=v0, iou_grid=32 if iou else 0)
+        name = str(path) if path is not None else "shipped"
+        rows.append({"weights": name, **summary})
+        write_parquet(per_view.with_columns(pl.lit(name).alias("weights")), out / f"views-{len(rows)}.parquet")
+    table = Table(title=f"ndfa ndf-eval: {split}-split mugs {first_mug}-{first_mug + mugs - 1} x {views_per_mug} views")
+    table.add_column("figure")
+    for row in rows:
+        table.add_column(Path(row["weights"]).parent.name or row["weights"], justify="right")
+    for key in rows[0]:
+        if key != "weights":
+            table.add_row(key, *(f"{row[key]:.3f}" for row in rows))
+    console.print(table)
+    for row in rows:  # the headline: the detector's regime
+        console.print(
+            f"[bold]{row['weights']}[/bold], {row['views_within_2m']:.0f} views with the mug within 2 m and >= 300 points: "
+            f"center {row['center_median_mm_head_within_2m']:.1f} / {row['center_p90_mm_head_within_2m']:.1f} mm (median / p90), "
+            f"retrieval top-1 {row.get('retrieval_top1_within_2m', float('nan')):.3f}, "
+            f"box twins merged {row.get('retrieval_top1_within_2m_twins_merged', float('nan')):.3f}")
+    write_parquet(pl.DataFrame(rows), out / "summary.parquet")
+    console.print(f"tables in {out}")
