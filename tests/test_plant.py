@@ -15,11 +15,11 @@ from ndfa.core.frame import Frame
 from ndfa.core.geometry import look_at, make_pose
 from ndfa.io.recording import RecordingReader, RecordingWriter
 from ndfa.run.plant import run_plant
-from ndfa.run.plant_plan import load_mesh, read_plan
+from ndfa.run.plant_plan import PlantedObject, load_mesh, read_plan
 from ndfa.sim.camera import PinholeCamera
 from ndfa.sim.mesh import box_mesh
 from ndfa.sim.noise import DepthNoise
-from ndfa.sim.plant import Cylinder, MeshInserter, SupportPlane, remove_object
+from ndfa.sim.plant import ColorGrid, Cylinder, MeshInserter, SupportPlane, remove_object
 from ndfa.sim.render import RenderObject, SceneRenderer
 
 CAMERA = PinholeCamera.from_fov(320, 240, 60.0)  # a mug shows the pixels that make it visible
@@ -168,3 +168,26 @@ def test_a_plan_off_every_support_fails_naming_the_object(pair, tmp_path):
     with pytest.raises(OptionError, match="far: no support surface found at"):
         run_plant(pair[0], pair[1], tmp_path / "out", read_plan(plan), noise=OFF)
     assert not (tmp_path / "out").exists()
+
+
+def test_auto_places_a_moved_and_an_added_mug_on_free_table_apart_from_the_real_one(pair, tmp_path):
+    real = [PlantedObject("real mug", "unchanged", True, MUG_AT, MUG_AT)]
+    first = run_plant(*pair, tmp_path / "a", real, auto_seed=3, noise=OFF).objects
+    assert [o.change for o in first] == ["removed", "moved", "added"]
+    moved, added = first[1], first[2]
+    assert np.linalg.norm(moved.source_xy - moved.target_xy) >= 0.5
+    for xy in (moved.source_xy, moved.target_xy, added.target_xy):
+        assert abs(xy[0]) <= 0.8 - 0.12 and abs(xy[1]) <= 0.6 - 0.12  # on the table, its footprint too
+        assert np.linalg.norm(xy - MUG_AT) >= 0.25
+    again = run_plant(*pair, tmp_path / "b", real, auto_seed=3, noise=OFF).objects
+    assert all(a.describe() == b.describe() for a, b in zip(first, again))
+
+
+def test_colour_grid_maps_the_depth_grid_onto_a_colour_camera_of_its_own():
+    depth_K = np.array([[585.0, 0, 320], [0, 585, 240], [0, 0, 1]])
+    image = np.zeros((480, 640), dtype=np.uint8)
+    image[240, 320 + 117] = 1  # 0.2 rad right of the axis in the depth camera
+    warped = ColorGrid(depth_K, np.array([[526.5, 0, 315], [0, 526.5, 238], [0, 0, 1]])).warp(image)
+    rows, cols = np.nonzero(warped)
+    assert set(rows) == {238} and abs(cols.mean() - (315 + 0.2 * 526.5)) <= 1.0
+    assert np.array_equal(ColorGrid(depth_K, depth_K).warp(image), image)

@@ -30,6 +30,9 @@ def plant_command(
     log: Optional[Path] = typer.Option(None, help="Write frames before and after planting to this Rerun file (.rrd).",
                                        callback=output_file),
     preview_every: int = typer.Option(25, help="Every N-th frame in the --log preview.", callback=at_least_one),
+    color_intrinsics: Optional[str] = typer.Option(
+        None, help="fx,fy,cx,cy of the colour images when they are not registered to the depth (their own "
+        "camera beside the depth camera; 7-Scenes: 526.5,526.5,315,238 against its depth's 585,585,320,240)."),
 ) -> None:
     """Plant changes into a pair of recordings: a real object removed (the support behind it, depth and
     colour), meshes added or moved (ray cast with the recording's intrinsics and a sensor noise model,
@@ -37,12 +40,14 @@ def plant_command(
     from ndfa.run.plant import run_plant
     from ndfa.run.plant_plan import read_plan
 
+    color_K = None if color_intrinsics is None else _intrinsics(color_intrinsics)
     objects = [] if plan is None else read_plan(plan)
     if not objects and not auto:
         err_console.print("warning: nothing to plant (no --plan, no --auto): the copies equal the recordings")
     with progress_bar() as progress:
         result = run_plant(source, target, out, objects, auto_seed=seed if auto else None, log=log,
-                           preview_every=preview_every, on_frame=bar_per_label(progress, "planting "))
+                           preview_every=preview_every, color_K=color_K,
+                           on_frame=bar_per_label(progress, "planting "))
     table = Table(title=f"planted -> {out}")
     for column in ("object", "change", "source (x, y)", "target (x, y)"):
         table.add_column(column)
@@ -55,3 +60,19 @@ def plant_command(
         err_console.print(f"{session}: {path} ({result.frames[session]} frames, {result.edited[session]} edited)")
     for note in result.notes:
         err_console.print(f"note: {note}", highlight=False)
+
+
+def _intrinsics(text: str):
+    import math
+
+    import numpy as np
+
+    from ndfa.core.errors import OptionError
+
+    try:
+        fx, fy, cx, cy = (float(v) for v in text.split(","))
+    except ValueError:
+        raise OptionError(f"--color-intrinsics must be fx,fy,cx,cy (four numbers), got {text!r}") from None
+    if not all(math.isfinite(v) for v in (fx, fy, cx, cy)) or fx <= 0 or fy <= 0:
+        raise OptionError(f"--color-intrinsics needs finite numbers and positive focal lengths, got {text!r}")
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])

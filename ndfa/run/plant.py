@@ -31,7 +31,7 @@ from ndfa.io.recording import RecordingReader, RecordingWriter
 from ndfa.run.plant_plan import CLEARANCE_M, PlantedObject, auto_plan, load_mesh, mesh_color
 from ndfa.run.world import prepare_session
 from ndfa.sim.noise import DepthNoise
-from ndfa.sim.plant import Cylinder, MeshInserter, camera_of, remove_object, world_points
+from ndfa.sim.plant import ColorGrid, Cylinder, MeshInserter, camera_of, remove_object, world_points
 from ndfa.sim.plant_place import free_spots, largest_plane, support_at
 from ndfa.sim.render import RenderObject
 
@@ -66,9 +66,11 @@ class _Placed:
 
 def run_plant(source: Path, target: Path, out_dir: Path, plan: list[PlantedObject], auto_seed: int | None = None,
               log: Path | None = None, preview_every: int = 25, noise: DepthNoise = DepthNoise(),
-              on_frame: LabelledProgress | None = None) -> PlantResult:
+              color_K: np.ndarray | None = None, on_frame: LabelledProgress | None = None) -> PlantResult:
     """Write `out_dir`/source.mcap and target.mcap (see the module docstring). `plan`: the objects;
-    with `auto_seed`, its real objects are kept and the seed's placements added (`auto_plan`)."""
+    with `auto_seed`, its real objects are kept and the seed's placements added (`auto_plan`).
+    `color_K`: the colour images' own intrinsics when they are not registered to the depth
+    (`ndfa.sim.plant.ColorGrid`); None: they are."""
     readers = {"source": RecordingReader(source), "target": RecordingReader(target)}
     paths = {session: Path(out_dir) / f"{session}.mcap" for session in SESSIONS}
     for session, reader in readers.items():
@@ -110,8 +112,8 @@ def run_plant(source: Path, target: Path, out_dir: Path, plan: list[PlantedObjec
     try:
         for session in SESSIONS:
             frames, edited, pixels = _plant_session(readers[session], writers[session], placed[session],
-                                                    pose_level_world, noise, preview, preview_every, session,
-                                                    on_frame)
+                                                    pose_level_world, noise, color_K, preview, preview_every,
+                                                    session, on_frame)
             result.frames[session], result.edited[session] = frames, edited
             visible[session] = sorted(i for i, n in pixels.items() if is_visible(n))
         truth["visible"] = visible
@@ -181,8 +183,9 @@ def _footprint(vertices: np.ndarray) -> float:
 
 
 def _plant_session(reader: RecordingReader, writer: RecordingWriter, placed: list[_Placed],
-                   pose_level_world: np.ndarray, noise: DepthNoise, preview, preview_every: int, session: str,
-                   on_frame: LabelledProgress | None) -> tuple[int, int, dict[int, int]]:
+                   pose_level_world: np.ndarray, noise: DepthNoise, color_K: np.ndarray | None, preview,
+                   preview_every: int, session: str, on_frame: LabelledProgress | None
+                   ) -> tuple[int, int, dict[int, int]]:
     """Plant `placed` into every frame of `reader`, write them; frames written, frames edited, and
     the pixels each object showed in its fullest view."""
     removed = [p for p in placed if p.obj.real and p.obj.xy(session) is None]
@@ -192,6 +195,7 @@ def _plant_session(reader: RecordingReader, writer: RecordingWriter, placed: lis
     total, edited = len(reader), 0
     for count, frame in enumerate(reader.frames(), start=1):
         camera = camera_of(frame.K, frame.image_size)
+        grid = None if color_K is None else ColorGrid(frame.K, color_K)
         pose = pose_level_world @ frame.pose_world_camera
         rng = np.random.default_rng([frame.index, 7 if session == "source" else 11])
         rgb, depth, changed = frame.rgb, frame.depth, np.zeros(frame.image_size, dtype=bool)
@@ -199,9 +203,9 @@ def _plant_session(reader: RecordingReader, writer: RecordingWriter, placed: lis
             seen = int(np.count_nonzero((depth > 0) & p.region.contains(world_points(depth, camera, pose))))
             pixels[p.instance_id] = max(pixels.get(p.instance_id, 0), seen)
         for p in removed:  # not in this session: not visible in it
-            rgb, depth, hole = remove_object(rgb, depth, camera, pose, p.region, noise, rng)
+            rgb, depth, hole = remove_object(rgb, depth, camera, pose, p.region, noise, rng, grid)
             changed |= hole
-        rgb, depth, shown = inserter.insert(rgb, depth, camera, pose, rng)
+        rgb, depth, shown = inserter.insert(rgb, depth, camera, pose, rng, grid)
         changed |= shown > 0
         ids, counts = np.unique(shown[(shown > 0) & (depth > 0)], return_counts=True)
         for i, n in zip(ids.tolist(), counts.tolist()):

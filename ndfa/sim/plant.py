@@ -36,6 +36,8 @@ ABOVE_PLANE_M = 0.008
 EDGE_PX = 4
 # ... when their point (or, without depth, the plane behind them) lies within this of the cylinder.
 EDGE_REACH_M = 0.05
+# The colour hole reaches this many pixels beyond the depth's.
+COLOR_MARGIN_PX = 4
 # The colour of a hole is taken from plane pixels within this many pixels around it.
 RING_PX = 12
 # The colour fill is smoothed over about this many pixels, so it shows no streaks.
@@ -82,6 +84,34 @@ class Cylinder:
         return (height > ABOVE_PLANE_M) & (height <= self.height + margin) & (self.radial(points) <= self.radius + margin)
 
 
+@dataclass(frozen=True, eq=False)
+class ColorGrid:
+    """The colour image's own pinhole intrinsics, for a recording whose colour is not registered to
+    its depth (7-Scenes: a Kinect's colour camera at about 525 px beside its depth camera's 585).
+    The colour camera is taken to sit at the depth camera (no parallax): a colour pixel sees what
+    the depth pixel along the same ray sees."""
+
+    depth_K: np.ndarray
+    color_K: np.ndarray
+
+    def warp(self, image: np.ndarray, fill: float = 0) -> np.ndarray:
+        """`image` (H, W, ...) on the depth image's grid resampled (nearest) onto the colour image's;
+        colour pixels whose ray leaves the depth image get `fill`."""
+        height, width = image.shape[:2]
+        rows, cols = np.mgrid[0:height, 0:width]
+        u = self.depth_K[0, 2] + self.depth_K[0, 0] / self.color_K[0, 0] * (cols - self.color_K[0, 2])
+        v = self.depth_K[1, 2] + self.depth_K[1, 1] / self.color_K[1, 1] * (rows - self.color_K[1, 2])
+        u, v = np.rint(u).astype(int), np.rint(v).astype(int)
+        inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
+        out = np.full_like(image, fill)
+        out[inside] = image[v[inside], u[inside]]
+        return out
+
+
+def _on_color_grid(image: np.ndarray, grid: ColorGrid | None, fill: float = 0) -> np.ndarray:
+    return image if grid is None else grid.warp(image, fill)
+
+
 def camera_of(K: np.ndarray, image_size: tuple[int, int]) -> PinholeCamera:
     """The pinhole camera of intrinsics `K` for images of (H, W) = `image_size`."""
     return PinholeCamera(width=image_size[1], height=image_size[0], fx=float(K[0, 0]), fy=float(K[1, 1]),
@@ -124,10 +154,11 @@ def object_pixels(depth: np.ndarray, camera: PinholeCamera, pose_world_camera: n
 
 
 def remove_object(rgb: np.ndarray | None, depth: np.ndarray, camera: PinholeCamera, pose_world_camera: np.ndarray,
-                  region: Cylinder, noise: DepthNoise, rng: np.random.Generator
+                  region: Cylinder, noise: DepthNoise, rng: np.random.Generator, grid: ColorGrid | None = None
                   ) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
     """The frame's colour and depth with what stands in `region` replaced by the plane behind it,
-    and the (H, W) bool mask of the pixels replaced."""
+    and the (H, W) bool mask of the depth pixels replaced. `grid`: the colour image's own
+    intrinsics when it is not registered to the depth (None: it is)."""
     hole = object_pixels(depth, camera, pose_world_camera, region)
     if not hole.any():
         return rgb, depth, hole
@@ -139,16 +170,20 @@ def remove_object(rgb: np.ndarray | None, depth: np.ndarray, camera: PinholeCame
     # neighbours of the hole; only the hole's pixels are taken from it.
     noisy = noise.apply(filled, normals, rng, camera)
     out_depth = np.where(hole, noisy, depth).astype(np.float32)
-    out_rgb = None if rgb is None else _fill_colour(rgb, depth, camera, pose_world_camera, region.plane, hole)
+    if rgb is None:
+        return None, out_depth, hole
+    on_plane = (depth > 0) & (np.abs(region.plane.height(world_points(depth, camera, pose_world_camera))) < 0.015)
+    # The colour's edge bleeds past the depth's (the two sensors' resolution, and the registration's
+    # error): the colour hole reaches a few pixels further.
+    color_hole = ndimage.binary_dilation(_on_color_grid(hole, grid), iterations=COLOR_MARGIN_PX)
+    out_rgb = _fill_colour(rgb, color_hole, _on_color_grid(on_plane, grid))
     return out_rgb, out_depth, hole
 
 
-def _fill_colour(rgb: np.ndarray, depth: np.ndarray, camera: PinholeCamera, pose_world_camera: np.ndarray,
-                 plane: SupportPlane, hole: np.ndarray) -> np.ndarray:
+def _fill_colour(rgb: np.ndarray, hole: np.ndarray, on_plane: np.ndarray) -> np.ndarray:
     """`rgb` with the hole's pixels coloured from the nearest plane pixels around it, smoothed."""
     ring = ndimage.binary_dilation(hole, iterations=RING_PX) & ~hole
-    on_plane = ring & (depth > 0) & (np.abs(plane.height(world_points(depth, camera, pose_world_camera))) < 0.015)
-    sources = on_plane if on_plane.sum() >= 10 else ring
+    sources = ring & on_plane if (ring & on_plane).sum() >= 10 else ring
     out = rgb.copy()
     if not sources.any():
         return out
@@ -168,9 +203,11 @@ class MeshInserter:
         self._noise = noise
 
     def insert(self, rgb: np.ndarray | None, depth: np.ndarray, camera: PinholeCamera, pose_world_camera: np.ndarray,
-               rng: np.random.Generator) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
+               rng: np.random.Generator, grid: ColorGrid | None = None
+               ) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
         """The frame with the meshes put in, and the (H, W) uint16 instance id of the mesh each
-        pixel now shows (0: the real scene)."""
+        depth pixel now shows (0: the real scene). `grid`: the colour image's own intrinsics when
+        it is not registered to the depth (None: it is)."""
         shown = np.zeros(depth.shape, dtype=np.uint16)
         if self._renderer is None:
             return rgb, depth, shown
@@ -185,5 +222,6 @@ class MeshInserter:
         out_rgb = None
         if rgb is not None:
             out_rgb = rgb.copy()
-            out_rgb[front] = view.rgb[front]
+            front_color = _on_color_grid(front, grid)
+            out_rgb[front_color] = _on_color_grid(view.rgb, grid)[front_color]
         return out_rgb, out_depth, shown

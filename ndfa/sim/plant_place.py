@@ -20,8 +20,10 @@ MAX_SUPPORT_TILT_DEG = 10.0
 # The grid of the free-spot search; a cell is seen when it holds this many points of the plane.
 CELL_M = 0.04
 MIN_CELL_POINTS = 3
-# What stands on a plane: points this far above it, up to the band of objects.
-STANDING_M = (0.02, 0.35)
+# What stands on a plane: points this far above it, up to the band of objects; a cell is taken when
+# this share of its points stand (a magazine on a table is 1 cm thick, the table's noise at 2.5 m about as much).
+STANDING_M = (0.01, 0.35)
+TAKEN_SHARE = 0.2
 
 
 def support_at(cloud: np.ndarray, xy: np.ndarray, inner_m: float, outer_m: float) -> SupportPlane | None:
@@ -85,10 +87,14 @@ def free_spots(plane: SupportPlane, clouds: list[np.ndarray], clearance_m: float
     """(K, 2) centers of grid cells of `plane` where an object of footprint radius `clearance_m`
     fits: every cloud saw plane in every cell within `clearance_m`, and nothing standing there."""
     seen = _common_cells([_cells(cloud[np.abs(plane.height(cloud)) <= PLANE_BAND_M]) for cloud in clouds])
-    standing = set()
+    standing: set[tuple[int, int]] = set()
     for cloud in clouds:
         height = plane.height(cloud)
-        standing |= _cells(cloud[(height > STANDING_M[0]) & (height < STANDING_M[1])])
+        near = cloud[(height > -PLANE_BAND_M) & (height < STANDING_M[1])]
+        up = (plane.height(near) > STANDING_M[0]).astype(float)
+        keys, inverse = np.unique(np.floor(near[:, :2] / CELL_M).astype(np.int64), axis=0, return_inverse=True)
+        share = np.bincount(inverse.ravel(), weights=up) / np.bincount(inverse.ravel())
+        standing |= {(int(a), int(b)) for (a, b), taken in zip(keys, share) if taken >= TAKEN_SHARE}
     reach = int(np.ceil(clearance_m / CELL_M))
     offsets = [(dx, dy) for dx in range(-reach, reach + 1) for dy in range(-reach, reach + 1)
                if np.hypot(dx, dy) * CELL_M <= clearance_m]
