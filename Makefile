@@ -1,8 +1,9 @@
-# The two commands of the README. Both set everything up first (scripts/setup.sh is idempotent).
+# The two commands of the README, and the developer's quick loop. Each sets everything up first
+# (scripts/setup.sh is idempotent: pip runs only when pyproject.toml changed since the last install).
 VENV ?= .venv
 DEMO_OUT ?= out/demo
 
-.PHONY: setup demo test lint
+.PHONY: setup demo test check lint
 setup:
 	bash scripts/setup.sh
 
@@ -20,3 +21,8 @@ lint: setup
 
 test: setup lint
 	$(VENV)/bin/python -m pytest -q
+
+# The quick loop: lint and the tests not marked slow (`@pytest.mark.slow`: end-to-end runs, training,
+# notebooks, the viewer and the cluster). `make test` runs them all, as CI does.
+check: setup lint
+	$(VENV)/bin/python -m pytest -q -m "not slow"

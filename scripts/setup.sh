@@ -29,14 +29,26 @@ if [ ! -x "$VENV/bin/python" ]; then
     "$PYTHON" -m venv "$VENV"
 fi
 
+# pip runs only when what it installs changed: the stamp holds a hash of the tables of pyproject.toml
+# that decide the install (build-system, project, tool.setuptools). The tools' settings there
+# (pytest, ruff, mypy, import-linter) do not, so editing them does not re-run pip.
 stamp="$VENV/.ndfa-installed"
-if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+wanted=$("$VENV/bin/python" - <<'PY'
+import hashlib, json, tomllib
+with open("pyproject.toml", "rb") as file:
+    pyproject = tomllib.load(file)
+install = {key: pyproject.get(key) for key in ("build-system", "project")}
+install["setuptools"] = pyproject.get("tool", {}).get("setuptools")
+print(hashlib.sha256(json.dumps(install, sort_keys=True).encode()).hexdigest())
+PY
+)
+if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$wanted" ]; then
     "$VENV/bin/pip" install -q --upgrade pip
     # The pinned CPU build first: a looser spec would pull a multi-GB CUDA build.
     "$VENV/bin/pip" install -q torch==2.13.0
     # dev: the test and lint tools; cluster: Ray, so that `make test` also runs the sweep's
     # fault test on a real two-node cluster (tests/test_sweep_cluster.py).
     "$VENV/bin/pip" install -q -e '.[dev,cluster]'
-    touch "$stamp"
+    echo "$wanted" > "$stamp"
 fi
 echo "[setup] ready: $VENV/bin/ndfa"

@@ -5,6 +5,9 @@ the detector with other thresholds -- in well under two minutes."""
 from pathlib import Path
 
 import polars as pl
+import pytest
+
+pytestmark = pytest.mark.slow  # executes a whole notebook: make test runs it, make check does not
 
 NOTEBOOK = Path(__file__).parents[1] / "notebooks" / "analysis.ipynb"
 

@@ -220,6 +220,7 @@ def test_no_poses_needs_kiss_icp(tmp_path):
     assert all(np.allclose(f.pose_world_camera, moved) for f in RecordingReader(tmp_path / "out.mcap").frames())
 
 
+@pytest.mark.slow
 def test_detection_survives_a_ros1_round_trip(tmp_path):
     from ndfa.run.detect import run_detection
 

@@ -108,6 +108,7 @@ def test_baseline_parameters_are_checked():
         TSDFConfig(voxel_m=0.2, submap_length_m=0.32)
 
 
+@pytest.mark.slow
 def test_eval_prints_table_one_and_writes_it_with_precision_recall_curves(tmp_path):
     result = CliRunner().invoke(app, ["eval", str(SAMPLE / "source.mcap"), str(SAMPLE / "target.mcap"),
                                       "--out", str(tmp_path), "--pr-curve"])

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
 from typer.testing import CliRunner
 
 from ndfa.cli import app
@@ -13,6 +14,7 @@ from ndfa.ndf.encoder import DEFAULT_WEIGHTS
 SAMPLE = Path(__file__).parents[1] / "recordings" / "sample"
 
 
+@pytest.mark.slow
 def test_bench_detect_compares_before_and_now_and_under_load():
     result = CliRunner(env={"COLUMNS": "220"}).invoke(app, [
         "bench", "detect", "--source", str(SAMPLE / "source.mcap"), "--target", str(SAMPLE / "target.mcap"),

@@ -47,6 +47,7 @@ def test_summary_scores_the_sample_against_its_ground_truth(run):
     assert "TP" in output and "changes" in output
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("overlap", [True, False])
 def test_a_run_without_sinks_decodes_less_and_decides_the_same(run, overlap):
     """Without sinks each reconstruction is decoded only as far as decisions need
@@ -154,6 +155,7 @@ def test_missing_or_maskless_recordings_are_named(tmp_path):
         run_detection(source, target, PipelineConfig(segmentation=None))  # segmentation off: masks required
 
 
+@pytest.mark.slow
 def test_an_interrupted_run_leaves_readable_outputs(tmp_path):
     from rerun.chunk import RrdReader
 
@@ -173,6 +175,7 @@ def test_an_interrupted_run_leaves_readable_outputs(tmp_path):
     assert observations["frame"].max() == 9 and set(observations["session"]) == {"source"}
 
 
+@pytest.mark.slow
 def test_the_analysis_notebook_runs_on_the_tables(run, monkeypatch):
     import nbformat
     from nbclient import NotebookClient
@@ -199,6 +202,7 @@ def test_sessions_from_different_cameras_are_compared_and_noted(tmp_path):
     assert result.frames == {"source": 2, "target": 2}
 
 
+@pytest.mark.slow
 def test_cli_errors_name_the_file(tmp_path):
     import subprocess
     import sys

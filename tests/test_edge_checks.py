@@ -207,6 +207,7 @@ def _recording(path: Path, box_row: int, depth: float | None) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_detect_says_why_it_decided_nothing(ndfa, tmp_path):
     source = _recording(tmp_path / "source.mcap", 20, 1.0)
     elsewhere = _recording(tmp_path / "elsewhere.mcap", 80, 1.5)

@@ -120,6 +120,7 @@ def one_line_error(result, *fragments):
         assert fragment in lines[0], lines[0]
 
 
+@pytest.mark.slow
 def test_cli_bad_input_gives_one_line_errors(tmp_path):
     one_line_error(run_cli("ingest", "sim", "--preset", "kitchen", "--out", str(tmp_path / "a")), "unknown preset", "kitchen")
 
@@ -142,6 +143,7 @@ def test_cli_bad_input_gives_one_line_errors(tmp_path):
     one_line_error(run_cli("info", str(tmp_path / "missing.mcap")), "missing.mcap")
 
 
+@pytest.mark.slow
 def test_cli_info_on_a_truncated_recording(noiseless, tmp_path):
     _, out, _ = noiseless
     data = (out / "source.mcap").read_bytes()
@@ -189,6 +191,7 @@ def test_bench_reports_every_stage():
         assert result[f"{stage}_ms"] > 0
 
 
+@pytest.mark.slow
 def test_a_bad_option_value_is_one_line_not_a_traceback(tmp_path):
     done = subprocess.run([sys.executable, "-c", "from ndfa.cli import main; main()", "ingest", "sim",
                            "--tables", "foo", "--out", str(tmp_path / "x")], capture_output=True, text=True)

@@ -167,6 +167,7 @@ def test_detect_stops_in_one_line_when_nothing_can_be_tracked(tmp_path):
     assert "frames 0-4 (5 of 5) see only flat surfaces" in textured.notes[0]
 
 
+@pytest.mark.slow
 def test_ndfa_poses_warns_and_stops(tmp_path):
     path = raw_copy(tmp_path / "holes.mcap", without_depth({6}))
     with pytest.warns(InputWarning, match=r"holes\.mcap: frames 6 \(1 of 8\) have no usable depth"):
@@ -177,6 +178,7 @@ def test_ndfa_poses_warns_and_stops(tmp_path):
     assert not (tmp_path / "walls-out.mcap").exists()
 
 
+@pytest.mark.slow
 def test_import_with_estimated_poses_warns_and_stops(tmp_path):
     holes = raw_copy(tmp_path / "holes.mcap", lambda frame: shifted_after(4, 2.0)(without_depth({1, 2})(frame)))
     folder = tmp_path / "tum"

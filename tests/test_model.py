@@ -225,6 +225,7 @@ def toy_batch(generator: torch.Generator, batch: int = 16, n_points: int = 128, 
     return points - centroid, queries - centroid, inside.float()
 
 
+@pytest.mark.slow
 def test_a_tiny_model_learns_toy_occupancy():
     torch.manual_seed(0)
     points, queries, inside = toy_batch(torch.Generator().manual_seed(0))

@@ -136,6 +136,7 @@ def test_cameras_stand_around_the_table_and_look_at_the_mug():
     assert 0.35 < np.mean(distances < 1.0) < 0.65  # log-uniform: half the views nearer than 1 m
 
 
+@pytest.mark.slow
 def test_generation_is_deterministic_and_independent_of_workers_and_order():
     one = generate_views("train", [0, 1, 2], 2, seed=11, config=SMALL, workers=1)
     two = generate_views("train", [2, 0, 1], 2, seed=11, config=SMALL, workers=2)

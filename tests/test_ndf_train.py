@@ -49,6 +49,7 @@ def tiny_run(tmp_path_factory):
     return config, out, metrics
 
 
+@pytest.mark.slow
 def test_training_lowers_the_loss_and_writes_metrics(tiny_run):
     config, out, metrics = tiny_run
     assert metrics["step"].to_list() == [20, 40]
@@ -59,6 +60,7 @@ def test_training_lowers_the_loss_and_writes_metrics(tiny_run):
         assert column in metrics.columns
 
 
+@pytest.mark.slow
 def test_training_resumes_where_it_stopped(tiny_run, tmp_path):
     config, out, metrics = tiny_run
     import dataclasses
@@ -74,6 +76,7 @@ def test_training_resumes_where_it_stopped(tiny_run, tmp_path):
     assert longer["step"].to_list() == [20, 40, 60]
 
 
+@pytest.mark.slow
 def test_encoder_gives_world_frame_codes(tiny_run):
     _, out, _ = tiny_run
     encoder = NDFEncoder(out / "checkpoint.pt")
@@ -89,6 +92,7 @@ def test_encoder_gives_world_frame_codes(tiny_run):
     assert np.allclose(again.shape_code, code.shape_code, atol=1e-6)  # batched vs single: float rounding only
 
 
+@pytest.mark.slow
 def test_encoder_takes_up_from_the_camera_pose(tiny_run):
     """Turning the world under the same camera turns world up as the camera sees it: a model with
     the up cue then encodes the same cloud differently, and the same cloud under a camera turned
@@ -110,6 +114,7 @@ def test_encoder_takes_up_from_the_camera_pose(tiny_run):
     assert not np.allclose(other.shape_code, base.shape_code, atol=1e-3)
 
 
+@pytest.mark.slow
 def test_encoder_refuses_bad_input(tiny_run, tmp_path):
     _, out, _ = tiny_run
     encoder = NDFEncoder(out / "checkpoint.pt")
@@ -131,6 +136,7 @@ def test_encoder_refuses_bad_input(tiny_run, tmp_path):
         NDFEncoder(out / "checkpoint.pt", EncoderConfig(center="median"))
 
 
+@pytest.mark.slow
 def test_evaluation_reports_every_figure(tiny_run):
     from ndfa.training.ndf_eval import evaluate_ndf
 
@@ -146,6 +152,7 @@ def test_evaluation_reports_every_figure(tiny_run):
     assert 0.0 <= summary["iou_mean_true_shape_displaced"] <= 1.0
 
 
+@pytest.mark.slow
 def test_displaced_true_shape_iou_falls_with_the_center_error(tiny_run):
     from ndfa.training.ndf_eval import reconstruction_iou
 
@@ -186,6 +193,7 @@ def test_proxies_of_a_trained_model_start_at_its_mean_codes():
     assert (similarity.argmax(dim=1) == own).float().mean() >= 0.75  # each view sits near its own mug's proxy
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("part", ["code_head", "decoder"])
 def test_refitting_one_part_keeps_the_rest(tiny_run, tmp_path, part):
     import dataclasses
@@ -212,6 +220,7 @@ def test_refitting_one_part_keeps_the_rest(tiny_run, tmp_path, part):
         train(dataclasses.replace(refit, init_weights=None), tmp_path / "no-init")
 
 
+@pytest.mark.slow
 def test_fresh_decoder_of_another_size_trains_with_the_rest_from_init(tiny_run, tmp_path):
     import dataclasses
 
@@ -231,6 +240,7 @@ def test_fresh_decoder_of_another_size_trains_with_the_rest_from_init(tiny_run, 
         train(dataclasses.replace(run, init_fresh="none"), tmp_path / "no-fresh")
 
 
+@pytest.mark.slow
 def test_headline_counts_the_detector_regime_and_box_twins(tiny_run):
     from ndfa.training.ndf_eval import box_twins, evaluate_ndf
 
@@ -246,6 +256,7 @@ def test_headline_counts_the_detector_regime_and_box_twins(tiny_run):
     assert twins.shape == (3, 3) and np.all(np.diag(twins)) and np.array_equal(twins, twins.T)
 
 
+@pytest.mark.slow
 def test_refitting_the_center_fits_each_head_and_keeps_the_rest(tiny_run, tmp_path):
     import dataclasses
 

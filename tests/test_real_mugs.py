@@ -206,6 +206,7 @@ def test_pose_errors_cancel_in_the_pose_free_spreads(rendered):
     assert windows["pose_free_ratio"].is_finite().all()
 
 
+@pytest.mark.slow
 def test_a_recording_of_the_table_gives_the_same_views_through_the_whole_protocol(rendered, tmp_path):
     from ndfa.io.recording import RecordingWriter
 
@@ -251,6 +252,7 @@ def test_bad_folders_fail_with_one_line(tmp_path):
         open_sequence(tmp_path)
 
 
+@pytest.mark.slow
 def test_cli_real_with_a_bad_folder_exits_2_with_one_line_and_keeps_the_old_tables(tmp_path):
     out = tmp_path / "out"
     out.mkdir()
@@ -265,6 +267,7 @@ def test_cli_real_with_a_bad_folder_exits_2_with_one_line_and_keeps_the_old_tabl
 
 # -- the real sequence ---------------------------------------------------------------------------
 
+@pytest.mark.slow
 @pytest.mark.skipif(not REDKITCHEN.is_dir(), reason=f"the 7-Scenes redkitchen sequence is not at {REDKITCHEN} "
                     "(../shared absent)")
 def test_redkitchen_gives_the_white_and_the_patterned_mug_and_finite_figures():

@@ -14,6 +14,8 @@ from ndfa.core.geometry import make_pose
 from ndfa.io.recording import RecordingWriter
 from ndfa.run.detect import RunOptions, run_detection
 
+pytestmark = pytest.mark.slow  # detection on real 7-Scenes frames: make test runs it, make check does not
+
 REDKITCHEN = Path(__file__).resolve().parents[2] / "shared" / "data" / "redkitchen_7scenes"
 
 # The two mugs' centers (x, y) in the dataset's world as `ndfa detect` levels it, found once by running

@@ -78,6 +78,7 @@ def _strip_masks(source: Path, out: Path) -> Path:
     return out
 
 
+@pytest.mark.slow
 def test_detect_runs_on_recordings_without_masks(tmp_path):
     source = _strip_masks(SAMPLE / "source.mcap", tmp_path / "source.mcap")
     target = _strip_masks(SAMPLE / "target.mcap", tmp_path / "target.mcap")
@@ -93,6 +94,7 @@ def test_detect_runs_on_recordings_without_masks(tmp_path):
     assert "segmentation" in result.stage_ms
 
 
+@pytest.mark.slow
 def test_segment_command_writes_a_scorable_copy(tmp_path):
     out = tmp_path / "segmented.mcap"
     result = CliRunner().invoke(app, ["segment", str(SAMPLE / "target.mcap"), "--out", str(out), "--keep-truth"])

@@ -231,6 +231,7 @@ def four(tmp_path_factory):
     return out, result.output
 
 
+@pytest.mark.slow
 def test_four_sessions_history_matches_the_ground_truth_object_for_object(four):
     out, output = four
     summary = json.loads((out / "run.json").read_text())
@@ -245,6 +246,7 @@ def test_four_sessions_history_matches_the_ground_truth_object_for_object(four):
         assert pair["registration"] is not None and pair["score"]["fn"] == 0 and pair["score"]["fp"] == 0
 
 
+@pytest.mark.slow
 def test_four_sessions_tables_and_rerun_file(four):
     from rerun.chunk import RrdReader
 
@@ -268,6 +270,7 @@ def test_four_sessions_tables_and_rerun_file(four):
             ("/history/objects", "session")} <= timelines
 
 
+@pytest.mark.slow
 def test_eval_history_writes_the_pair_and_history_scores(four, tmp_path):
     out, _ = four
     recordings = [str(out / "rec" / f"session_{k}.mcap") for k in range(3)]
@@ -280,6 +283,7 @@ def test_eval_history_writes_the_pair_and_history_scores(four, tmp_path):
     assert pl.read_parquet(tmp_path / "history.parquet")["session"].max() == 2
 
 
+@pytest.mark.slow
 def test_a_pair_of_a_many_session_run_is_the_two_session_detector():
     from ndfa.run.detect import run_detection
     from ndfa.run.sessions import run_sessions
@@ -314,6 +318,7 @@ def turned(tmp_path_factory):
     return recordings, json.loads((out / "run.json").read_text())
 
 
+@pytest.mark.slow
 def test_every_pair_of_a_many_session_run_reports_its_turned_mugs_rotated(turned):
     # The pair's source objects carry their views' handle headings as the two-session run's do
     # (before one `Measurement` builder, the replayed source lost them: no "rotated" in any pair,

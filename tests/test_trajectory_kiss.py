@@ -121,6 +121,7 @@ def walk() -> list[Frame]:
     return frames
 
 
+@pytest.mark.slow
 def test_kiss_icp_follows_a_rendered_walk(walk):
     estimate = estimate_poses(walk, OdometryConfig(threads=1))
     truth = np.array([frame.pose_world_camera for frame in walk])

@@ -142,6 +142,7 @@ def test_loop_closure_removes_injected_drift():
     assert all(np.allclose(a, b) for a, b in zip(unchanged, odometry))
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not REDKITCHEN.is_dir(), reason=f"the real redkitchen sequence is not here ({REDKITCHEN})")
 def test_rgbd_odometry_on_a_slice_of_redkitchen():
     from PIL import Image

@@ -51,6 +51,7 @@ def test_export_then_import_gives_the_recording_back(round_trip, session):
             assert np.abs(a.pose_world_camera_true - b.pose_world_camera_true).max() < 1e-6
 
 
+@pytest.mark.slow
 def test_detection_on_the_round_trip_finds_the_same_changes(round_trip):
     from ndfa.run.detect import run_detection
 

@@ -74,6 +74,7 @@ def test_foreign_mcaps(fuzz_settings):
     run()
 
 
+@pytest.mark.slow
 def test_detect_on_mutated_recordings(fuzz_settings):
     """detect is slow (it loads the NDF): a fifth of the examples of the other generators."""
     seed, messages = TINY.read_bytes(), read_messages(TINY)
