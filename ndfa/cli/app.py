@@ -2,18 +2,57 @@
 
 from __future__ import annotations
 
+import functools
 import sys
 import warnings
+from collections.abc import Callable
+from typing import Any
 
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from typer.core import TyperGroup
 
+from ndfa.cli.checks import command_outputs, refuse_outputs_among_inputs
 from ndfa.core.errors import NdfaError
 from ndfa.core.progress import LabelledProgress
+from ndfa.io.atomic import all_or_nothing
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
-                  help="Robust object-level change detection in RGB-D data with Neural Descriptor Fields.")
+
+class CommandGroup(TyperGroup):
+    """`ndfa` and its groups (`ingest`, `export`). A command runs inside one `all_or_nothing` block:
+    its outputs stay only when it succeeds, each one as it was otherwise (`ndfa.io.atomic`); and
+    once its options are parsed, an output that is one of its inputs is refused before any work."""
+
+    def __init__(self, **attrs: Any) -> None:
+        super().__init__(**attrs)
+        for command in self.commands.values():
+            if not isinstance(command, TyperGroup) and command.callback is not None:
+                command.callback = _checked(command.callback)
+
+    def invoke(self, ctx: typer.Context) -> Any:
+        if ctx.parent is not None:  # a group inside `ndfa`: the outer invoke holds the block
+            return super().invoke(ctx)
+        with command_outputs(), all_or_nothing():
+            return super().invoke(ctx)
+
+
+def _checked(callback: Callable[..., Any]) -> Callable[..., Any]:
+    @functools.wraps(callback)
+    def run(**params: Any) -> Any:
+        refuse_outputs_among_inputs(params)
+        return callback(**params)
+
+    return run
+
+
+def typer_app(**settings: Any) -> typer.Typer:
+    """A Typer app (or group) whose commands run as `CommandGroup` says."""
+    return typer.Typer(cls=CommandGroup, **settings)
+
+
+app = typer_app(add_completion=False, no_args_is_help=True, pretty_exceptions_enable=False,
+                help="Robust object-level change detection in RGB-D data with Neural Descriptor Fields.")
 console = Console()
 err_console = Console(stderr=True)  # progress and messages, so that stdout holds only results
 

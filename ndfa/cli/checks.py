@@ -14,21 +14,29 @@ checks again when it renames):
   FIFO or socket): the rename would replace it;
 - the folder that would hold it must be writable; folders that do not exist yet are made by the
   writer (`--log out/run.rrd` in a fresh checkout), so the nearest existing one is what is tested,
-  and it must be a folder.
+  and it must be a folder;
+- it may not be, or lead to (a link, `..`, a hard link), one of the command's inputs or another of
+  its outputs: the run would destroy what it reads (`refuse_outputs_among_inputs`, once every
+  option is parsed). Each output is also declared to the command's `all_or_nothing` block
+  (`ndfa.io.atomic`), which removes the folders made for it when the command fails.
 """
 
 from __future__ import annotations
 
 import math
+import os
 import stat
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from pathlib import Path
 from typing import Any
 
 import typer
 
 from ndfa.core.errors import OptionError
+from ndfa.io.atomic import declare_output
 
 Callback = Callable[[typer.CallbackParam, Any], Any]
 
@@ -72,26 +80,70 @@ fraction = in_range(ge=0, le=1)    # shares
 at_least_one = at_least(1)      # frame steps, strides, threads, workers
 
 
+# The outputs of the command being parsed: parameter name -> (option as written, path).
+_outputs: ContextVar[dict[str, tuple[str, Path]] | None] = ContextVar("ndfa_cli_outputs", default=None)
+
+
+@contextmanager
+def command_outputs() -> Iterator[None]:
+    """Collect the output options of the command parsed inside the block (`refuse_outputs_among_inputs`)."""
+    token = _outputs.set({})
+    try:
+        yield
+    finally:
+        _outputs.reset(token)
+
+
+def _output(param: typer.CallbackParam, value: Path | None, kind: str | None) -> Path | None:
+    if value is not None:
+        check_output_path(value, option_name(param), kind=kind)
+        outputs = _outputs.get()
+        if outputs is not None and param.name:
+            outputs[param.name] = (option_name(param), value)
+        declare_output(value)
+    return value
+
+
 def output_file(param: typer.CallbackParam, value: Path | None) -> Path | None:
     """A callback for an option naming a file to write: not a directory, not a special file, and
     in a folder that is, or can be made, writable."""
-    if value is not None:
-        check_output_path(value, option_name(param), kind="file")
-    return value
+    return _output(param, value, "file")
 
 
 def output_dir(param: typer.CallbackParam, value: Path | None) -> Path | None:
     """A callback for an option naming a folder to write into (made if missing)."""
-    if value is not None:
-        check_output_path(value, option_name(param), kind="folder")
-    return value
+    return _output(param, value, "folder")
 
 
 def output_path(param: typer.CallbackParam, value: Path | None) -> Path | None:
     """A callback for an output that is a file or a folder depending on other options (`export bag`)."""
-    if value is not None:
-        check_output_path(value, option_name(param), kind=None)
-    return value
+    return _output(param, value, None)
+
+
+def refuse_outputs_among_inputs(params: dict[str, Any]) -> None:
+    """OptionError when an output option of the command (collected by `command_outputs`) is, or
+    resolves to, one of its input paths (every other path-valued parameter) or another output."""
+    outputs = _outputs.get() or {}
+    inputs = [path for name, value in params.items() if name not in outputs
+              for path in (value if isinstance(value, (list, tuple)) else [value]) if isinstance(path, Path)]
+    seen: list[tuple[str, Path]] = []
+    for option, path in outputs.values():
+        for other in inputs:
+            if _same_path(path, other):
+                raise OptionError(f"{option} {path}: is the input {other}; refusing to overwrite what the run reads")
+        for earlier, other in seen:
+            if _same_path(path, other):
+                raise OptionError(f"{option} {path}: is also {earlier} {other}; give each output its own path")
+        seen.append((option, path))
+
+
+def _same_path(a: Path, b: Path) -> bool:
+    """The same file or folder: one inode when both exist (links, `..`, hard links), else the same
+    path once links and `..` are resolved."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return a.absolute().resolve() == b.absolute().resolve()
 
 
 def check_output_path(path: Path, option: str, kind: str | None) -> None:

@@ -16,7 +16,7 @@ from ndfa.cli.checks import at_least_one, in_range, output_dir, positive
 from ndfa.cli.detect import history_table
 from ndfa.core.errors import NdfaError
 from ndfa.eval.baselines.nn import NNConfig
-from ndfa.io.atomic import write_parquet
+from ndfa.io.atomic import outside_all_or_nothing, write_parquet
 
 
 @app.command("eval")
@@ -74,7 +74,8 @@ def eval_command(
             raise typer.BadParameter("--pr-curve needs SOURCE TARGET, not --sweep")
         if source is not None or target is not None:
             raise typer.BadParameter("--sweep renders its own scenes: give no SOURCE TARGET")
-        _eval_sweep(sweep, values, seeds, preset, step, workers, address, ray, out)
+        with outside_all_or_nothing():  # each finished cell is kept: a rerun resumes from them
+            _eval_sweep(sweep, values, seeds, preset, step, workers, address, ray, out)
         return
     if source is None or target is None:
         raise typer.BadParameter("give SOURCE and TARGET recordings, or --sweep AXIS --values ...")

@@ -20,6 +20,7 @@ from ndfa.cli.checks import (
     output_file,
     positive,
 )
+from ndfa.io.atomic import outside_all_or_nothing
 from ndfa.ndf.config import NDFConfig
 from ndfa.sim.sensor_artifacts import SensorArtifacts
 
@@ -127,5 +128,6 @@ def train_command(
                     if key not in ("epoch", "step"):
                         recorder.log(f"train/{key}", rr.Scalars(value))
 
-        train(config, out, resume=resume, data_dir=data_dir, on_step=on_step, on_epoch=on_epoch)
+        with outside_all_or_nothing():  # the checkpoints are what --resume continues from after a failure
+            train(config, out, resume=resume, data_dir=data_dir, on_step=on_step, on_epoch=on_epoch)
     console.print(f"checkpoint and metrics in {out}")

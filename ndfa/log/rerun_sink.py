@@ -31,9 +31,10 @@ them, and a `session` timeline numbers them, so the viewer plays the visits in o
 explains them), and each object's track through the sessions as a line.
 
 The file is streamed to a hidden temporary beside PATH (`ndfa.io.atomic.Staged`) and moved onto
-PATH on close, which `ndfa detect` does also when interrupted: PATH then holds everything up to the
-interruption, and is never half-written. A process killed outright leaves the readable stream in
-`.PATH.tmp-*/`.
+PATH on close, which the run does also when interrupted: PATH then holds everything up to the
+interruption, and is never half-written. `ndfa detect` runs inside `ndfa.io.atomic.all_or_nothing`,
+which puts back what PATH was when the run fails or is interrupted. A process killed outright
+leaves the readable stream in `.PATH.tmp-*/`.
 """
 
 from __future__ import annotations

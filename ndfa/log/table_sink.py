@@ -19,7 +19,8 @@
 
 Vectors are list columns (center_x/y/z as plain columns for easy filtering). The tables are
 rewritten every `flush_every` frames and at the end (each atomically), so an interrupted run
-leaves tables that are complete up to a recent frame.
+leaves tables that are complete up to a recent frame (`ndfa detect` then puts back what the folder
+held before: `ndfa.io.atomic.all_or_nothing`).
 """
 
 from __future__ import annotations

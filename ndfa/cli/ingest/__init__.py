@@ -2,9 +2,7 @@
 `bag`), registering its command on `ingest_app`; `estimated_poses` holds what the importers share
 for `--poses estimate`."""
 
-import typer
+from ndfa.cli.app import app, typer_app
 
-from ndfa.cli.app import app
-
-ingest_app = typer.Typer(no_args_is_help=True, help="Turn a data source into ndfa recordings (MCAP).")
+ingest_app = typer_app(no_args_is_help=True, help="Turn a data source into ndfa recordings (MCAP).")
 app.add_typer(ingest_app, name="ingest")
