@@ -9,7 +9,7 @@ import typer
 from rich.table import Table
 
 from ndfa.cli.app import app, console
-from ndfa.cli.checks import at_least_one, checkpoint
+from ndfa.cli.checks import at_least_one, checkpoint, thread_count
 
 
 @app.command("bench")
@@ -24,7 +24,7 @@ def bench_command(
     recording: Path = typer.Option(Path("out/paper/target.mcap"), help="segment: recording with ground-truth masks."),
     step: int = typer.Option(1, help="segment: use every N-th frame.", callback=at_least_one),
     threads: int = typer.Option(1, help="detect: torch's and ONNX Runtime's CPU threads (docs/speed.md).",
-                                callback=at_least_one),
+                                callback=thread_count),
     compare: bool = typer.Option(False, "--compare", help="detect: first the before (--before-runtime, --before-weights, "
                                                           "every reconstruction decoded, the stages one after the "
                                                           "other), then now, back to back."),

@@ -24,6 +24,7 @@ checks again when it renames):
 from __future__ import annotations
 
 import math
+import operator
 import os
 import stat
 import tempfile
@@ -48,25 +49,35 @@ def option_name(param: typer.CallbackParam) -> str:
 
 
 def in_range(*, gt: float | None = None, ge: float | None = None, lt: float | None = None,
-             le: float | None = None) -> Callback:
+             le: float | None = None, why: str = "") -> Callback:
     """A callback that lets a value (each value of a list; None: not given) through when it is a
-    finite number within the bounds, and otherwise fails naming the option and the value."""
+    finite number within the bounds, and otherwise fails naming the option and the value (and,
+    given `why`, why the bound is where it is). Integers of any size are compared exactly: never
+    converted to a float, which overflows beyond 1e308."""
     bounds = [(">", gt), (">=", ge), ("<", lt), ("<=", le)]
-    tests = {">": float.__gt__, ">=": float.__ge__, "<": float.__lt__, "<=": float.__le__}
-    wanted = " and ".join(f"{sign} {bound:g}" for sign, bound in bounds if bound is not None)
+    tests = {">": operator.gt, ">=": operator.ge, "<": operator.lt, "<=": operator.le}
+    wanted = " and ".join(f"{sign} {number_text(bound)}" for sign, bound in bounds if bound is not None)
+    because = f" ({why})" if why else ""
 
     def check(param: typer.CallbackParam, value: Any) -> Any:
         for number in value if isinstance(value, (list, tuple)) else [value]:
             if number is None:
                 continue
-            ok = math.isfinite(number) and all(tests[sign](float(number), float(bound))
-                                               for sign, bound in bounds if bound is not None)
+            finite = isinstance(number, int) or math.isfinite(number)
+            ok = finite and all(tests[sign](number, bound) for sign, bound in bounds if bound is not None)
             if not ok:
                 must = (wanted or "finite") if isinstance(number, int) else "a finite number" + (f" {wanted}" if wanted else "")
-                raise OptionError(f"{option_name(param)} must be {must}, got {number!r}")
+                got = number_text(number) if isinstance(number, int) else repr(number)
+                raise OptionError(f"{option_name(param)} must be {must}{because}, got {got}")
         return value
 
     return check
+
+
+def number_text(value: float) -> str:
+    """A bound or a value as the user would write it; an integer too long to read, by its digits."""
+    text = str(value) if isinstance(value, int) else f"{value:g}"
+    return text if len(text) <= 24 else f"{text[:6]}...({len(text)} digits)"
 
 
 def at_least(low: float) -> Callback:
@@ -78,6 +89,10 @@ positive = in_range(gt=0)          # lengths, scales, rates
 non_negative = in_range(ge=0)      # weights, noise levels, counts that may be zero
 fraction = in_range(ge=0, le=1)    # shares
 at_least_one = at_least(1)      # frame steps, strides, threads, workers
+# Seeds: recordings and tables store them as 64-bit integers.
+seed_range = in_range(ge=0, le=2**63 - 1, why="a seed is stored as a 64-bit integer")
+# CPU threads and parallel workers: more than any machine has cores is a typo.
+thread_count = in_range(ge=1, le=1024, why="more than any machine has cores")
 
 
 # The outputs of the command being parsed: parameter name -> (option as written, path).

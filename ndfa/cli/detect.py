@@ -13,7 +13,17 @@ from rich.table import Table
 
 from ndfa.change.detector import DetectorConfig
 from ndfa.cli.app import app, bar_per_label, console, err_console, progress_bar
-from ndfa.cli.checks import at_least_one, checkpoint, in_range, output_dir, output_file, positive
+from ndfa.cli.checks import (
+    at_least_one,
+    checkpoint,
+    in_range,
+    number_text,
+    output_dir,
+    output_file,
+    positive,
+    thread_count,
+)
+from ndfa.core.errors import OptionError
 from ndfa.eval.scoring import changed_instances
 from ndfa.io.atomic import atomic_path
 from ndfa.io.recording import RecordingReader
@@ -66,7 +76,7 @@ def detect_command(
     threads: Optional[int] = typer.Option(None, help="CPU threads of the NDF's runtime (ONNX Runtime: default 1; "
                                                      "torch: default one per core). 1 keeps the pass steady when "
                                                      "other jobs share the cores (docs/speed.md).",
-                                          callback=at_least_one),
+                                          callback=thread_count),
     runtime: str = typer.Option("auto", help="Where the NDF runs: auto (ONNX Runtime when installed, else torch) | "
                                              "onnxruntime (faster; docs/speed.md) | torch (the reference)."),
 ) -> None:
@@ -74,6 +84,12 @@ def detect_command(
     between each consecutive pair of more, with every object's history over them."""
     if len(recordings) < 2:
         raise typer.BadParameter(f"give two or more session recordings, got {len(recordings)}")
+    if frame_step > 1:
+        for recording in recordings:
+            frames = len(RecordingReader(recording))
+            if frame_step >= frames > 1:  # a session of one frame sees one view: the step then drops all the rest
+                raise OptionError(f"--frame-step {number_text(frame_step)} leaves 1 of the {frames} frames of {recording}: "
+                                  f"at most {frames - 1} keeps two")
     if threads is not None:
         import torch  # lazy: torch takes seconds to import, and `ndfa --help` none
 

@@ -12,7 +12,7 @@ import typer
 from rich.table import Table
 
 from ndfa.cli.app import app, bar_per_label, console, err_console, progress_bar
-from ndfa.cli.checks import at_least_one, in_range, output_dir, positive
+from ndfa.cli.checks import at_least_one, in_range, output_dir, positive, thread_count
 from ndfa.cli.detect import history_table
 from ndfa.core.errors import NdfaError
 from ndfa.eval.baselines.nn import NNConfig
@@ -43,7 +43,7 @@ def eval_command(
     step: Optional[float] = typer.Option(None, help="Sweep: camera travel between frames, metres (preset's default).",
                                          callback=positive),
     workers: Optional[int] = typer.Option(None, help="Sweep: cells in parallel (default: CPU count; 1 = in process).",
-                                          callback=at_least_one),
+                                          callback=thread_count),
     address: Optional[str] = typer.Option(None, help="Sweep: Ray cluster address (needs the ndfa cluster extra: Ray)."),
     ray: Optional[bool] = typer.Option(None, "--ray/--no-ray", help="Sweep: use Ray (default: when installed)."),
     pr_curve: bool = typer.Option(False, "--pr-curve", help="Also sweep each method's decision threshold (ndfa's "

@@ -9,7 +9,7 @@ import typer
 from rich.table import Table
 
 from ndfa.cli.app import app, console
-from ndfa.cli.checks import at_least, at_least_one, checkpoint, in_range, output_dir
+from ndfa.cli.checks import at_least, at_least_one, checkpoint, in_range, output_dir, seed_range
 from ndfa.cli.real_mugs import real_mugs_command
 from ndfa.io.atomic import write_parquet
 
@@ -22,7 +22,7 @@ def ndf_eval_command(
                              callback=output_dir),
     mugs: int = typer.Option(20, help="Held-out test-split mugs.", callback=at_least_one),
     views_per_mug: int = typer.Option(50, help="Partial views per mug.", callback=at_least_one),
-    seed: int = typer.Option(0, help="Seed of the test views.", callback=at_least(0)),
+    seed: int = typer.Option(0, help="Seed of the test views.", callback=seed_range),
     v0: float = typer.Option(0.5, help="Occupancy threshold of the reconstruction (the IoU is also swept over a few).",
                              callback=in_range(gt=0, lt=1)),
     split: str = typer.Option("test", help="Mug split: test (held out), or train to tune on validation mugs the run did not fit."),

@@ -9,7 +9,7 @@ import typer
 from rich.table import Table
 
 from ndfa.cli.app import app, bar_per_label, console, err_console, progress_bar
-from ndfa.cli.checks import at_least_one, input_file, non_negative, output_dir, output_file
+from ndfa.cli.checks import at_least_one, input_file, output_dir, output_file, seed_range
 
 
 @app.command("plant")
@@ -26,7 +26,7 @@ def plant_command(
     auto: bool = typer.Option(False, "--auto", help="Place the meshes by --seed on the largest support surface both "
                               "recordings saw: one mug moved (>= 0.5 m where the surface allows), one added, "
                               "and one of the plan's real objects removed."),
-    seed: int = typer.Option(0, help="The placements of --auto.", callback=non_negative),
+    seed: int = typer.Option(0, help="The placements of --auto.", callback=seed_range),
     log: Optional[Path] = typer.Option(None, help="Write frames before and after planting to this Rerun file (.rrd).",
                                        callback=output_file),
     preview_every: int = typer.Option(25, help="Every N-th frame in the --log preview.", callback=at_least_one),

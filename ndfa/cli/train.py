@@ -19,6 +19,8 @@ from ndfa.cli.checks import (
     output_dir,
     output_file,
     positive,
+    seed_range,
+    thread_count,
 )
 from ndfa.io.atomic import outside_all_or_nothing
 from ndfa.ndf.config import NDFConfig
@@ -72,9 +74,9 @@ def train_command(
                                   callback=in_range(ge=0, lt=90)),
     gram_eps: float = typer.Option(1e-10, help="Epsilon of the batch norm on the Gram invariants (see NDFConfig).",
                                    callback=positive),
-    seed: int = typer.Option(0, help="Seed of the views, the batches and the initial weights.", callback=at_least(0)),
+    seed: int = typer.Option(0, help="Seed of the views, the batches and the initial weights.", callback=seed_range),
     threads: int = typer.Option(2, help="Torch CPU threads (1 when another job shares the cores).",
-                                callback=at_least_one),
+                                callback=thread_count),
     resume: bool = typer.Option(False, help="Continue from OUT/checkpoint.pt."),
     data_dir: Optional[Path] = typer.Option(None, help="Cache of rendered views (default OUT/data).",
                                             callback=output_dir),

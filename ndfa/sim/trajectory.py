@@ -27,6 +27,9 @@ ROUTES = ("perimeter", "corridor", "weave", "circles")
 # The gaze limit of a raw (sensor-like) recording: a quick hand-held turn, 100 deg/s at the
 # simulator's 5 frames/s; at a 60 deg field of view two frames still share two thirds of the view.
 RAW_MAX_TURN_DEG = 20.0
+# The most frames one route may take: at the default 8 cm step a route of 800 m, beyond any room;
+# past it a tiny step only eats memory (1e-6 m: 3.6 GB in seconds) before any frame is rendered.
+MAX_ROUTE_FRAMES = 10_000
 
 
 @dataclass(frozen=True)
@@ -48,6 +51,12 @@ class TrajectoryConfig:
 def camera_poses(tables: list[Table], config: TrajectoryConfig, rng: np.random.Generator) -> np.ndarray:
     """Camera-to-world poses (N, 4, 4) along `config.route`."""
     waypoints, closed = route_waypoints(tables, config.route, config.clearance_m)
+    loop = np.vstack([waypoints, waypoints[:1]]) if closed else waypoints
+    frames = float(np.linalg.norm(np.diff(loop, axis=0), axis=1).sum()) / config.step_m
+    if not 2 <= frames <= MAX_ROUTE_FRAMES:
+        raise SimError(f"the {config.route} route is {frames * config.step_m:.1f} m long: a step of "
+                       f"{config.step_m:g} m gives {frames:.0f} frames, outside 2-{MAX_ROUTE_FRAMES}; choose a step "
+                       f"from {frames * config.step_m / MAX_ROUTE_FRAMES:.3g} to {frames * config.step_m / 2:.3g} m")
     positions_xy = smooth_resample(waypoints, config.step_m, config.smoothing_m, closed)
     targets = np.array([_gaze_target(tables, p, config.look_height_m) for p in positions_xy])
     # Smoothing the gaze turns the camera gradually where the nearest table changes.

@@ -356,8 +356,9 @@ def place_clutter(tables: list[Table], mugs: dict[str, Mug], layouts: list[dict[
                   per_table: int, rng: np.random.Generator) -> list[ClutterItem]:
     """`per_table` pieces of clutter on every table, clear of every mug of every layout (so of
     both sessions: clutter stands still while mugs move) and of each other. A piece that finds
-    no free spot after a few shapes is left out: a crowded table gets less clutter, never a
-    collision; the ground truth lists what was placed."""
+    no free spot after a few shapes is left out, and the table is then full: its remaining pieces
+    are not tried (so a count far beyond what a table holds costs no more than a full table); a
+    crowded table gets less clutter, never a collision; the ground truth lists what was placed."""
     if max((i for layout in layouts for i in layout), default=0) >= CLUTTER_FIRST_ID:
         raise SimError(f"mug instance ids reach the clutter ids (from {CLUTTER_FIRST_ID})")
     space = TableSpace(tables, mugs)
@@ -368,6 +369,7 @@ def place_clutter(tables: list[Table], mugs: dict[str, Mug], layouts: list[dict[
     items: list[ClutterItem] = []
     for table in tables:
         for _ in range(per_table):
+            placed = False
             for _attempt in range(5):  # a smaller shape may fit where a big one did not
                 kind = str(rng.choice(CLUTTER_KINDS))
                 mesh = make_clutter_mesh(kind, rng)
@@ -380,5 +382,8 @@ def place_clutter(tables: list[Table], mugs: dict[str, Mug], layouts: list[dict[
                 items.append(ClutterItem(instance_id, kind, table.table_id, (float(xy[0]), float(xy[1])),
                                          float(rng.uniform(-np.pi, np.pi)), mesh, color))
                 space.occupied[table.table_id][("clutter", instance_id)] = (np.array(xy), radius)
+                placed = True
                 break
+            if not placed:
+                break  # the table is full
     return items

@@ -10,12 +10,21 @@ import typer
 from rich.table import Table
 
 from ndfa.cli.app import bar_per_label, console, err_console, progress_bar
-from ndfa.cli.checks import at_least, at_least_one, in_range, input_dir, non_negative, output_dir, positive
+from ndfa.cli.checks import in_range, input_dir, output_dir, positive, seed_range
 from ndfa.cli.ingest import ingest_app
 from ndfa.sim.mesh_io import load_mug_dir
 from ndfa.sim.noise import DepthNoise
 from ndfa.sim.presets import make_config
 from ndfa.sim.trajectory import RAW_MAX_TURN_DEG
+
+# Upper bounds of the scene's sizes and counts: past them a scene only takes memory and time (a
+# 1000x1000 grid, 10,000 clutter pieces per table), never a useful recording.
+MAX_GRID = 10  # tables per row and per column
+MAX_MUGS_PER_TABLE = 30
+MAX_MUGS = 1000  # models, and mugs added, removed, moved, switched or turned
+MAX_CLUTTER = 50  # per table
+_MUGS_WHY = f"at most {MAX_MUGS}: more than {MAX_GRID}x{MAX_GRID} tables hold"
+mug_count = in_range(ge=0, le=MAX_MUGS, why=_MUGS_WHY)
 
 
 def _parse_range(text: str, what: str) -> tuple[int, int]:
@@ -24,8 +33,9 @@ def _parse_range(text: str, what: str) -> tuple[int, int]:
         low, high = int(lo), int(hi or lo)
     except ValueError:
         raise typer.BadParameter(f"{what} must be N or LO-HI, got {text!r}") from None
-    if not 0 <= low <= high:
-        raise typer.BadParameter(f"{what} must be N or LO-HI with 0 <= LO <= HI, got {text!r}")
+    if not 0 <= low <= high <= MAX_MUGS_PER_TABLE:
+        raise typer.BadParameter(f"{what} must be N or LO-HI with 0 <= LO <= HI <= {MAX_MUGS_PER_TABLE} (more than "
+                                 f"a table holds), got {text!r}")
     return low, high
 
 
@@ -36,36 +46,39 @@ def ingest_sim_command(
     preset: str = typer.Option("paper", help="paper | sample | random."),
     sessions: int = typer.Option(2, help="Sessions to render, with the change counts applied between each "
                                          "consecutive pair (docs/sessions.md).", callback=in_range(ge=2, le=100)),
-    seed: int = typer.Option(0, help="Seed of everything random in the scene.", callback=at_least(0)),
+    seed: int = typer.Option(0, help="Seed of everything random in the scene.", callback=seed_range),
     mesh_dir: Optional[Path] = typer.Option(None, help="Place these OBJ/PLY/STL/GLB mug meshes instead of procedural "
                                              "ones (units and up axis guessed unless --mesh-up is given).",
                                              callback=input_dir),
     mesh_up: str = typer.Option("auto", help="Up axis of the --mesh-dir meshes: auto (guessed per mesh, with a note) | z | y."),
     tables: Optional[str] = typer.Option(None, help="Table grid as ROWSxCOLS, e.g. 2x4."),
     mugs_per_table: Optional[str] = typer.Option(None, help="Mugs per table in the source, N or LO-HI."),
-    models: Optional[int] = typer.Option(None, help="Number of distinct procedural mug models.", callback=at_least_one),
-    added: Optional[int] = typer.Option(None, help="Mugs added in the target.", callback=non_negative),
-    removed: Optional[int] = typer.Option(None, help="Mugs removed in the target.", callback=non_negative),
-    moved: Optional[int] = typer.Option(None, help="Mugs moved in the target.", callback=non_negative),
+    models: Optional[int] = typer.Option(None, help="Number of distinct procedural mug models.",
+                                          callback=in_range(ge=1, le=MAX_MUGS, why=_MUGS_WHY)),
+    added: Optional[int] = typer.Option(None, help="Mugs added in the target.", callback=mug_count),
+    removed: Optional[int] = typer.Option(None, help="Mugs removed in the target.", callback=mug_count),
+    moved: Optional[int] = typer.Option(None, help="Mugs moved in the target.", callback=mug_count),
     switched: Optional[int] = typer.Option(None, help="Mugs that switch places (an even number).",
-                                           callback=non_negative),
+                                           callback=mug_count),
     source_route: Optional[str] = typer.Option(None, help="perimeter | corridor | weave | circles."),
     target_route: Optional[str] = typer.Option(None, help="perimeter | corridor | weave | circles."),
     step: Optional[float] = typer.Option(None, help="Camera travel between frames, metres.", callback=positive),
     noise: Optional[bool] = typer.Option(None, "--noise/--no-noise", help="Depth sensor noise on or off."),
     noise_scale: Optional[float] = typer.Option(None, help="Depth noise std as a multiple of the default sensor's.",
-                                                callback=non_negative),
+                                                callback=in_range(ge=0, le=100, why="beyond, the noise is the depth")),
     offset: Optional[float] = typer.Option(None, help="Target pose offset: max translation per axis, metres.",
-                                           callback=non_negative),
+                                           callback=in_range(ge=0, le=100, why="a room, not a city")),
     offset_yaw: Optional[float] = typer.Option(None, help="Target pose offset: max yaw, degrees.",
-                                               callback=non_negative),
+                                               callback=in_range(ge=0, le=180, why="a half turn either way")),
     drift: Optional[float] = typer.Option(None, help="Target drift: random-walk translation step std, metres/frame.",
-                                          callback=non_negative),
+                                          callback=in_range(ge=0, le=1, why="metres per frame")),
     drift_yaw: Optional[float] = typer.Option(None, help="Target drift: random-walk yaw step std, degrees/frame.",
-                                              callback=non_negative),
+                                              callback=in_range(ge=0, le=180, why="degrees per frame")),
     textures: bool = typer.Option(False, "--textures", help="Procedural colour texture on walls, floor and table tops."),
     clutter: int = typer.Option(0, help="Non-mug objects per table (boxes, books, bowls, bottles); static, listed "
-                                        "as clutter in the ground truth.", callback=non_negative),
+                                        "as clutter in the ground truth.",
+                                callback=in_range(ge=0, le=MAX_CLUTTER, why="a table is full long before: pieces that "
+                                                  "find no free spot are left out")),
     raw: bool = typer.Option(False, "--raw", help="Record as a sensor does: no instance masks, no camera poses "
                                                   "(/tf); the true poses stay in the ground truth."),
     world_tilt: float = typer.Option(0.0, help="Tilt the recorded world frame this many degrees away from z-up "
@@ -75,7 +88,7 @@ def ingest_sim_command(
                                                         f"(default: {RAW_MAX_TURN_DEG:g} with --raw, else unlimited).",
                                             callback=in_range(ge=0, le=180)),
     rotated: int = typer.Option(0, help="Mugs turned in place about up in the target (unchanged mugs with a handle).",
-                                callback=non_negative),
+                                callback=mug_count),
     rotated_deg: tuple[float, float] = typer.Option((45.0, 180.0), help="MIN MAX: the range (degrees) each "
                                                     "--rotated mug turns by, in either sense."),
 ) -> None:
@@ -86,8 +99,9 @@ def ingest_sim_command(
     overrides: dict = {}
     if tables is not None:
         rows, _, cols = tables.lower().partition("x")
-        if not (rows.isdigit() and cols.isdigit() and int(rows) >= 1 and int(cols) >= 1):
-            raise typer.BadParameter(f"--tables must be ROWSxCOLS (each at least 1), got {tables!r}")
+        if not (rows.isdigit() and cols.isdigit() and 1 <= int(rows) <= MAX_GRID and 1 <= int(cols) <= MAX_GRID):
+            raise typer.BadParameter(f"--tables must be ROWSxCOLS, each from 1 to {MAX_GRID} (the room, its route "
+                                     f"and the rendering grow with the grid), got {tables!r}")
         overrides.update(table_rows=int(rows), table_cols=int(cols), total_mugs=None)
     if mugs_per_table is not None:
         overrides.update(mugs_per_table=_parse_range(mugs_per_table, "--mugs-per-table"), total_mugs=None)
