@@ -251,7 +251,7 @@ def hand_frame(time_ns: int, depth: RawImage | None = None, skip: tuple[str, ...
     return [message for message in messages if message[0] not in skip]
 
 
-META_MESSAGE = (META, 1, {"source": "hand", "session": "x"})
+META_MESSAGE = (META, 1, {"format": "ndfa.recording", "format_version": 1, "source": "hand", "session": "x"})
 
 
 def test_reads_32fc1_metres_depth(tmp_path: Path) -> None:

@@ -33,6 +33,7 @@ from ndfa.core.frame import Frame
 from ndfa.core.geometry import make_pose, matrix_from_quaternion_xyzw
 from ndfa.io.recording import channels
 from ndfa.io.recording.ground_truth import ground_truth_problem
+from ndfa.io.recording.meta import meta_problem
 from ndfa.io.recording.structure import ChunkRecord, check_chunk_indexes, check_structure
 
 # The 8 bytes every MCAP file starts and ends with, and the footer record just before the end:
@@ -93,6 +94,9 @@ class RecordingReader:
             meta = self._read_json(mcap, channels.META)
             if meta is None:
                 raise RecordingError(f"{self.path}: channel {channels.META} has no message")
+            problem = meta_problem(meta)
+            if problem:
+                raise RecordingError(f"{self.path}: channel {channels.META}: {problem}")
             self.meta: dict[str, Any] = meta
             self.ground_truth: dict[str, Any] | None = self._read_json(mcap, channels.GROUND_TRUTH)
         if self.ground_truth is not None:
@@ -105,11 +109,7 @@ class RecordingReader:
                                  f'"poses": "none" (says {self.meta.get("poses")!r})')
 
         # Metres per unit of a 16UC1 depth image; ndfa always writes millimetres.
-        self._depth_scale = self.meta.get("depth_scale", channels.DEPTH_SCALE_M)
-        if type(self._depth_scale) not in (int, float) or self._depth_scale <= 0:
-            raise RecordingError(
-                f"{self.path}: channel {channels.META}: depth_scale must be a positive number, got {self._depth_scale!r}"
-            )
+        self._depth_scale = self.meta.get("depth_scale", channels.DEPTH_SCALE_M)  # checked: `meta_problem`
 
         for _ in self.frames(stop=1):  # decode the first frame: wrong encodings fail on open
             pass

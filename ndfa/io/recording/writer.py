@@ -32,6 +32,7 @@ from ndfa.core.geometry import quaternion_xyzw_from_matrix
 from ndfa.io.atomic import Staged
 from ndfa.io.recording import channels
 from ndfa.io.recording.ground_truth import ground_truth_problem
+from ndfa.io.recording.meta import FORMAT, FORMAT_VERSION
 
 # Uncompressed bytes buffered before a chunk is compressed and written. It bounds the writer's
 # memory and is what a reader decompresses at a time; 4 MiB holds about two 640x480 frames
@@ -314,8 +315,8 @@ def _complete_meta(path: Path, meta: dict[str, Any]) -> dict[str, Any]:
     if clashes:
         raise RecordingError(f"{path}: meta must not set {clashes}: the writer sets them")
     return {
-        "format": "ndfa.recording",
-        "format_version": 1,
+        "format": FORMAT,
+        "format_version": FORMAT_VERSION,
         **meta,
         "depth_scale": channels.DEPTH_SCALE_M,
         "units": {"depth": "millimetres (16UC1)", "pose": "metres", "time": "nanoseconds (log_time)"},
