@@ -1,4 +1,6 @@
-"""Shared test helpers for the NDF tests."""
+"""Shared test helpers: the NDF tests' rotations, and running the `ndfa` command in process."""
+
+import sys
 
 import pytest
 import torch
@@ -32,3 +34,32 @@ def random_rotation(seed: int) -> torch.Tensor:
 
 def relative_error(a: torch.Tensor, b: torch.Tensor) -> float:
     return float((a - b).norm() / b.norm())
+
+
+@pytest.fixture
+def ndfa(monkeypatch, capsys):
+    """Run `ndfa ARGS` in this process, as the installed command does (`ndfa.cli.main`): (exit
+    code, stdout, stderr)."""
+    from ndfa.cli import main
+
+    def run(*args):
+        monkeypatch.setattr(sys, "argv", ["ndfa", *map(str, args)])
+        try:
+            main()
+            code = 0
+        except SystemExit as done:
+            code = done.code
+        captured = capsys.readouterr()
+        return code, captured.out, captured.err
+
+    return run
+
+
+def one_line(result, *fragments):
+    """Assert that `ndfa` failed with exit code 2 and one line on stderr holding every fragment; the line."""
+    code, out, err = result
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert code == 2 and len(lines) == 1, err
+    for fragment in fragments:
+        assert fragment in lines[0], lines[0]
+    return lines[0]

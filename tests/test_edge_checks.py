@@ -3,44 +3,17 @@ and the value (exit 2); the atomic writer never replaces a special file; a file 
 checkpoint is said to be one; `ndfa detect` says why it could decide nothing."""
 
 import os
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import one_line
 
-from ndfa.cli import main
 from ndfa.core.errors import ModelError, OutputError
 from ndfa.io.atomic import Staged, atomic_dir, atomic_path
 from ndfa.io.recording import Frame, RecordingWriter
 from ndfa.ndf.checkpoint import load_model
 from ndfa.ndf.encoder import DEFAULT_WEIGHTS
-
-
-@pytest.fixture
-def ndfa(monkeypatch, capsys):
-    """Run `ndfa ARGS` in this process: (exit code, stdout, stderr)."""
-    def run(*args):
-        monkeypatch.setattr(sys, "argv", ["ndfa", *map(str, args)])
-        try:
-            main()
-            code = 0
-        except SystemExit as done:
-            code = done.code
-        captured = capsys.readouterr()
-        return code, captured.out, captured.err
-
-    return run
-
-
-def one_line(result, *fragments):
-    code, out, err = result
-    lines = [line for line in err.splitlines() if line.strip()]
-    assert code == 2 and len(lines) == 1, err
-    for fragment in fragments:
-        assert fragment in lines[0], lines[0]
-    return lines[0]
-
 
 NOWHERE = "/nonexistent/recording.mcap"  # reached only if the options were let through
 

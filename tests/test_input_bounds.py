@@ -1,42 +1,16 @@
 """Nothing hung (issue 31): numeric options of any size are checked without overflow, sizes and
 counts have upper bounds that say why, and the simulator's work is bounded before it starts."""
 
-import sys
 import time
 from pathlib import Path
 
 import pytest
+from conftest import one_line
 
-from ndfa.cli import main
 from ndfa.core.errors import SimError
 
 SAMPLE = Path(__file__).parents[1] / "recordings" / "sample"
 HUGE = "1" + "0" * 400
-
-
-@pytest.fixture
-def ndfa(monkeypatch, capsys):
-    """Run `ndfa ARGS` in this process: (exit code, stdout, stderr)."""
-    def run(*args):
-        monkeypatch.setattr(sys, "argv", ["ndfa", *map(str, args)])
-        try:
-            main()
-            code = 0
-        except SystemExit as done:
-            code = done.code
-        captured = capsys.readouterr()
-        return code, captured.out, captured.err
-
-    return run
-
-
-def one_line(result, *fragments):
-    code, _, err = result
-    lines = [line for line in err.splitlines() if line.strip()]
-    assert code == 2 and len(lines) == 1, err
-    for fragment in fragments:
-        assert fragment in lines[0], lines[0]
-    return lines[0]
 
 
 @pytest.mark.parametrize("args, fragments", [

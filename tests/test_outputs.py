@@ -3,45 +3,20 @@ failed or interrupted run leaves each pre-existing output byte for byte and no t
 folder; an output that is, or leads to, one of the run's inputs is refused before any work."""
 
 import os
-import sys
 from pathlib import Path
 
 import pytest
+from conftest import one_line
 
-from ndfa.cli import main
 from ndfa.core.errors import NdfaError
 from ndfa.io.atomic import Staged, all_or_nothing, atomic_dir, atomic_path, declare_output, outside_all_or_nothing
 
 SAMPLE = Path(__file__).parents[1] / "recordings" / "sample"
 
 
-@pytest.fixture
-def ndfa(monkeypatch, capsys):
-    """Run `ndfa ARGS` in this process: (exit code, stdout, stderr)."""
-    def run(*args):
-        monkeypatch.setattr(sys, "argv", ["ndfa", *map(str, args)])
-        try:
-            main()
-            code = 0
-        except SystemExit as done:
-            code = done.code
-        captured = capsys.readouterr()
-        return code, captured.out, captured.err
-
-    return run
-
-
 def snapshot(folder: Path) -> dict[str, bytes | None]:
     """Every path under `folder` (hidden ones too) with its bytes (None: a folder)."""
     return {str(p.relative_to(folder)): (None if p.is_dir() else p.read_bytes()) for p in sorted(folder.rglob("*"))}
-
-
-def one_line(result, *fragments):
-    code, _, err = result
-    lines = [line for line in err.splitlines() if line.strip() and not line.startswith("NDF runtime")]
-    assert code == 2 and len(lines) == 1, err
-    for fragment in fragments:
-        assert fragment in lines[0], lines[0]
 
 
 # -- the block itself -----------------------------------------------------------------------------
