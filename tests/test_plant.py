@@ -183,11 +183,16 @@ def test_auto_places_a_moved_and_an_added_mug_on_free_table_apart_from_the_real_
     assert all(a.describe() == b.describe() for a, b in zip(first, again))
 
 
-def test_colour_grid_maps_the_depth_grid_onto_a_colour_camera_of_its_own():
+def test_colour_camera_sees_a_depth_pixel_where_its_intrinsics_and_offset_put_its_point():
     depth_K = np.array([[585.0, 0, 320], [0, 585, 240], [0, 0, 1]])
-    image = np.zeros((480, 640), dtype=np.uint8)
-    image[240, 320 + 117] = 1  # 0.2 rad right of the axis in the depth camera
-    warped = ColorGrid(depth_K, np.array([[526.5, 0, 315], [0, 526.5, 238], [0, 0, 1]])).warp(image)
-    rows, cols = np.nonzero(warped)
-    assert set(rows) == {238} and abs(cols.mean() - (315 + 0.2 * 526.5)) <= 1.0
-    assert np.array_equal(ColorGrid(depth_K, depth_K).warp(image), image)
+    color_K = np.array([[525.0, 0, 321], [0, 525, 240], [0, 0, 1]])
+    mask, depth = np.zeros((480, 640), dtype=bool), np.zeros((480, 640), dtype=np.float32)
+    mask[240, 320 + 117], depth[240, 320 + 117] = True, 2.0  # 0.2 rad right of the depth camera's axis, 2 m
+    values = np.zeros((480, 640, 3), dtype=np.uint8)
+    values[240, 320 + 117] = 7
+    seen, carried = ColorGrid(depth_K, color_K, -0.025).splat(mask, depth, values)
+    rows, cols = np.nonzero(seen)
+    assert list(rows) == [240] and list(cols) == [round(321 + 525 * (0.2 - 0.025 / 2.0))]
+    assert (carried[seen] == 7).all()
+    same, _ = ColorGrid(depth_K, depth_K).splat(mask, depth)
+    assert np.array_equal(same, mask)

@@ -21,7 +21,7 @@ REDKITCHEN = Path(os.environ.get("NDFA_REDKITCHEN", kitchen.REDKITCHEN))
 kitchen.REDKITCHEN = REDKITCHEN  # where its slices are read from
 # The colour camera of 7-Scenes is not registered to the depth: its own intrinsics (fitted once on
 # the edges of both images; docs/plant.md).
-COLOR_K = np.array([[526.5, 0.0, 315.0], [0.0, 526.5, 238.0], [0.0, 0.0, 1.0]])
+COLOR_K, COLOR_OFFSET_M = np.array([[525.0, 0.0, 321.0], [0.0, 525.0, 240.0], [0.0, 0.0, 1.0]]), -0.025
 NEAR_M = 0.06
 WHITE, PATTERNED = kitchen.WHITE_MUG, kitchen.PATTERNED_MUG
 MOVED_FROM, MOVED_TO, ADDED = np.array([-0.56, 1.34]), np.array([0.16, 1.90]), np.array([0.08, 1.46])
@@ -55,7 +55,7 @@ def _near(centers: np.ndarray, xy: np.ndarray) -> bool:
 
 @pytest.fixture(scope="module")
 def planted_run(slices, tmp_path_factory):
-    planted = run_plant(*slices, tmp_path_factory.mktemp("planted"), _plan(change=True), color_K=COLOR_K)
+    planted = run_plant(*slices, tmp_path_factory.mktemp("planted"), _plan(change=True), color_K=COLOR_K, color_offset_m=COLOR_OFFSET_M)
     return planted, run_detection(planted.paths["source"], planted.paths["target"])
 
 
@@ -79,7 +79,7 @@ def test_planted_changes_are_found_with_the_datasets_poses(planted_run):
 
 
 def test_the_same_plan_with_nothing_changed_copies_the_frames_and_reports_no_change(slices, tmp_path):
-    same = run_plant(*slices, tmp_path / "same", _plan(change=False), color_K=COLOR_K)
+    same = run_plant(*slices, tmp_path / "same", _plan(change=False), color_K=COLOR_K, color_offset_m=COLOR_OFFSET_M)
     assert same.edited == {"source": 0, "target": 0}
     for original, copy in zip(slices, (same.paths["source"], same.paths["target"])):
         for a, b in zip(RecordingReader(original).frames(), RecordingReader(copy).frames(), strict=True):

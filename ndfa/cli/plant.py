@@ -30,9 +30,12 @@ def plant_command(
     log: Optional[Path] = typer.Option(None, help="Write frames before and after planting to this Rerun file (.rrd).",
                                        callback=output_file),
     preview_every: int = typer.Option(25, help="Every N-th frame in the --log preview.", callback=at_least_one),
+    frame_step: int = typer.Option(1, help="Write only every N-th frame (then `ndfa detect` each frame of the "
+                                   "copies, as --frame-step N would on the whole).", callback=at_least_one),
     color_intrinsics: Optional[str] = typer.Option(
-        None, help="fx,fy,cx,cy of the colour images when they are not registered to the depth (their own "
-        "camera beside the depth camera; 7-Scenes: 526.5,526.5,315,238 against its depth's 585,585,320,240)."),
+        None, help="fx,fy,cx,cy[,dx] of the colour camera when the colour images are not registered to the "
+        "depth: its intrinsics and its offset dx (metres) along the depth camera's x axis (7-Scenes: "
+        "525,525,321,240,-0.025 beside its depth's 585,585,320,240; docs/plant.md)."),
 ) -> None:
     """Plant changes into a pair of recordings: a real object removed (the support behind it, depth and
     colour), meshes added or moved (ray cast with the recording's intrinsics and a sensor noise model,
@@ -40,13 +43,14 @@ def plant_command(
     from ndfa.run.plant import run_plant
     from ndfa.run.plant_plan import read_plan
 
-    color_K = None if color_intrinsics is None else _intrinsics(color_intrinsics)
+    color_K, color_offset = (None, 0.0) if color_intrinsics is None else _color_camera(color_intrinsics)
     objects = [] if plan is None else read_plan(plan)
     if not objects and not auto:
         err_console.print("warning: nothing to plant (no --plan, no --auto): the copies equal the recordings")
     with progress_bar() as progress:
         result = run_plant(source, target, out, objects, auto_seed=seed if auto else None, log=log,
-                           preview_every=preview_every, color_K=color_K,
+                           preview_every=preview_every, color_K=color_K, color_offset_m=color_offset,
+                           frame_step=frame_step,
                            on_frame=bar_per_label(progress, "planting "))
     table = Table(title=f"planted -> {out}")
     for column in ("object", "change", "source (x, y)", "target (x, y)"):
@@ -62,7 +66,7 @@ def plant_command(
         err_console.print(f"note: {note}", highlight=False)
 
 
-def _intrinsics(text: str):
+def _color_camera(text: str):
     import math
 
     import numpy as np
@@ -70,9 +74,11 @@ def _intrinsics(text: str):
     from ndfa.core.errors import OptionError
 
     try:
-        fx, fy, cx, cy = (float(v) for v in text.split(","))
+        values = [float(v) for v in text.split(",")]
     except ValueError:
-        raise OptionError(f"--color-intrinsics must be fx,fy,cx,cy (four numbers), got {text!r}") from None
-    if not all(math.isfinite(v) for v in (fx, fy, cx, cy)) or fx <= 0 or fy <= 0:
-        raise OptionError(f"--color-intrinsics needs finite numbers and positive focal lengths, got {text!r}")
-    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+        values = []
+    if len(values) not in (4, 5) or not all(math.isfinite(v) for v in values) or min(values[:2]) <= 0:
+        raise OptionError(f"--color-intrinsics must be fx,fy,cx,cy or fx,fy,cx,cy,dx (finite numbers, positive "
+                          f"focal lengths), got {text!r}")
+    fx, fy, cx, cy = values[:4]
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]]), (values[4] if len(values) == 5 else 0.0)

@@ -66,11 +66,13 @@ class _Placed:
 
 def run_plant(source: Path, target: Path, out_dir: Path, plan: list[PlantedObject], auto_seed: int | None = None,
               log: Path | None = None, preview_every: int = 25, noise: DepthNoise = DepthNoise(),
-              color_K: np.ndarray | None = None, on_frame: LabelledProgress | None = None) -> PlantResult:
+              color_K: np.ndarray | None = None, color_offset_m: float = 0.0, frame_step: int = 1,
+              on_frame: LabelledProgress | None = None) -> PlantResult:
     """Write `out_dir`/source.mcap and target.mcap (see the module docstring). `plan`: the objects;
     with `auto_seed`, its real objects are kept and the seed's placements added (`auto_plan`).
-    `color_K`: the colour images' own intrinsics when they are not registered to the depth
-    (`ndfa.sim.plant.ColorGrid`); None: they are."""
+    `color_K`, `color_offset_m`: the colour camera's intrinsics and offset along the depth camera's
+    x axis when the colour is not registered to the depth (`ndfa.sim.plant.ColorGrid`); None: it is. `frame_step`: only every n-th frame is written
+    (a shorter copy, for `ndfa detect` with every frame of it; pose estimation sees fewer frames)."""
     readers = {"source": RecordingReader(source), "target": RecordingReader(target)}
     paths = {session: Path(out_dir) / f"{session}.mcap" for session in SESSIONS}
     for session, reader in readers.items():
@@ -112,8 +114,8 @@ def run_plant(source: Path, target: Path, out_dir: Path, plan: list[PlantedObjec
     try:
         for session in SESSIONS:
             frames, edited, pixels = _plant_session(readers[session], writers[session], placed[session],
-                                                    pose_level_world, noise, color_K, preview, preview_every,
-                                                    session, on_frame)
+                                                    pose_level_world, noise, color_K, color_offset_m, frame_step,
+                                                    preview, preview_every, session, on_frame)
             result.frames[session], result.edited[session] = frames, edited
             visible[session] = sorted(i for i, n in pixels.items() if is_visible(n))
         truth["visible"] = visible
@@ -183,8 +185,9 @@ def _footprint(vertices: np.ndarray) -> float:
 
 
 def _plant_session(reader: RecordingReader, writer: RecordingWriter, placed: list[_Placed],
-                   pose_level_world: np.ndarray, noise: DepthNoise, color_K: np.ndarray | None, preview,
-                   preview_every: int, session: str, on_frame: LabelledProgress | None
+                   pose_level_world: np.ndarray, noise: DepthNoise, color_K: np.ndarray | None, color_offset_m: float,
+                   frame_step: int,
+                   preview, preview_every: int, session: str, on_frame: LabelledProgress | None
                    ) -> tuple[int, int, dict[int, int]]:
     """Plant `placed` into every frame of `reader`, write them; frames written, frames edited, and
     the pixels each object showed in its fullest view."""
@@ -192,10 +195,10 @@ def _plant_session(reader: RecordingReader, writer: RecordingWriter, placed: lis
     real = [p for p in placed if p.obj.real and p not in removed]
     inserter = MeshInserter([p.render for p in placed if p.render is not None], noise)
     pixels: dict[int, int] = {}
-    total, edited = len(reader), 0
-    for count, frame in enumerate(reader.frames(), start=1):
+    total, edited = len(range(0, len(reader), frame_step)), 0
+    for count, frame in enumerate(reader.frames(step=frame_step), start=1):
         camera = camera_of(frame.K, frame.image_size)
-        grid = None if color_K is None else ColorGrid(frame.K, color_K)
+        grid = None if color_K is None else ColorGrid(frame.K, color_K, color_offset_m)
         pose = pose_level_world @ frame.pose_world_camera
         rng = np.random.default_rng([frame.index, 7 if session == "source" else 11])
         rgb, depth, changed = frame.rgb, frame.depth, np.zeros(frame.image_size, dtype=bool)

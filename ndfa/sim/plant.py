@@ -86,30 +86,36 @@ class Cylinder:
 
 @dataclass(frozen=True, eq=False)
 class ColorGrid:
-    """The colour image's own pinhole intrinsics, for a recording whose colour is not registered to
-    its depth (7-Scenes: a Kinect's colour camera at about 525 px beside its depth camera's 585).
-    The colour camera is taken to sit at the depth camera (no parallax): a colour pixel sees what
-    the depth pixel along the same ray sees."""
+    """The colour camera of a recording whose colour is not registered to its depth (7-Scenes: a
+    Kinect's colour camera, 525 px, 2.5 cm beside its depth camera, 585 px): its intrinsics and
+    its offset from the depth camera along the depth camera's x axis. A depth pixel's point (its
+    depth known) is seen by the colour camera at `splat`'s pixel."""
 
     depth_K: np.ndarray
     color_K: np.ndarray
+    offset_x_m: float = 0.0
 
-    def warp(self, image: np.ndarray, fill: float = 0) -> np.ndarray:
-        """`image` (H, W, ...) on the depth image's grid resampled (nearest) onto the colour image's;
-        colour pixels whose ray leaves the depth image get `fill`."""
-        height, width = image.shape[:2]
-        rows, cols = np.mgrid[0:height, 0:width]
-        u = self.depth_K[0, 2] + self.depth_K[0, 0] / self.color_K[0, 0] * (cols - self.color_K[0, 2])
-        v = self.depth_K[1, 2] + self.depth_K[1, 1] / self.color_K[1, 1] * (rows - self.color_K[1, 2])
-        u, v = np.rint(u).astype(int), np.rint(v).astype(int)
-        inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
-        out = np.full_like(image, fill)
-        out[inside] = image[v[inside], u[inside]]
-        return out
-
-
-def _on_color_grid(image: np.ndarray, grid: ColorGrid | None, fill: float = 0) -> np.ndarray:
-    return image if grid is None else grid.warp(image, fill)
+    def splat(self, mask: np.ndarray, depth: np.ndarray, values: np.ndarray | None = None
+              ) -> tuple[np.ndarray, np.ndarray | None]:
+        """The depth pixels of `mask` (with `depth` > 0) moved to where the colour camera sees
+        their points: the colour image's mask, and `values` (H, W, ...) carried along (nearest
+        point wins where several land on one pixel)."""
+        rows, cols = np.nonzero(mask & (depth > 0))
+        z = depth[rows, cols].astype(np.float64)
+        order = np.argsort(-z)  # far first: the nearest is written last
+        rows, cols, z = rows[order], cols[order], z[order]
+        x = (cols - self.depth_K[0, 2]) / self.depth_K[0, 0] * z + self.offset_x_m
+        y = (rows - self.depth_K[1, 2]) / self.depth_K[1, 1] * z
+        u = np.rint(self.color_K[0, 2] + self.color_K[0, 0] * x / z).astype(int)
+        v = np.rint(self.color_K[1, 2] + self.color_K[1, 1] * y / z).astype(int)
+        inside = (u >= 0) & (u < mask.shape[1]) & (v >= 0) & (v < mask.shape[0])
+        out = np.zeros(mask.shape, dtype=bool)
+        out[v[inside], u[inside]] = True
+        if values is None:
+            return out, None
+        carried = np.zeros_like(values)
+        carried[v[inside], u[inside]] = values[rows[inside], cols[inside]]
+        return out, carried
 
 
 def camera_of(K: np.ndarray, image_size: tuple[int, int]) -> PinholeCamera:
@@ -157,8 +163,8 @@ def remove_object(rgb: np.ndarray | None, depth: np.ndarray, camera: PinholeCame
                   region: Cylinder, noise: DepthNoise, rng: np.random.Generator, grid: ColorGrid | None = None
                   ) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
     """The frame's colour and depth with what stands in `region` replaced by the plane behind it,
-    and the (H, W) bool mask of the depth pixels replaced. `grid`: the colour image's own
-    intrinsics when it is not registered to the depth (None: it is)."""
+    and the (H, W) bool mask of the depth pixels replaced. `grid`: the colour camera when the
+    colour is not registered to the depth (None: it is)."""
     hole = object_pixels(depth, camera, pose_world_camera, region)
     if not hole.any():
         return rgb, depth, hole
@@ -173,10 +179,13 @@ def remove_object(rgb: np.ndarray | None, depth: np.ndarray, camera: PinholeCame
     if rgb is None:
         return None, out_depth, hole
     on_plane = (depth > 0) & (np.abs(region.plane.height(world_points(depth, camera, pose_world_camera))) < 0.015)
+    color_hole = hole
+    if grid is not None:  # where the colour camera sees the hole's points (the object's; the plane's without depth)
+        color_hole, _ = grid.splat(hole, np.where(depth > 0, depth, behind))
+        on_plane, _ = grid.splat(on_plane, depth)
     # The colour's edge bleeds past the depth's (the two sensors' resolution, and the registration's
     # error): the colour hole reaches a few pixels further.
-    color_hole = ndimage.binary_dilation(_on_color_grid(hole, grid), iterations=COLOR_MARGIN_PX)
-    out_rgb = _fill_colour(rgb, color_hole, _on_color_grid(on_plane, grid))
+    out_rgb = _fill_colour(rgb, ndimage.binary_dilation(color_hole, iterations=COLOR_MARGIN_PX), on_plane)
     return out_rgb, out_depth, hole
 
 
@@ -206,8 +215,8 @@ class MeshInserter:
                rng: np.random.Generator, grid: ColorGrid | None = None
                ) -> tuple[np.ndarray | None, np.ndarray, np.ndarray]:
         """The frame with the meshes put in, and the (H, W) uint16 instance id of the mesh each
-        depth pixel now shows (0: the real scene). `grid`: the colour image's own intrinsics when
-        it is not registered to the depth (None: it is)."""
+        depth pixel now shows (0: the real scene). `grid`: the colour camera when the colour is
+        not registered to the depth (None: it is)."""
         shown = np.zeros(depth.shape, dtype=np.uint16)
         if self._renderer is None:
             return rgb, depth, shown
@@ -222,6 +231,6 @@ class MeshInserter:
         out_rgb = None
         if rgb is not None:
             out_rgb = rgb.copy()
-            front_color = _on_color_grid(front, grid)
-            out_rgb[front_color] = _on_color_grid(view.rgb, grid)[front_color]
+            front_color, shaded = (front, view.rgb) if grid is None else grid.splat(front, view.depth, view.rgb)
+            out_rgb[front_color] = shaded[front_color]
         return out_rgb, out_depth, shown
