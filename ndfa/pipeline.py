@@ -1,11 +1,14 @@
 """The whole method for one frame at a time: observations -> NDF codes -> change detector -> events.
 
     pipeline = ChangeDetectionPipeline(PipelineConfig())
-    for frame in source frames:  events = pipeline.process("source", frame)
-    for frame in target frames:  events = pipeline.process("target", frame)
-    events = pipeline.finish()
+    detector = pipeline.new_detector()
+    for frame in source frames:  events = pipeline.process("source", frame, detector)
+    for frame in target frames:  events = pipeline.process("target", frame, detector)
+    events = detector.finish()
 
-Reading recordings and logging events happen outside (`ndfa.run.detect`, `ndfa.log`).
+The pipeline holds no detector: a run over many sessions feeds each session's measurements to the
+detectors of the pairs it belongs to (`ndfa.run.sessions`). Reading recordings and logging events
+happen outside (`ndfa.run`, `ndfa.log`).
 """
 
 from __future__ import annotations
@@ -16,15 +19,13 @@ from pathlib import Path
 
 from ndfa.change.associate import Measurement
 from ndfa.change.detector import ChangeDetector, DetectorConfig
-from ndfa.core.events import Event, FrameEvent, ObservationEvent, Session, TimingEvent
+from ndfa.core.events import SESSIONS, Event, FrameEvent, ObservationEvent, Session, TimingEvent
 from ndfa.core.frame import Frame
 from ndfa.core.geometry import transform_points
 from ndfa.ndf.encoder import EncoderConfig, NDFEncoder, ObjectCode
 from ndfa.perception.observations import Observation, ObservationConfig, SkippedObservation, extract_observations
 from ndfa.perception.segmentation import segment_frame
 from ndfa.perception.segmentation_config import SegmentationConfig
-
-SESSIONS = ("source", "target")
 
 
 @dataclass(frozen=True)
@@ -72,14 +73,18 @@ class ChangeDetectionPipeline:
     def __init__(self, config: PipelineConfig = PipelineConfig(), encoder: NDFEncoder | None = None) -> None:
         self.config = config
         self.encoder = encoder or NDFEncoder(config.weights, config.encoder)
-        self.detector = ChangeDetector(config.detector)
 
-    def process(self, session: Session, frame: Frame, full_reconstruction: bool = True) -> list[Event]:
+    def new_detector(self) -> ChangeDetector:
+        """A change detector with this pipeline's parameters: one per pair of sessions."""
+        return ChangeDetector(self.config.detector)
+
+    def process(self, session: Session, frame: Frame, detector: ChangeDetector,
+                full_reconstruction: bool = True) -> list[Event]:
         """One frame's events. full_reconstruction False (for a caller without sinks): each
         observation's reconstruction is decoded only as far as the decisions need it
         (`NDFEncoder.encode_batch`); the events and decisions are the same, but an event's
         `mean_occupancy` and `reconstruction_world` are then the coarse grid's."""
-        return self.decide(session, self.encode(self.perceive(frame), full_reconstruction))
+        return self.decide(session, self.encode(self.perceive(frame), full_reconstruction), detector)
 
     def perceive(self, frame: Frame) -> ObservedFrame:
         """The frame's observations: of its masks, else of its segmentation (if on)."""
@@ -101,20 +106,35 @@ class ChangeDetectionPipeline:
         started = time.perf_counter()
         # The mean occupancy decides the objectness gate of segments and, with "best" fusion, which
         # measurement an object keeps; elsewhere only whether the reconstruction is empty decides.
-        full = full_reconstruction or observed.segmented or self.config.detector.association.fusion == "best"
+        full = full_reconstruction or observed.segmented or self.config.detector.views.fusion == "best"
         codes = self.encoder.encode_batch([o.points_camera for o in observed.observations],
                                           [observed.frame.pose_world_camera] * len(observed.observations),
                                           full_reconstruction=full)
         return replace(observed, codes=codes,
                        stage_ms=observed.stage_ms | {"encoding": (time.perf_counter() - started) * 1e3})
 
-    def decide(self, session: Session, observed: ObservedFrame) -> list[Event]:
-        """An encoded frame's measurements into the detector of `session`: the frame's events."""
+    def decide(self, session: Session, observed: ObservedFrame, detector: ChangeDetector,
+               also_source_of: ChangeDetector | None = None) -> list[Event]:
+        """An encoded frame's measurements into `detector` as a frame of `session` ("source" or
+        "target"): the frame's events. `also_source_of`: the detector of the next pair, whose
+        source this session is, takes the same measurements (its events are not returned: they
+        repeat the association this frame's events show)."""
         if session not in SESSIONS:
             raise ValueError(f"session must be one of {SESSIONS}, got {session!r}")
-        if observed.codes is None:
-            raise ValueError("decide() needs an encoded frame (encode())")
         started = time.perf_counter()
+        events, measurements = self.measure(session, observed)
+        events += (detector.add_source if session == "source" else detector.add_target)(measurements)
+        if also_source_of is not None:
+            also_source_of.add_source(measurements)
+        events.append(TimingEvent(session=session, frame_index=observed.frame.index, stage_ms=observed.stage_ms | {
+            "detection": (time.perf_counter() - started) * 1e3}))
+        return events
+
+    def measure(self, session: Session, observed: ObservedFrame) -> tuple[list[Event], list[Measurement]]:
+        """An encoded frame's events (the frame, each observation or why it was skipped) and the
+        measurements the detector takes from it (`Measurement.of`)."""
+        if observed.codes is None:
+            raise ValueError("measure() needs an encoded frame (encode())")
         frame = observed.frame
         events: list[Event] = [FrameEvent(session=session, frame=frame)]
         measurements: list[Measurement] = []
@@ -141,12 +161,4 @@ class ChangeDetectionPipeline:
             events.append(event)
             if skip is None:
                 measurements.append(Measurement.of(event))
-        add = self.detector.add_source if session == "source" else self.detector.add_target
-        events += add(measurements)
-        events.append(TimingEvent(session=session, frame_index=frame.index, stage_ms=observed.stage_ms | {
-            "detection": (time.perf_counter() - started) * 1e3}))
-        return events
-
-    def finish(self) -> list[Event]:
-        """Removals and moves, after the target's last frame."""
-        return self.detector.finish()
+        return events, measurements

@@ -3,7 +3,8 @@
     python scripts/compare_detections.py BEFORE_DIR AFTER_DIR
 
 Each folder holds NAME.json files (e.g. sample.json, paper.json, random1.json ...); every field is
-compared except the ones that measure time (fps, stage_ms) and the poses/up provenance ("world").
+compared except the ones that measure time (fps, stage_ms, a scene alignment's seconds) and the
+poses/up provenance ("world").
 Exit code 1 when any pair differs or a file is missing.
 """
 
@@ -18,7 +19,16 @@ IGNORED = ("fps", "stage_ms", "world")
 
 def load(path: Path) -> dict:
     summary = json.loads(path.read_text())
-    return {key: value for key, value in summary.items() if key not in IGNORED}
+    return {key: untimed(value) for key, value in summary.items() if key not in IGNORED}
+
+
+def untimed(value: object) -> object:
+    """`value` without the time a scene alignment took (at any depth: the pairs of a many-session run)."""
+    if isinstance(value, dict):
+        return {k: untimed(v) for k, v in value.items() if not (k == "seconds" and "fitness" in value)}
+    if isinstance(value, list):
+        return [untimed(v) for v in value]
+    return value
 
 
 def main(before_dir: Path, after_dir: Path) -> int:

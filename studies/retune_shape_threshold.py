@@ -18,6 +18,7 @@ from pathlib import Path
 import polars as pl
 
 from ndfa.change.config import DetectorConfig
+from ndfa.eval.runs import score_replay
 from ndfa.run.replay import replay
 
 
@@ -34,7 +35,7 @@ def main() -> None:
         config = dataclasses.replace(base, association=dataclasses.replace(base.association, shape_similarity=value))
         totals, per_scene = [0, 0, 0], []
         for name, table in observations.items():
-            result = replay(table, config).score
+            result = score_replay(replay(table, config))
             if result is None:
                 raise SystemExit(f"{name}: its observations table has no ground-truth labels")
             totals = [totals[0] + result.tp, totals[1] + result.fp, totals[2] + result.fn]

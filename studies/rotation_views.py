@@ -21,7 +21,7 @@ from ndfa.io.recording.reader import RecordingReader
 from ndfa.ndf.encoder import NDFEncoder
 from ndfa.perception.observations import extract_observations
 
-STRENGTH = 0.15  # DecisionConfig.heading_strength
+STRENGTH = 0.15  # RotationConfig.heading_strength (the study's own)
 
 
 def views(paths: list[str], step: int) -> pl.DataFrame:

@@ -1,13 +1,23 @@
 """The change detector's parts (tree, association, registration, graphs) and the whole detector on
 hand-made measurements whose answer is known."""
 
+import dataclasses
 import time
 
 import numpy as np
 import pytest
 
 from ndfa.change.associate import Measurement, SessionMap, cosine_similarity
-from ndfa.change.config import AssociationConfig, DecisionConfig, DetectorConfig, RegistrationConfig
+from ndfa.change.config import (
+    AssociationConfig,
+    DecisionConfig,
+    DetectorConfig,
+    DriftConfig,
+    RansacConfig,
+    RegistrationConfig,
+    ViewsConfig,
+    WaitingConfig,
+)
 from ndfa.change.detector import ChangeDetector
 from ndfa.change.graph import compare_graphs, local_graph
 from ndfa.change.register import apply, ransac_registration, rigid_transform
@@ -95,8 +105,9 @@ def _code(seed: int, dim: int = 16) -> np.ndarray:
 
 
 def test_association_merges_near_similar_measurements_and_keeps_the_most_confident():
-    session = SessionMap(AssociationConfig(tree_length_m=1.2, distance_m=0.05, shape_similarity=0.9, same_place_m=0.0,
-                                           fusion="best"))
+    session = SessionMap(DetectorConfig(association=AssociationConfig(tree_length_m=1.2, distance_m=0.05,
+                                                                      shape_similarity=0.9),
+                                        views=ViewsConfig(same_place_m=0.0, fusion="best")))
     a = session.update(Measurement(0, 7, _code(1), np.array([1.0, 1.0, 0.8]), 0.6))
     b = session.update(Measurement(1, 7, _code(1) + 0.01, np.array([1.02, 1.0, 0.8]), 0.9))  # better: replaces
     c = session.update(Measurement(2, 7, _code(1), np.array([1.03, 1.0, 0.8]), 0.5))          # worse: kept out
@@ -113,7 +124,8 @@ def test_association_merges_near_similar_measurements_and_keeps_the_most_confide
 def test_a_measurement_across_a_cell_edge_joins_its_object():
     """Object 1's cell begins 1 cm before its center; its next measurement lands 2 cm off, across."""
     def session(across_cells):
-        s = SessionMap(AssociationConfig(tree_length_m=1.0, across_cells=across_cells, revisit_m=0.0))
+        s = SessionMap(DetectorConfig(association=AssociationConfig(tree_length_m=1.0),
+                                      drift=DriftConfig(across_cells=across_cells, revisit_m=0.0)))
         s.update(Measurement(0, 1, _code(1), np.array([0.0, 0.0, 0.8]), 0.5))    # x node [-0.5, 0.5]
         s.update(Measurement(1, 2, _code(2), np.array([0.51, 0.0, 0.8]), 0.5))   # x node clipped to (0.5, 1.01]
         return s.update(Measurement(2, 2, _code(2), np.array([0.49, 0.0, 0.8]), 0.5))
@@ -124,7 +136,8 @@ def test_a_measurement_across_a_cell_edge_joins_its_object():
 
 
 def test_an_alike_object_seen_again_after_drift_takes_the_measurement_unless_seen_in_the_same_frame():
-    config = AssociationConfig(distance_m=0.05, revisit_m=0.12, same_place_m=0.03)
+    config = DetectorConfig(association=AssociationConfig(distance_m=0.05), drift=DriftConfig(revisit_m=0.12),
+                            views=ViewsConfig(same_place_m=0.03))
     s = SessionMap(config)
     first = s.update(Measurement(0, 1, _code(1), np.array([0.0, 0.0, 0.8]), 0.5))
     later = s.update(Measurement(50, 1, _code(1), np.array([0.09, 0.0, 0.8]), 0.5))      # 9 cm: drift
@@ -140,17 +153,17 @@ def test_an_alike_object_seen_again_after_drift_takes_the_measurement_unless_see
         s.update(Measurement(0, 1, _code(1), np.array([0.0, 0.0, 0.8]), 0.5))
         assert s.update(Measurement(50, 1, code, np.array(center), 0.5)).created
     # off in the paper's rules
-    s = SessionMap(DetectorConfig.paper().association)
+    s = SessionMap(DetectorConfig.paper())
     s.update(Measurement(0, 1, _code(1), np.array([0.0, 0.0, 0.8]), 0.5))
     assert s.update(Measurement(50, 1, _code(1), np.array([0.09, 0.0, 0.8]), 0.5)).created
 
 
 def test_center_scatter_is_the_rms_horizontal_spread_of_the_measurements():
-    s = SessionMap(AssociationConfig(distance_m=0.05))
+    s = SessionMap(DetectorConfig(association=AssociationConfig(distance_m=0.05)))
     for k, x in enumerate([0.0, 0.02, -0.02, 0.0]):
         a = s.update(Measurement(k, 1, _code(1), np.array([x, 0.0, 0.8]), 0.5))
     assert s.objects[a.object_id].center_scatter_m == pytest.approx(np.sqrt((0.02**2 * 2) / 4))
-    best = SessionMap(AssociationConfig(fusion="best"))
+    best = SessionMap(DetectorConfig(views=ViewsConfig(fusion="best")))
     b = best.update(Measurement(0, 1, _code(1), np.array([0.0, 0.0, 0.8]), 0.5))
     assert best.objects[b.object_id].center_scatter_m == 0.0
 
@@ -324,7 +337,7 @@ def test_a_changed_verdict_waits_for_confirm_measurements(confirm, reported):
     codes = {i: _code(200 + i) for i in range(1, 7)}
     source_frames, target_frames = _two_tables(rng, codes, unlike_first_views=3)
     detector = ChangeDetector(DetectorConfig(registration=RegistrationConfig(pairs=3),
-                                             decision=DecisionConfig(confirm_measurements=confirm, min_measurements=3)))
+                                             waiting=WaitingConfig(confirm_measurements=confirm, min_measurements=3)))
     for frame in source_frames:
         detector.add_source(frame)
     events = [e for frame in target_frames for e in detector.add_target(frame)] + detector.finish()
@@ -336,31 +349,40 @@ def test_a_changed_verdict_waits_for_confirm_measurements(confirm, reported):
 
 def test_the_default_config_is_ndfas_tuning_and_paper_gives_the_papers_parameters():
     default = DetectorConfig()
-    assert default.association == AssociationConfig(tree_length_m=1.2, distance_m=0.05, shape_similarity=0.35,
-                                                     same_place_m=0.03, fusion="mean")
-    assert default.registration == RegistrationConfig(pairs=6, candidates=10, inlier_m=0.05, min_inliers=4,
-                                                      enough_inliers=12, retry_frames=10, seed=0)
-    assert default.decision == DecisionConfig(edge_m=0.03, fallback_distance_m=0.05, in_place_m=0.05,
-                                              min_measurements=3, confirm_measurements=8)
+    assert default.association == AssociationConfig(tree_length_m=1.2, distance_m=0.05, shape_similarity=0.35)
+    assert default.registration == RegistrationConfig(pairs=6, inlier_m=0.05, seed=0)
+    assert default.decision == DecisionConfig(edge_m=0.03, fallback_distance_m=0.05)
+    assert default.views == ViewsConfig(same_place_m=0.03, fusion="mean")
+    assert default.ransac == RansacConfig(candidates=10, min_inliers=4, enough_inliers=12, retry_frames=10)
+    assert default.waiting == WaitingConfig(min_measurements=3, confirm_measurements=8)
+    assert default.evidence.in_place_m == 0.05 and default.priors.enabled and default.rotation.threshold_deg == 30
     paper = DetectorConfig.paper()
     a, r, d = paper.association, paper.registration, paper.decision
-    assert (a.tree_length_m, a.distance_m, a.shape_similarity, a.fusion) == (1.2, 0.02, 0.9, "best")  # l, delta_d, delta_s
-    assert (r.pairs, r.candidates, d.edge_m) == (6, 1, 0.03)                                          # N, delta_e
-    # ndfa's additions off: no same-place rule, no in-place test, no waiting for measurements,
-    # T_rel accepted as RANSAC returns it, never re-estimated, tried on every frame
-    assert (a.same_place_m, d.in_place_m, d.min_measurements, d.confirm_measurements) == (0.0, 0.0, 1, 1)
-    assert (r.min_inliers, r.enough_inliers, r.retry_frames) == (0, 0, 1)
+    assert (a.tree_length_m, a.distance_m, a.shape_similarity) == (1.2, 0.02, 0.9)  # l, delta_d, delta_s
+    assert (r.pairs, d.edge_m) == (6, 0.03)                                          # N, delta_e
+    # ndfa's additions off: the most confident view, no same-place rule, no in-place test, no
+    # waiting, T_rel from the best match of each object, accepted as RANSAC returns it, never
+    # re-estimated, tried on every frame, no prior; no rotation test
+    assert paper.views == ViewsConfig(same_place_m=0.0, fusion="best")
+    assert (paper.evidence.in_place_m, paper.evidence.observed_height_m) == (0.0, 0.0)
+    assert (paper.waiting.min_measurements, paper.waiting.confirm_measurements, paper.waiting.neighbours) == (1, 1, False)
+    assert paper.ransac == RansacConfig(candidates=1, min_inliers=0, enough_inliers=0, retry_frames=1, small_maps=False)
+    assert not paper.priors.enabled and paper.rotation.threshold_deg is None
     # ... and no allowance for drift: the cell only, no revisits, fixed distances
-    assert (a.across_cells, a.revisit_m, d.cell_margin_m, d.scatter_factor) == (False, 0.0, 0.0, 0.0)
+    assert paper.drift == DriftConfig(revisit_m=0.0, across_cells=False, scatter_factor=0.0, cell_margin_m=0.0)
+    # each addition off on its own, the rest as they were
+    assert DetectorConfig().without("drift") == dataclasses.replace(DetectorConfig(), drift=paper.drift)
+    with pytest.raises(ValueError, match="unknown additions"):
+        DetectorConfig().without("colour")
 
 
 def test_session_maps_take_the_association_config():
-    config = AssociationConfig(tree_length_m=0.8, fusion="best")
+    config = DetectorConfig(association=AssociationConfig(tree_length_m=0.8), views=ViewsConfig(fusion="best"))
     session = SessionMap(config)
     assert session.config is config and session.tree.x.length == 0.8
-    assert SessionMap().config == DetectorConfig().association
+    assert SessionMap().config == DetectorConfig()
     with pytest.raises(ValueError, match="fusion"):
-        AssociationConfig(fusion="median")
+        ViewsConfig(fusion="median")
 
 
 def test_events_are_keyword_only():
@@ -405,7 +427,7 @@ def _neighbourhoods(target_centers: dict[int, list[float]], target_codes=None):
 def test_a_verdict_from_a_hand_built_neighbourhood():
     from ndfa.change.verdict import graph_verdict, shape_verdict
 
-    decision = DecisionConfig()
+    decision = DetectorConfig()
     # 0 and 1 stayed, 2 was moved away: 0 is unchanged, with source object 0 as its partner
     source, target, graph, similarity = _neighbourhoods({0: [0, 0, 0.8], 1: [0.3, 0.01, 0.8], 2: [0.6, 0.6, 0.8]})
     centers_before = {i: o.center_world.copy() for i, o in source.items()}
@@ -444,7 +466,7 @@ def test_a_verdict_from_a_hand_built_neighbourhood():
                             target_scatter_m=0.0)
     assert lone_source[0].center_scatter_m == pytest.approx(0.04) and widened.kind == "unchanged"
     paper = graph_verdict(graph, target[0].center_world, [0], similarity, lone_source, np.eye(3), 0.9,
-                          DetectorConfig.paper().decision)
+                          DetectorConfig.paper())
     assert paper.kind == "changed"
 
     # nothing around it looks like it, or nothing is around it: changed on shapes alone
@@ -457,7 +479,7 @@ def test_the_policy_waits_for_evidence_and_decides_at_the_end():
     from ndfa.change.policy import DecisionPolicy
     from ndfa.change.verdict import Verdict
 
-    policy = DecisionPolicy(DecisionConfig(min_measurements=3, confirm_measurements=8))
+    policy = DecisionPolicy(WaitingConfig(min_measurements=3, confirm_measurements=8))
     assert not policy.testable(2) and policy.testable(3)
     policy.hold(5, final=False)
     assert policy.pending == {5}
@@ -481,8 +503,9 @@ def test_the_registrar_keeps_registered_centers_until_an_object_or_T_rel_changes
     from ndfa.change.register import Registration
     from ndfa.change.registrar import Registrar
 
-    source, target = SessionMap(), SessionMap(AssociationConfig(fusion="best"))
-    registrar = Registrar(RegistrationConfig(enough_inliers=4), 0.7, source, target)  # no re-estimates
+    source, target = SessionMap(), SessionMap(DetectorConfig(views=ViewsConfig(fusion="best")))
+    registrar = Registrar(DetectorConfig(association=AssociationConfig(shape_similarity=0.7),
+                                         ransac=RansacConfig(enough_inliers=4)), source, target)  # no re-estimates
     motion = _random_motion(np.random.default_rng(8))
     registrar.registration = Registration(motion, np.arange(4), 0.0, 4, 1)
 
@@ -520,7 +543,7 @@ def test_a_target_object_registered_across_a_cell_edge_meets_its_source_self(mar
     codes = {i: _code(300 + i) for i in (1, 2, 3)}
     source = {1: [0.0, 0.0, 0.8], 2: [0.62, 0.0, 0.8], 3: [0.9, 0.1, 0.8]}
     target = dict(source) | {2: [0.56, 0.0, 0.8]}
-    detector = ChangeDetector(DetectorConfig(decision=DecisionConfig(cell_margin_m=margin)))
+    detector = ChangeDetector(DetectorConfig(drift=DriftConfig(cell_margin_m=margin)))
     detector.add_registration_prior(RegistrationPrior("shared world", np.eye(4)))
     for frame in range(4):
         detector.add_source([Measurement(frame, i, codes[i], np.array(c), 0.7) for i, c in source.items()])

@@ -11,6 +11,7 @@ from typer.testing import CliRunner
 
 from ndfa.cli import app
 from ndfa.core.errors import RecordingError
+from ndfa.eval.runs import score_detection
 from ndfa.io.recording import Frame, RecordingWriter
 from ndfa.log.table_sink import TABLES, TableSink
 from ndfa.pipeline import PipelineConfig
@@ -56,14 +57,16 @@ def test_a_run_without_sinks_decodes_less_and_decides_the_same(run, overlap):
     with every output."""
     out, _ = run
     with_sinks = json.loads((out / "summary.json").read_text())
-    without = run_detection(SAMPLE / "source.mcap", SAMPLE / "target.mcap", overlap=overlap).summary()
+    without = score_detection(run_detection(SAMPLE / "source.mcap", SAMPLE / "target.mcap", overlap=overlap)).summary()
     assert without["changes"] == with_sinks["changes"]
     assert (without["tp"], without["fp"], without["fn"]) == (with_sinks["tp"], with_sinks["fp"], with_sinks["fn"])
 
 
 def test_replaying_the_observations_table_reproduces_the_run(run):
-    from ndfa.change.config import DetectorConfig, RegistrationConfig
-    from ndfa.run.replay import replay
+    from ndfa.change.config import DetectorConfig, RansacConfig
+    from ndfa.eval.runs import score_replay
+    from ndfa.eval.scoring import score
+    from ndfa.run.replay import replay, reported_at
 
     out, _ = run
     summary = json.loads((out / "summary.json").read_text())
@@ -71,18 +74,19 @@ def test_replaying_the_observations_table_reproduces_the_run(run):
     same = replay(observations)
     assert sorted((c.session, c.object_id, c.kind) for c in same.changes) == \
         sorted((c["session"], c["object"], c["kind"]) for c in summary["changes"])
-    assert (same.score.tp, same.score.fp, same.score.fn) == (summary["tp"], summary["fp"], summary["fn"])
+    scored = score_replay(same)
+    assert (scored.tp, scored.fp, scored.fn) == (summary["tp"], summary["fp"], summary["fn"])
     # thresholding the replay's decision scores at the detector's own 0.5 is the run's operating point;
     # lower, recall can only grow
-    assert same.score_at(0.5) == same.score
-    assert same.score_at(0.0).tp >= same.score.tp and same.score_at(0.0).fp >= same.score.fp
+    assert score(reported_at(same.decisions, 0.5), same.truth, same.visible) == scored
+    assert score_replay(same, 0.0).tp >= scored.tp and score_replay(same, 0.0).fp >= scored.fp
     decisions = pl.read_parquet(out / "tables" / "decisions.parquet")
     assert decisions.filter(pl.col("score") >= 0.5)["kind"].unique().sort().to_list() == \
         sorted({c["kind"] for c in summary["changes"]} | ({"added"} if "moved" in {c["kind"] for c in summary["changes"]}
                                                           else set()))
     assert (decisions.filter(pl.col("kind") == "unchanged")["score"] < 0.5).all()
     # another config gives another answer: without registration no target object is tested
-    never_registered = replay(observations, DetectorConfig(registration=RegistrationConfig(min_inliers=1000)))
+    never_registered = replay(observations, DetectorConfig(ransac=RansacConfig(min_inliers=1000)))
     assert never_registered.detector.registration is None
     assert all(c.session == "source" for c in never_registered.changes)
 

@@ -11,6 +11,7 @@ import pytest
 
 from ndfa.core.errors import RecordingError
 from ndfa.core.geometry import axis_angle_to_matrix, make_pose
+from ndfa.eval.runs import score_detection
 from ndfa.io.recording import RecordingReader, RecordingWriter
 from ndfa.run.detect import RunOptions, run_detection
 from ndfa.run.world import prepare_session
@@ -57,10 +58,10 @@ def test_a_synthetic_recording_is_taken_as_z_up_and_a_tilted_one_is_levelled(tmp
 
 @pytest.mark.slow
 def test_detection_on_a_tilted_world_matches_the_z_up_one(tmp_path):
-    reference = run_detection(SAMPLE / "source.mcap", SAMPLE / "target.mcap")
+    reference = score_detection(run_detection(SAMPLE / "source.mcap", SAMPLE / "target.mcap"))
     tilt = _tilt(30.0)
     pair = [_rewritten(SAMPLE / f"{s}.mcap", tmp_path / f"{s}.mcap", tilt, {"source": "tum"}) for s in ("source", "target")]
-    tilted = run_detection(*pair)
+    tilted = score_detection(run_detection(*pair))
     assert all(w.levelling is not None for w in tilted.worlds.values())
     assert tilted.score is not None and reference.score is not None
     assert abs(tilted.score.tp - reference.score.tp) <= 1

@@ -229,7 +229,7 @@ def test_segments_the_ndf_does_not_fit_are_not_measured_but_masks_are(occupancy,
         encoder = _FixedOccupancyEncoder(occupancy)
         pipeline = ChangeDetectionPipeline(PipelineConfig(), encoder=encoder)
         shown = frame if masked else dataclasses.replace(frame, instances=None)
-        observations = [e for e in pipeline.process("source", shown, full_reconstruction=False)
+        observations = [e for e in pipeline.process("source", shown, pipeline.new_detector(), full_reconstruction=False)
                         if isinstance(e, ObservationEvent) and e.n_points > 0]
         assert observations
         # The gate of segments needs the whole reconstruction's mean occupancy, masks only whether it is empty.

@@ -4,6 +4,8 @@ scene clouds in `ndfa.run.align`."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from ndfa.change.associate import Measurement
@@ -12,6 +14,7 @@ from ndfa.change.detector import ChangeDetector
 from ndfa.change.register import RegistrationPrior, apply, verify_prior, yaw_transform
 from ndfa.core.geometry import make_pose, rotation_z
 from ndfa.run.align import AlignConfig, align_scenes, check_shared_world, voxel_thin
+from ndfa.run.stream import RunOptions
 
 
 def _code(seed: int) -> np.ndarray:
@@ -136,3 +139,27 @@ def test_a_prior_the_objects_do_not_support_never_vetoes_a_ransac_fit_of_many_ob
         detector = run(RegistrationPrior("scene alignment", wrong, binding=binding))
         assert detector.registration is not None and detector.registration.method == "object pairs"
         np.testing.assert_allclose(detector.registration.transform, np.linalg.inv(offset), atol=0.02)
+
+
+def test_the_papers_path_takes_no_prior_and_its_run_offers_none(tmp_path):
+    from typer.testing import CliRunner
+
+    from ndfa.cli import app
+    from ndfa.pipeline import PipelineConfig
+    from ndfa.run.detect import run_detection
+
+    paper = ChangeDetector(DetectorConfig.paper())
+    paper.add_registration_prior(RegistrationPrior("shared world", np.eye(4)))
+    assert paper.registrar.priors == []  # registration by object pairs alone
+    ndfa = ChangeDetector(DetectorConfig())
+    ndfa.add_registration_prior(RegistrationPrior("shared world", np.eye(4)))
+    assert len(ndfa.registrar.priors) == 1
+    # the run computes no scene-level hypothesis for it (a few frames: only whether one is offered)
+    sample = Path(__file__).parents[1] / "recordings" / "sample"
+    result = run_detection(sample / "source.mcap", sample / "target.mcap",
+                           PipelineConfig(detector=DetectorConfig.paper()), options=RunOptions(frame_step=20))
+    assert result.alignment is None
+    # and the command line says so when asked for both
+    refused = CliRunner().invoke(app, ["detect", str(sample / "source.mcap"), str(sample / "target.mcap"),
+                                       "--paper-parameters", "--registration", "scene"])
+    assert refused.exit_code == 2 and "object pairs alone" in refused.output

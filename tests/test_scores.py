@@ -6,7 +6,7 @@ import polars as pl
 import pytest
 
 from ndfa.change.associate import Measurement, SessionObject, cosine_similarity
-from ndfa.change.config import DecisionConfig, DetectorConfig, RegistrationConfig
+from ndfa.change.config import DetectorConfig, EvidenceConfig, RegistrationConfig
 from ndfa.change.detector import ChangeDetector, reported_changes
 from ndfa.change.graph import local_graph
 from ndfa.change.verdict import Verdict, decision_score, graph_verdict, removal_score, shape_verdict
@@ -34,7 +34,7 @@ def _verdict(target_centers: dict[int, list[float]], target_codes=None) -> Verdi
     verdict = shape_verdict([0, 1, 2], similarity, 0.7)
     if verdict is None:
         verdict = graph_verdict(graph, target[0].center_world, [0, 1, 2], similarity, source, np.eye(3), 0.7,
-                                DecisionConfig(in_place_m=0.0))
+                                DetectorConfig(evidence=EvidenceConfig(in_place_m=0.0)))
     return verdict
 
 

@@ -9,6 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from ndfa.cli import app
+from ndfa.eval.runs import score_detection
 from ndfa.eval.segmentation import match_segments, relabel_to_truth, segmentation_recall
 from ndfa.io.recording import RecordingReader, RecordingWriter
 from ndfa.perception.segmentation import segment_frame
@@ -83,7 +84,7 @@ def test_detect_runs_on_recordings_without_masks(tmp_path):
     source = _strip_masks(SAMPLE / "source.mcap", tmp_path / "source.mcap")
     target = _strip_masks(SAMPLE / "target.mcap", tmp_path / "target.mcap")
     assert not RecordingReader(source).has_instances
-    result = run_detection(source, target)
+    result = score_detection(run_detection(source, target))
     assert result.objects["source"] >= 5 and result.objects["target"] >= 5
     assert result.changes, "the sample pair has five changed mugs; segmentation should let some be found"
     # Scored by position (the sample's ground truth lists no visible instances: every mug is scored).

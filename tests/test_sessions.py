@@ -285,11 +285,12 @@ def test_eval_history_writes_the_pair_and_history_scores(four, tmp_path):
 
 @pytest.mark.slow
 def test_a_pair_of_a_many_session_run_is_the_two_session_detector():
+    from ndfa.eval.runs import score_detection, score_sessions
     from ndfa.run.detect import run_detection
     from ndfa.run.sessions import run_sessions
 
-    pair = run_detection(SAMPLE / "source.mcap", SAMPLE / "target.mcap")
-    many = run_sessions([SAMPLE / "source.mcap", SAMPLE / "target.mcap"])
+    pair = score_detection(run_detection(SAMPLE / "source.mcap", SAMPLE / "target.mcap"))
+    many = score_sessions(run_sessions([SAMPLE / "source.mcap", SAMPLE / "target.mcap"]))
     assert sorted((c.kind, c.object_id, c.instance_ids) for c in pair.changes) == \
         sorted((c.kind, c.object_id, c.instance_ids) for c in many.pairs[0].changes)
     assert (pair.score.tp, pair.score.fp, pair.score.fn) == (many.pairs[0].score.tp, many.pairs[0].score.fp,

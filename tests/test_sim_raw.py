@@ -235,12 +235,14 @@ def test_ground_truth_lists_the_visible_instances_a_raw_recording_has_no_masks_f
 
 
 def test_detect_scores_a_raw_recording_by_position(recordings):
+    from ndfa.eval.runs import score_detection
     from ndfa.eval.scoring import scorable_instances
     from ndfa.run.detect import RunOptions, run_detection
 
     raw = recordings["raw"]
     # On the true poses; up as recorded (the tiny images give too few planes to estimate it from).
-    result = run_detection(raw / "source.mcap", raw / "target.mcap", options=RunOptions(poses="truth", up="z"))
+    result = score_detection(run_detection(raw / "source.mcap", raw / "target.mcap",
+                                           options=RunOptions(poses="truth", up="z")))
     assert result.score is not None and result.score.as_dict()["scored_by"] == "position"
     # Which mugs are scored follows the ground truth's visible lists (few at this image size).
     truth = RecordingReader(raw / "target.mcap").ground_truth

@@ -6,7 +6,7 @@ qualify); the object then takes the measurement's code and center if the measure
 occupancy (the NDF's confidence in its reconstruction) is higher than the object's. Otherwise the
 measurement starts a new object.
 
-ndfa changes two things (`AssociationConfig`; why: `docs/detector.md`): with `fusion="mean"` an
+ndfa changes two things (`ViewsConfig`; why: `docs/detector.md`): with `fusion="mean"` an
 object keeps the mean of its measurements' unit codes and the median of their centers instead of
 the most confident measurement's, and a measurement within `same_place_m` of an object (measured
 horizontally) joins it whatever the codes say. A measurement that joins no object by these rules
@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ndfa.change.config import AssociationConfig
+from ndfa.change.config import DetectorConfig
 from ndfa.change.tree import ObjectTree
 from ndfa.core.conventions import UP_AXIS, horizontal
 from ndfa.core.events import ObservationEvent
@@ -102,9 +102,9 @@ def cosine_similarity(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 class SessionMap:
     """The objects of one session and their spatial object tree."""
 
-    def __init__(self, config: AssociationConfig = AssociationConfig()) -> None:
-        self.config = config
-        self.tree = ObjectTree(config.tree_length_m)
+    def __init__(self, config: DetectorConfig = DetectorConfig()) -> None:
+        self.config = config  # its association (the paper's), views and drift parts
+        self.tree = ObjectTree(config.association.tree_length_m)
         self.objects: dict[int, SessionObject] = {}
 
     def __len__(self) -> int:
@@ -116,9 +116,9 @@ class SessionMap:
         return sorted(self.tree.neighbourhood(point, margin))
 
     def update(self, m: Measurement) -> Association:
-        c = self.config
+        c, views, drift = self.config.association, self.config.views, self.config.drift
         # Every object that could take the measurement, also across a cell's edge.
-        reach = max(c.distance_m, c.same_place_m, c.revisit_m) if c.across_cells else 0.0
+        reach = max(c.distance_m, views.same_place_m, drift.revisit_m) if drift.across_cells else 0.0
         candidates = self.neighbourhood(m.center_world, reach)
         best, best_distance, best_similarity = None, np.inf, np.nan
         revisit, revisit_distance, revisit_similarity = None, np.inf, np.nan
@@ -130,10 +130,10 @@ class SessionMap:
             similarity = cosine_similarity(m.shape_code, np.array([o.shape_code for o in objects]))
             horizontal_distance = np.linalg.norm(horizontal(offsets), axis=1)
             alike = similarity > c.shape_similarity
-            same = (horizontal_distance < c.same_place_m) | ((distance < c.distance_m) & alike)
+            same = (horizontal_distance < views.same_place_m) | ((distance < c.distance_m) & alike)
             # The same object seen again after the odometry drifted: near, alike, and not seen in
             # this frame (two objects measured in one frame are two objects).
-            seen_again = ((horizontal_distance < c.revisit_m) & (np.abs(offsets[:, UP_AXIS]) < c.revisit_m) & alike
+            seen_again = ((horizontal_distance < drift.revisit_m) & (np.abs(offsets[:, UP_AXIS]) < drift.revisit_m) & alike
                           & np.array([o.last_frame != m.frame_index for o in objects]))
             if same.any():  # the nearest (the first of equals, in id order)
                 k = int(np.flatnonzero(same)[np.argmin(distance[same])])
@@ -156,7 +156,7 @@ class SessionMap:
         best.headings.append((m.heading_rad, m.heading_strength))
         if m.instance_id not in best.instance_ids:
             best.instance_ids += (m.instance_id,)
-        if c.fusion == "mean":
+        if views.fusion == "mean":
             assert best.code_sum is not None and best.centers is not None  # every object starts with both
             best.code_sum = best.code_sum + _unit(m.shape_code)
             best.centers.append(m.center_world)

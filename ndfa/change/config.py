@@ -1,8 +1,11 @@
-"""The change detector's parameters, one frozen sub-config per step of the paper's Sec. IV.
+"""The change detector's parameters: the paper's (Sec. IV, V-C), and ndfa's additions beside them.
 
-`DetectorConfig()` holds ndfa's defaults, `DetectorConfig.paper()` the paper's own parameters
-(Sec. V-C). Why each default differs from the paper's, and what was measured to choose it, is in
-`docs/detector.md`.
+`DetectorConfig` holds three parts with the paper's own parameters (`association`, `registration`,
+`decision`) and one part per addition of ndfa's (`views`, `drift`, `ransac`, `priors`, `waiting`,
+`evidence`, `rotation`). Every knob of an addition says at its field the value that switches it
+off; `DetectorConfig.paper()` is the paper's parameters with every addition off. Why each default
+differs from the paper's, what was measured to choose it, and what each addition does on the
+seven masked scenes: `docs/detector.md`.
 """
 
 from __future__ import annotations
@@ -13,6 +16,9 @@ from typing import Literal
 Fusion = Literal["mean", "best"]
 
 
+# -- the paper's parameters ------------------------------------------------------------------------
+
+
 @dataclass(frozen=True)
 class AssociationConfig:
     """Intra-session association (Sec. IV-A): measurements -> the objects of one session."""
@@ -20,10 +26,34 @@ class AssociationConfig:
     tree_length_m: float = 1.2        # l: interval length of the object trees (paper: 1.2 m sim, 1.6 m real)
     distance_m: float = 0.05          # delta_d: largest center distance of a measurement to its object (paper 0.02)
     shape_similarity: float = 0.35    # delta_s: smallest cosine similarity of two codes of one object (paper 0.9; tuned by replay for NDF v2, docs/detector.md)
-    same_place_m: float = 0.03        # a measurement this close (horizontally) to an object is that object; 0: off
-    fusion: Fusion = "mean"           # an object's code and center: its measurements' "mean" (median center) or the "best"
-    revisit_m: float = 0.12           # an alike object this close, not measured in the same frame, takes it (drift); 0: off
-    across_cells: bool = True         # candidates also from the cells across an edge within reach; False: the cell only
+
+
+@dataclass(frozen=True)
+class RegistrationConfig:
+    """T_rel, target world -> source world (Sec. IV-B): SVD + RANSAC on shape-matched object pairs."""
+
+    pairs: int = 6                # N: target objects with a shape match before the first attempt
+    inlier_m: float = 0.05        # a registered pair this close supports a transform (the paper gives no value)
+    seed: int = 0                 # RANSAC's sampling
+
+
+@dataclass(frozen=True)
+class DecisionConfig:
+    """The change test of a target object (Sec. IV-B, Fig. 5)."""
+
+    edge_m: float = 0.03               # delta_e: largest difference of two corresponding graph edges
+    fallback_distance_m: float = 0.05  # a lone object is unchanged this close to its shape match (the paper: no value)
+
+
+# -- ndfa's additions, each with its "off" ---------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ViewsConfig:
+    """One object from many views (`ndfa.change.associate`)."""
+
+    same_place_m: float = 0.03   # a measurement this close (horizontally) to an object is that object. Off: 0
+    fusion: Fusion = "mean"      # an object's code and center: its measurements' "mean" (median center). Off: "best" (the paper's: the most confident measurement)
 
     def __post_init__(self) -> None:
         if self.fusion not in ("best", "mean"):
@@ -31,62 +61,90 @@ class AssociationConfig:
 
 
 @dataclass(frozen=True)
-class RegistrationConfig:
-    """T_rel, target world -> source world (Sec. IV-B), from objects matched by shape.
+class DriftConfig:
+    """Allowances for poses that drift between the views of a place (docs/detector.md, "Drift")."""
 
-    Prior hypotheses (`ndfa.change.register.RegistrationPrior`) are not fitted to the pairs, so
-    fewer agreeing pairs accept one than a RANSAC fit; the pairs near it refine it first."""
-
-    pairs: int = 6                # N: target objects with a shape match before the first attempt
-    candidates: int = 10          # shape matches per target object offered to RANSAC (paper 1)
-    inlier_m: float = 0.05        # a registered pair this close supports a transform
-    min_inliers: int = 4          # inliers needed to accept T_rel; until then nothing is decided
-    enough_inliers: int = 12      # T_rel is re-estimated as target objects arrive until it has this many
-    retry_frames: int = 10        # before T_rel exists: an attempt per new target object, else every this many frames
-    seed: int = 0                 # RANSAC's sampling
-    prior_min_inliers: int = 2    # inliers needed to accept a prior hypothesis (shared world, scene alignment)
-    prior_support_m: float = 0.10  # pairs this close to where a prior puts them refine it (its own error)
+    revisit_m: float = 0.12      # an alike object this close, not measured in the same frame, takes the measurement. Off: 0
+    across_cells: bool = True    # association candidates also from the cells across an edge within reach. Off: False (the cell only)
+    # The position tests of `DecisionConfig` and `EvidenceConfig.in_place_m` widen by this many times
+    # the two objects' combined center scatter (`SessionObject.center_scatter_m`): about 0.5 cm in
+    # simulation, 4 cm on a real sequence with estimated poses. Off: 0 (fixed distances).
+    scatter_factor: float = 1.0
+    # A target object registered this close to a source cell's edge is compared with the objects
+    # across it too (T_rel errs by centimetres where the odometry drifted). Off: 0 (the cell it lands in).
+    cell_margin_m: float = 0.05
 
 
 @dataclass(frozen=True)
-class DecisionConfig:
-    """The change test of a target object (Sec. IV-B) and when its verdict is reported."""
+class RansacConfig:
+    """How RANSAC's T_rel is tried and accepted (`ndfa.change.registrar`)."""
 
-    edge_m: float = 0.03               # delta_e: largest difference of two corresponding graph edges
-    fallback_distance_m: float = 0.05  # a lone object is unchanged this close to its shape match
-    in_place_m: float = 0.05           # no edge agrees, yet unchanged this close to its shape match; 0: off
-    # The two position tests above widen by this many times the two objects' combined center
-    # scatter (`SessionObject.center_scatter_m`): about 0.5 cm in simulation, 4 cm on a real sequence
-    # with estimated poses (docs/detector.md). 0: fixed distances (paper).
-    scatter_factor: float = 1.0
-    # T_rel errs by centimetres where the odometry drifted: a target object registered this close to
-    # a source cell's edge is compared with the objects across it too. 0: the cell it lands in (paper).
-    cell_margin_m: float = 0.05
-    min_measurements: int = 3          # an object is tested (and reported) only from this many measurements
-    confirm_measurements: int = 8      # a "changed" verdict on fewer measurements waits for more views
+    candidates: int = 10          # shape matches per target object offered to RANSAC. Off: 1 (the paper's best match)
+    min_inliers: int = 4          # inliers needed to accept T_rel; until then nothing is decided. Off: 0 (whatever RANSAC returns)
+    enough_inliers: int = 12      # T_rel is re-estimated as target objects arrive until it has this many. Off: 0 (never)
+    retry_frames: int = 10        # before T_rel exists: an attempt per new target object, else every this many frames. Off: 1
+    # A source map with fewer than N objects registers with all of them. Off: False (it waits for N)
+    small_maps: bool = True
+
+
+@dataclass(frozen=True)
+class PriorConfig:
+    """Scene-level T_rel hypotheses (the shared world, the scene alignment: `ndfa.run.align`), which
+    the object pairs verify (`ndfa.change.register.verify_prior`). Fewer agreeing pairs accept one
+    than a RANSAC fit, since a prior is not fitted to them; the pairs near it refine it first."""
+
+    enabled: bool = True          # the registrar takes the priors a run offers. Off: False (object pairs alone; a run computes none)
+    min_inliers: int = 2          # inliers needed to accept a prior
+    support_m: float = 0.10       # pairs this close to where a prior puts them refine it (its own error)
+
+
+@dataclass(frozen=True)
+class WaitingConfig:
+    """When a verdict is reported (`ndfa.change.policy`, `ndfa.change.verdict`)."""
+
+    min_measurements: int = 3      # an object is tested (and reported) only from this many measurements. Off: 1
+    confirm_measurements: int = 8  # a "changed" verdict on fewer measurements waits for more views. Off: 1
+    # A target object alone in its target neighbourhood while the source's has company, or one whose
+    # graph agrees with no match while it has fewer neighbours than the match, waits (decided at the
+    # end at the latest). Off: False (decided at once).
+    neighbours: bool = True
+
+
+@dataclass(frozen=True)
+class EvidenceConfig:
+    """What counts as a match or as looked at, beyond the paper's tests."""
+
+    in_place_m: float = 0.05           # no edge agrees, yet unchanged this close to its shape match. Off: 0
     # A source object counts as looked at by the target (and so "removed" when never matched) when a
     # tested target object stands in its neighbourhood AND within this height of it: the trees are
     # horizontal, so without it testing a mug on a table "observes" a piece of floor under the
-    # table, which the target may never have seen (docs/detector.md). 0: off (any height).
+    # table, which the target may never have seen. Off: 0 (any height).
     observed_height_m: float = 0.3
-    # Rotated objects (`ndfa.change.rotation`, docs/rotation.md): an object found unchanged whose
-    # handle turned about up by more than this many degrees between the sessions is reported
-    # "rotated". None: off (the paper has no such test).
-    rotation_deg: float | None = 30.0
+
+
+@dataclass(frozen=True)
+class RotationConfig:
+    """Rotated objects (`ndfa.change.rotation`, docs/rotation.md; the paper has no such test)."""
+
+    # An object found unchanged whose handle turned about up by more than this many degrees is
+    # reported "rotated". Off: None.
+    threshold_deg: float | None = 30.0
     # A view's handle heading counts from this strength (the horizontal length of the NDF's handle
     # vector, `ndfa.ndf.heading`), weighted by it: with the shipped NDF v2, 57 % of the views of
-    # three baseline scenes reach 0.10, and 93 % of those are within 20 degrees of the truth
-    # (docs/rotation.md).
+    # three baseline scenes reach 0.10, and 93 % of those are within 20 degrees of the truth.
     heading_strength: float = 0.10
-    rotation_views: int = 3            # reliable views each of the two objects needs
-    rotation_spread_deg: float = 25.0  # their headings' circular spread, per object, at most this
-    # The turn must pass `rotation_deg` by this many times the two objects' spreads combined
-    # (sqrt(s_t^2 + s_s^2)): their headings' view-dependent bias does not average away. 0: off.
-    rotation_margin: float = 1.0
+    views: int = 3                 # reliable views each of the two objects needs
+    spread_deg: float = 25.0       # their headings' circular spread, per object, at most this
+    # The turn must pass `threshold_deg` by this many times the two objects' spreads combined
+    # (sqrt(s_t^2 + s_s^2)): their headings' view-dependent bias does not average away. Off: 0.
+    margin: float = 1.0
 
     def __post_init__(self) -> None:
-        if self.rotation_deg is not None and not 0.0 < self.rotation_deg < 180.0:
-            raise ValueError(f"rotation_deg must be in (0, 180) degrees or None, got {self.rotation_deg}")
+        if self.threshold_deg is not None and not 0.0 < self.threshold_deg < 180.0:
+            raise ValueError(f"rotation threshold_deg must be in (0, 180) degrees or None, got {self.threshold_deg}")
+
+
+ADDITIONS = ("views", "drift", "ransac", "priors", "waiting", "evidence", "rotation")
 
 
 @dataclass(frozen=True)
@@ -96,19 +154,35 @@ class DetectorConfig:
     association: AssociationConfig = field(default_factory=AssociationConfig)
     registration: RegistrationConfig = field(default_factory=RegistrationConfig)
     decision: DecisionConfig = field(default_factory=DecisionConfig)
+    views: ViewsConfig = field(default_factory=ViewsConfig)
+    drift: DriftConfig = field(default_factory=DriftConfig)
+    ransac: RansacConfig = field(default_factory=RansacConfig)
+    priors: PriorConfig = field(default_factory=PriorConfig)
+    waiting: WaitingConfig = field(default_factory=WaitingConfig)
+    evidence: EvidenceConfig = field(default_factory=EvidenceConfig)
+    rotation: RotationConfig = field(default_factory=RotationConfig)
 
     @classmethod
     def paper(cls) -> DetectorConfig:
-        """The paper's parameters (Sec. V-C, simulation), with ndfa's additions switched off where a
-        knob can: see `docs/detector.md` for the rules that stay (they have no knob) and for the two
-        values the paper does not give (the RANSAC inlier distance and the lone-object distance)."""
-        return cls(
-            association=AssociationConfig(tree_length_m=1.2, distance_m=0.02, shape_similarity=0.9, same_place_m=0.0,
-                                          fusion="best", revisit_m=0.0, across_cells=False),
-            registration=RegistrationConfig(pairs=6, candidates=1, inlier_m=0.05, min_inliers=0, enough_inliers=0,
-                                            retry_frames=1, seed=0),
-            decision=DecisionConfig(edge_m=0.03, fallback_distance_m=0.05, in_place_m=0.0, scatter_factor=0.0,
-                                    cell_margin_m=0.0,
-                                    min_measurements=1,
-                                    confirm_measurements=1, observed_height_m=0.0, rotation_deg=None),
-        )
+        """The paper's parameters (Sec. V-C, simulation) with every addition off (`additions_off`).
+        `docs/detector.md` lists the rules that stay (they have no knob) and the two values the
+        paper does not give (the RANSAC inlier distance and the lone-object distance)."""
+        paper = cls(association=AssociationConfig(tree_length_m=1.2, distance_m=0.02, shape_similarity=0.9),
+                    registration=RegistrationConfig(pairs=6, inlier_m=0.05, seed=0),
+                    decision=DecisionConfig(edge_m=0.03, fallback_distance_m=0.05))
+        return paper.without(*ADDITIONS)
+
+    def without(self, *additions: str) -> DetectorConfig:
+        """This config with the named additions (`ADDITIONS`) switched off, the others as they are."""
+        unknown = set(additions) - set(ADDITIONS)
+        if unknown:
+            raise ValueError(f"unknown additions {sorted(unknown)}; they are {', '.join(ADDITIONS)}")
+        off = {"views": ViewsConfig(same_place_m=0.0, fusion="best"),
+               "drift": DriftConfig(revisit_m=0.0, across_cells=False, scatter_factor=0.0, cell_margin_m=0.0),
+               "ransac": RansacConfig(candidates=1, min_inliers=0, enough_inliers=0, retry_frames=1, small_maps=False),
+               "priors": PriorConfig(enabled=False),
+               "waiting": WaitingConfig(min_measurements=1, confirm_measurements=1, neighbours=False),
+               "evidence": EvidenceConfig(in_place_m=0.0, observed_height_m=0.0),
+               "rotation": RotationConfig(threshold_deg=None)}
+        values = {name: getattr(self, name) for name in ("association", "registration", "decision") + ADDITIONS}
+        return DetectorConfig(**(values | {name: off[name] for name in additions}))

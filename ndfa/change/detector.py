@@ -44,10 +44,10 @@ __all__ = ["ChangeDetector", "DetectorConfig", "reported_changes"]
 class ChangeDetector:
     def __init__(self, config: DetectorConfig = DetectorConfig()) -> None:
         self.config = config
-        self.source = SessionMap(config.association)
-        self.target = SessionMap(config.association)
-        self.registrar = Registrar(config.registration, config.association.shape_similarity, self.source, self.target)
-        self.policy = DecisionPolicy(config.decision)
+        self.source = SessionMap(config)
+        self.target = SessionMap(config)
+        self.registrar = Registrar(config, self.source, self.target)
+        self.policy = DecisionPolicy(config.waiting)
         self.changed: dict[int, DecisionEvent] = {}  # target object -> the decision that marked it
         # source object -> the target objects tested around it (its keys: the source objects observed)
         self.observers: dict[int, set[int]] = {}
@@ -103,7 +103,7 @@ class ChangeDetector:
             for object_id in sorted(self.policy.pending):
                 events += self._test(object_id, self._last_frame, final=True)
         removed = [i for i in sorted(self.observers) if i not in self.matched
-                   and self.source.objects[i].n_measurements >= self.config.decision.min_measurements]
+                   and self.source.objects[i].n_measurements >= self.config.waiting.min_measurements]
         moved_from = moves(sorted(self.changed), removed, self.target, self.source,
                            self.config.association.shape_similarity)
         for target_id, source_id in moved_from.items():
@@ -140,8 +140,8 @@ class ChangeDetector:
 
     def _looked_at(self, center_source: np.ndarray, source_ids: list[int]) -> list[int]:
         """The neighbours a test at `center_source` counts as observed by the target (see
-        `DecisionConfig.observed_height_m`)."""
-        height = self.config.decision.observed_height_m
+        `EvidenceConfig.observed_height_m`)."""
+        height = self.config.evidence.observed_height_m
         if height <= 0:
             return source_ids
         return [s for s in source_ids if abs(self.source.objects[s].center_world[2] - center_source[2]) <= height]
@@ -158,7 +158,7 @@ class ChangeDetector:
         transform = self.registration.transform
         rotation = transform[:3, :3]
         center_source = apply(transform, obj.center_world[None])[0]
-        margin = self.config.decision.cell_margin_m
+        margin = self.config.drift.cell_margin_m
         region = self.source.tree.region(center_source, margin)
         source_ids = sorted(region.objects())
         looked_at = self._looked_at(center_source, source_ids)
@@ -173,7 +173,7 @@ class ChangeDetector:
             target_ids = self.registrar.target_objects_in(region, margin)
             target_graph = local_graph(object_id, target_ids, self.target.objects)
             verdict = graph_verdict(target_graph, center_source, source_ids, similarity, self.source.objects, rotation,
-                                    shape_similarity, self.config.decision, obj.center_scatter_m)
+                                    shape_similarity, self.config, obj.center_scatter_m)
         verdict = self.policy.settle(object_id, obj.n_measurements, verdict, final)
         events: list[Event] = [
             graph_event(frame_index, c, center_source, self.source.objects[c.result.source_id].center_world, rotation)
@@ -190,8 +190,8 @@ class ChangeDetector:
 
     def _rotations(self) -> list[Event]:
         """At the end, when every view is in: the unchanged target objects whose handle turned
-        against their partner's by more than `DecisionConfig.rotation_deg` (`ndfa.change.rotation`)."""
-        if self.registration is None or self.config.decision.rotation_deg is None:
+        against their partner's by more than `RotationConfig.threshold_deg` (`ndfa.change.rotation`)."""
+        if self.registration is None or self.config.rotation.threshold_deg is None:
             return []
         rotation = self.registration.transform[:3, :3]
         events: list[Event] = []
@@ -199,7 +199,7 @@ class ChangeDetector:
             if object_id in self.changed:
                 continue
             obj, partner = self.target.objects[object_id], self.source.objects[partner_id]
-            turned = rotation_of(obj, partner, rotation, self.config.decision)
+            turned = rotation_of(obj, partner, rotation, self.config.rotation)
             if turned is None:
                 continue
             events.append(DecisionEvent(

@@ -11,12 +11,12 @@ the end of the target (`final`) decided with the evidence there is. Why these ru
 
 from __future__ import annotations
 
-from ndfa.change.config import DecisionConfig
+from ndfa.change.config import WaitingConfig
 from ndfa.change.verdict import Verdict
 
 
 class DecisionPolicy:
-    def __init__(self, config: DecisionConfig) -> None:
+    def __init__(self, config: WaitingConfig) -> None:
         self.config = config
         self.pending: set[int] = set()  # target objects waiting for more evidence
 

@@ -10,8 +10,8 @@ itself is `ndfa.change.register.ransac_registration` on shape-matched (target, s
 Prior hypotheses (`add_prior`: the sessions share one world, or their scene clouds were aligned)
 are scored at every attempt by the same pairs (`ndfa.change.register.verify_prior`), also before
 there are N of them: with few objects (two mugs on a table) RANSAC never gets its N, but a prior
-that two pairs agree with is a T_rel. Each candidate must pass its own bar (RANSAC `min_inliers`, a
-prior `prior_min_inliers`, and a RANSAC fit must agree with a prior where there is one); the one
+that two pairs agree with is a T_rel. Each candidate must pass its own bar (RANSAC `RansacConfig.min_inliers`,
+a prior `PriorConfig.min_inliers`, and a RANSAC fit must agree with a prior where there is one); the one
 with most inliers wins, RANSAC's on a tie.
 """
 
@@ -22,7 +22,7 @@ from collections.abc import Iterable
 import numpy as np
 
 from ndfa.change.associate import Association, SessionMap, cosine_similarity
-from ndfa.change.config import RegistrationConfig
+from ndfa.change.config import DetectorConfig
 from ndfa.change.register import Registration, RegistrationPrior, apply, ransac_registration, verify_prior
 from ndfa.change.tree import Region
 from ndfa.core.events import RegistrationEvent
@@ -65,10 +65,10 @@ class RegisteredCenters:
 class Registrar:
     """T_rel between the maps `source` and `target` as the target pass fills the latter."""
 
-    def __init__(self, config: RegistrationConfig, shape_similarity: float, source: SessionMap,
-                 target: SessionMap) -> None:
-        self.config = config
-        self.shape_similarity = shape_similarity
+    def __init__(self, config: DetectorConfig, source: SessionMap, target: SessionMap) -> None:
+        self.config = config.registration
+        self.ransac, self.prior_config = config.ransac, config.priors
+        self.shape_similarity = config.association.shape_similarity
         self.source, self.target = source, target
         self.registration: Registration | None = None
         self.priors: list[RegistrationPrior] = []
@@ -80,11 +80,11 @@ class Registrar:
         self.centers.stale(a.object_id for a in associations if a.created or a.replaced)
         created = any(a.created for a in associations)
         if self.registration is None:
-            if not created and frame_index - self._last_try_frame < self.config.retry_frames:
+            if not created and frame_index - self._last_try_frame < self.ransac.retry_frames:
                 return []
             self._last_try_frame = frame_index
             return self._estimate(frame_index)
-        if created and len(self.registration.inliers) < self.config.enough_inliers:
+        if created and len(self.registration.inliers) < self.ransac.enough_inliers:
             return self._estimate(frame_index)
         return []
 
@@ -108,13 +108,15 @@ class Registrar:
         pairs = []
         for target_id in sorted(target.objects):
             similarity = cosine_similarity(target.objects[target_id].shape_code, source_codes)
-            order = np.argsort(-similarity, kind="stable")[: self.config.candidates]
+            order = np.argsort(-similarity, kind="stable")[: self.ransac.candidates]
             pairs += [(target_id, int(source_ids[j])) for j in order if similarity[j] > self.shape_similarity]
         return pairs
 
     def add_prior(self, prior: RegistrationPrior) -> None:
-        """A T_rel hypothesis from outside the object maps, verified by the pairs at every attempt."""
-        self.priors.append(prior)
+        """A T_rel hypothesis from outside the object maps, verified by the pairs at every attempt
+        (ignored with the priors off: `PriorConfig.enabled`)."""
+        if self.prior_config.enabled:
+            self.priors.append(prior)
 
     def _estimate(self, frame_index: int) -> list[RegistrationEvent]:
         source, target = self.source, self.target
@@ -125,16 +127,17 @@ class Registrar:
         verified = []  # the priors and how the pairs verify them
         for prior in self.priors:
             check = verify_prior(prior, pairs, target_centers, source_centers, self.config.inlier_m,
-                                 support_m=self.config.prior_support_m)
-            verified.append((prior, check, len(check.inliers) >= self.config.prior_min_inliers))
+                                 support_m=self.prior_config.support_m)
+            verified.append((prior, check, len(check.inliers) >= self.prior_config.min_inliers))
         # A binding prior vetoes RANSAC's fits only while the objects support it: one they do not
         # (a confident but wrong scene alignment) must not stop a registration they do support.
         vetoes = [prior for prior, _, supported in verified if prior.binding and supported]
-        # A small source map may have fewer objects than N: then all of them are enough.
-        if len({t for t, _ in pairs}) >= min(self.config.pairs, len(source.objects)):
+        # A small source map may have fewer objects than N: then all of them are enough (`small_maps`).
+        needed = min(self.config.pairs, len(source.objects)) if self.ransac.small_maps else self.config.pairs
+        if len({t for t, _ in pairs}) >= needed:
             result = ransac_registration(pairs, target_centers, source_centers, self.config.inlier_m,
                                          seed=self.config.seed)
-            candidates.append((result, result is not None and len(result.inliers) >= self.config.min_inliers
+            candidates.append((result, result is not None and len(result.inliers) >= self.ransac.min_inliers
                                and _agrees_with(result, vetoes, pairs, target_centers, self.config.inlier_m)))
         candidates += [(check, supported) for _, check, supported in verified]
         passing = [r for r, ok in candidates if ok and r is not None]

@@ -2,15 +2,15 @@
 
 Each measurement carries the handle's heading about world up and how sure the NDF is of it
 (`ndfa.ndf.heading`). An object fuses the headings of its reliable views (strength at least
-`DecisionConfig.heading_strength`) into a circular mean with its spread. A target object found
+`RotationConfig.heading_strength`) into a circular mean with its spread. A target object found
 unchanged with a source partner is "rotated" when both have enough reliable views
-(`rotation_views`), both headings are tight (`rotation_spread_deg`), and the target's heading,
+(`RotationConfig.views`), both headings are tight (`RotationConfig.spread_deg`), and the target's heading,
 brought into the source world by T_rel's rotation, differs from the partner's by more than
-`rotation_deg`. Otherwise nothing is said: the object stays unchanged. Mugs are close to
+`RotationConfig.threshold_deg`. Otherwise nothing is said: the object stays unchanged. Mugs are close to
 symmetric without their handle, so the views that cannot see it (mostly those from behind the
 mug) give short handle vectors and are left out (docs/rotation.md).
 
-The score of a rotation is r / (1 + r) with r = |turn| / rotation_deg, at least 0.5 (a turn at
+The score of a rotation is r / (1 + r) with r = |turn| / threshold_deg, at least 0.5 (a turn at
 the threshold scores 0.5, 90 degrees against 30 scores 0.75; docs/scores.md).
 """
 
@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ndfa.change.associate import SessionObject
-from ndfa.change.config import DecisionConfig
+from ndfa.change.config import RotationConfig
 from ndfa.core.conventions import HORIZONTAL_AXES
 from ndfa.core.events import CHANGE_SCORE
 
@@ -46,7 +46,7 @@ class Rotation:
     score: float
     target: FusedHeading
     source: FusedHeading
-    margin_deg: float = 0.0  # the turn's uncertainty: rotation_margin x the two spreads combined
+    margin_deg: float = 0.0  # the turn's uncertainty: `RotationConfig.margin` x the two spreads combined
 
 
 def fused_heading(obj: SessionObject, min_strength: float) -> FusedHeading | None:
@@ -73,14 +73,14 @@ def source_heading(angle_rad: float, rotation: np.ndarray) -> float:
 
 
 def rotation_of(target: SessionObject, partner: SessionObject, rotation: np.ndarray,
-                decision: DecisionConfig) -> Rotation | None:
+                config: RotationConfig) -> Rotation | None:
     """O's turn against its unchanged partner when it is a reportable rotation, else None (the
     test is off, a heading lacks reliable views or is too spread, or the turn is under the bar)."""
-    if decision.rotation_deg is None:
+    if config.threshold_deg is None:
         return None
-    headings = [fused_heading(o, decision.heading_strength) for o in (target, partner)]
-    spread = np.radians(decision.rotation_spread_deg)
-    if any(h is None or h.views < decision.rotation_views or h.spread_rad > spread for h in headings):
+    headings = [fused_heading(o, config.heading_strength) for o in (target, partner)]
+    spread = np.radians(config.spread_deg)
+    if any(h is None or h.views < config.views or h.spread_rad > spread for h in headings):
         return None
     target_heading, partner_heading = headings
     assert target_heading is not None and partner_heading is not None  # refused above
@@ -88,8 +88,8 @@ def rotation_of(target: SessionObject, partner: SessionObject, rotation: np.ndar
     angle_deg = float(np.degrees(turn))
     # The turn less its uncertainty must pass the bar: a view-dependent bias of the headings is not
     # averaged away by more views of the same side, so the spreads themselves are the margin.
-    margin = decision.rotation_margin * float(np.degrees(np.hypot(target_heading.spread_rad, partner_heading.spread_rad)))
-    if abs(angle_deg) - margin <= decision.rotation_deg:
+    margin = config.margin * float(np.degrees(np.hypot(target_heading.spread_rad, partner_heading.spread_rad)))
+    if abs(angle_deg) - margin <= config.threshold_deg:
         return None
-    ratio = (abs(angle_deg) - margin) / decision.rotation_deg
+    ratio = (abs(angle_deg) - margin) / config.threshold_deg
     return Rotation(angle_deg, max(ratio / (1.0 + ratio), CHANGE_SCORE), target_heading, partner_heading, margin)

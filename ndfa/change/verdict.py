@@ -22,7 +22,7 @@ from typing import Literal
 import numpy as np
 
 from ndfa.change.associate import SessionObject
-from ndfa.change.config import DecisionConfig
+from ndfa.change.config import DetectorConfig
 from ndfa.change.graph import GraphComparison, LocalGraph, compare_graphs, local_graph
 from ndfa.core.events import CHANGE_SCORE
 
@@ -126,7 +126,7 @@ def graph_verdict(
     source_objects: dict[int, SessionObject],
     rotation: np.ndarray,
     shape_similarity: float,
-    decision: DecisionConfig,
+    config: DetectorConfig,
     target_scatter_m: float = 0.0,
 ) -> Verdict:
     """O's local graph (`target_graph`, over its target neighbours) against the graph of each shape
@@ -134,12 +134,13 @@ def graph_verdict(
 
     center_source: T_rel t_O; rotation: T_rel's rotation (target-world vectors -> source world).
     target_scatter_m: O's center scatter, which with its match's widens the position tests
-    (`DecisionConfig.scatter_factor`).
+    (`DriftConfig.scatter_factor`).
     Undecided when O has no target neighbour while the source neighbourhood has company (the lone
     test would judge it on T_rel's absolute accuracy alone), and when no graph agrees while O has
     fewer target neighbours than its match has source neighbours (the one that stayed may not
-    have been seen yet).
+    have been seen yet); with `WaitingConfig.neighbours` off, neither waits.
     """
+    decision, in_place = config.decision, config.evidence.in_place_m
     matches = [s for s in source_ids if similarity[s] > shape_similarity]
     comparisons: list[Comparison] = []
     shortfalls: list[float] = []
@@ -148,8 +149,8 @@ def graph_verdict(
         source_graph = local_graph(source_id, source_ids, source_objects)
         partner = source_objects[source_id]
         distance = float(np.linalg.norm(center_source - partner.center_world))
-        slack = decision.scatter_factor * float(np.hypot(target_scatter_m, partner.center_scatter_m))
-        in_place_m = decision.in_place_m + slack if decision.in_place_m > 0 else 0.0
+        slack = config.drift.scatter_factor * float(np.hypot(target_scatter_m, partner.center_scatter_m))
+        in_place_m = in_place + slack if in_place > 0 else 0.0
         result = compare_graphs(target_graph, source_graph, similarity[source_id], distance, rotation,
                                 shape_similarity, decision.edge_m, decision.fallback_distance_m + slack, in_place_m)
         comparisons.append(Comparison(result, target_graph, source_graph))
@@ -166,6 +167,8 @@ def graph_verdict(
         verdict = Verdict("unchanged", f"consistent with source object {partner_id}", partner_id, tuple(comparisons),
                           shortfall=shortfall)
     target_neighbours, source_neighbours = len(target_graph.neighbour_ids), len(source_ids) - 1
+    if not config.waiting.neighbours:
+        return verdict
     if target_neighbours == 0 and source_neighbours > 0:
         return Verdict("undecided", "alone in its target neighbourhood, not in the source's", otherwise=verdict,
                        shortfall=shortfall)

@@ -24,9 +24,9 @@ from ndfa.cli.checks import (
     thread_count,
 )
 from ndfa.core.errors import OptionError
-from ndfa.eval.scoring import changed_instances
 from ndfa.io.atomic import atomic_path
 from ndfa.io.recording import RecordingReader
+from ndfa.io.recording.ground_truth import changed_instances
 from ndfa.run.align import REGISTRATION_MODES
 from ndfa.run.world import POSE_MODES, UP_MODES
 
@@ -57,7 +57,9 @@ def detect_command(
     edge_distance: Optional[float] = typer.Option(
         None, help=f"delta_e, metres (default {_DETECTOR.decision.edge_m}, the paper's).", callback=positive),
     paper_parameters: bool = typer.Option(False, "--paper-parameters", help="Start from the paper's own detector "
-                                          "parameters (DetectorConfig.paper(); docs/detector.md) instead of ndfa's."),
+                                          "parameters with ndfa's additions off (DetectorConfig.paper(); "
+                                          "docs/detector.md) instead of ndfa's: registration by object pairs "
+                                          "alone, no scene-level prior."),
     tree_length: Optional[float] = typer.Option(
         None, help=f"Interval length l of the object trees, metres (default {_DETECTOR.association.tree_length_m}).",
         callback=positive),
@@ -96,6 +98,7 @@ def detect_command(
         torch.set_num_threads(threads)
 
     # lazy: these import torch (seconds), which `ndfa --help` and option errors need not wait for
+    from ndfa.eval.runs import score_detection
     from ndfa.ndf.encoder import EncoderConfig
     from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
     from ndfa.run.detect import RunOptions, run_detection
@@ -116,6 +119,11 @@ def detect_command(
         raise typer.BadParameter(f"--poses must be one of {', '.join(POSE_MODES)}, got {poses!r}")
     if registration not in REGISTRATION_MODES:
         raise typer.BadParameter(f"--registration must be one of {', '.join(REGISTRATION_MODES)}, got {registration!r}")
+    if paper_parameters and registration not in ("auto", "objects"):
+        raise typer.BadParameter(f"--paper-parameters registers by object pairs alone (the paper's): no "
+                                 f"--registration {registration}")
+    if paper_parameters:
+        registration = "objects"
     options = RunOptions(frame_step=frame_step, up=up, poses=poses, registration=registration)
     if len(recordings) > 2:
         _detect_sessions(recordings, config, pipeline, runtime, log, tables, json_out, no_images, options)
@@ -132,11 +140,10 @@ def detect_command(
         truth = RecordingReader(target).ground_truth
         sinks.append(TableSink(tables, changed_instances(truth) if truth and "objects" in truth else None))
     with progress_bar() as progress:
-        result = run_detection(source, target, config, sinks, options, on_frame=bar_per_label(progress),
-                               pipeline=pipeline,
-                               on_world=lambda world: err_console.print(f"world {world.describe()}", highlight=False),
-                               on_alignment=lambda a: err_console.print(f"registration prior: {a.describe()}",
-                                                                        highlight=False))
+        result = score_detection(run_detection(
+            source, target, config, sinks, options, on_frame=bar_per_label(progress), pipeline=pipeline,
+            on_world=lambda world: err_console.print(f"world {world.describe()}", highlight=False),
+            on_alignment=lambda a: err_console.print(f"registration prior: {a.describe()}", highlight=False)))
     err_console.print(result.describe_registration(), highlight=False)
     for warning in empty_result_warnings(result):
         err_console.print(f"[yellow]warning:[/yellow] {warning}", highlight=False, soft_wrap=True)
@@ -170,7 +177,8 @@ def detect_command(
 def _detect_sessions(recordings: list[Path], config, pipeline, runtime: str, log: Optional[Path],  # noqa: ANN001
                      tables: Optional[Path], json_out: Optional[Path], no_images: bool, options) -> None:  # noqa: ANN001
     """`ndfa detect S0 S1 S2 ...`: each consecutive pair, and every object's history (`ndfa.run.sessions`)."""
-    from ndfa.run.sessions import run_sessions  # lazy: imports torch
+    from ndfa.eval.runs import score_sessions  # lazy: these import torch
+    from ndfa.run.sessions import run_sessions
 
 
     sinks = []
@@ -183,11 +191,11 @@ def _detect_sessions(recordings: list[Path], config, pipeline, runtime: str, log
 
         sinks.append(TableSink(tables))  # each pair's ground truth arrives with the pair
     with progress_bar() as progress:
-        result = run_sessions(recordings, config, sinks, options, on_frame=bar_per_label(progress),
-                              pipeline=pipeline,
-                              on_world=lambda world: err_console.print(f"world {world.describe()}", highlight=False),
-                              on_alignment=lambda pair, a: err_console.print(f"pair {pair}: registration prior: "
-                                                                             f"{a.describe()}", highlight=False))
+        result = score_sessions(run_sessions(
+            recordings, config, sinks, options, on_frame=bar_per_label(progress), pipeline=pipeline,
+            on_world=lambda world: err_console.print(f"world {world.describe()}", highlight=False),
+            on_alignment=lambda pair, a: err_console.print(f"pair {pair}: registration prior: {a.describe()}",
+                                                           highlight=False)))
     for name, path in zip(result.names, result.paths):
         console.print(f"{name}: {path} ({result.frames[name]} frames, {result.objects[name]} objects)", highlight=False)
     table = Table(title="changes between consecutive sessions (positions in the first session's world)")

@@ -122,12 +122,14 @@ def _eval_history(recordings: list[Path], out: Path, frame_step: int) -> None:
     # lazy: polars (a third of a second) and the session loop's torch (seconds)
     import polars as pl
 
+    from ndfa.eval.runs import score_sessions
     from ndfa.log.table_sink import HISTORY_SCHEMA, _history_row
     from ndfa.run.detect import RunOptions
     from ndfa.run.sessions import run_sessions
 
     with progress_bar() as progress:
-        result = run_sessions(recordings, options=RunOptions(frame_step=frame_step), on_frame=bar_per_label(progress))
+        result = score_sessions(run_sessions(recordings, options=RunOptions(frame_step=frame_step),
+                                             on_frame=bar_per_label(progress)))
     if result.history_score is None:
         raise NdfaError(f"{recordings[-1]}: has no ground truth of the sessions (made by `ndfa ingest sim --sessions "
                         "N`, N > 2) to score the history against")

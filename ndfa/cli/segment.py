@@ -22,10 +22,12 @@ def segment_command(
                                          callback=at_least_one),
 ) -> None:
     """Copy a recording with its instance masks replaced by the geometric segmentation (planes + DBSCAN)."""
+    from ndfa.eval.segmentation import relabel_to_truth  # lazy, as the segmentation: scipy.ndimage
     from ndfa.run.segment import segment_recording  # lazy: scipy.ndimage and PIL, a tenth of a second
 
     with progress_bar() as progress:
         task = progress.add_task("segmenting", total=None)
-        count = segment_recording(recording, out, SegmentationConfig(stride=stride), keep_truth=keep_truth,
+        count = segment_recording(recording, out, SegmentationConfig(stride=stride),
+                                  relabel=relabel_to_truth if keep_truth else None,
                                   on_frame=lambda done, total: progress.update(task, completed=done, total=total))
     console.print(f"wrote {out}: {count} frames segmented")

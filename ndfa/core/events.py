@@ -15,6 +15,7 @@ import numpy as np
 from ndfa.core.frame import Frame
 
 Session = Literal["source", "target"]
+SESSIONS: tuple[Session, Session] = ("source", "target")  # a pair's two sessions, in pass order
 DecisionKind = Literal["unchanged", "added", "removed", "moved", "rotated"]
 GraphMode = Literal["graph", "in place", "fallback"]
 # Where a T_rel came from: RANSAC on shape-matched object pairs (the paper's), or a prior hypothesis

@@ -128,6 +128,7 @@ def bench_detect(source: Path, target: Path, threads: int = 1, frame_step: int =
     import torch
 
     # torch, with the NDF: here and not at the top, so that `ndfa bench sim` and `scaling` run without it
+    from ndfa.eval.runs import score_detection
     from ndfa.ndf.encoder import EncoderConfig
     from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
     from ndfa.run.detect import RunOptions, run_detection
@@ -136,8 +137,8 @@ def bench_detect(source: Path, target: Path, threads: int = 1, frame_step: int =
     config = PipelineConfig(encoder=EncoderConfig(runtime=runtime, threads=threads), weights=weights)
     pipeline = ChangeDetectionPipeline(config)
     cpu_started = time.process_time()
-    result = run_detection(source, target, config, sinks=[], options=RunOptions(frame_step=frame_step), pipeline=pipeline,
-                           full_reconstruction=full_reconstruction, overlap=overlap)
+    result = score_detection(run_detection(source, target, config, sinks=[], options=RunOptions(frame_step=frame_step),
+                                           pipeline=pipeline, full_reconstruction=full_reconstruction, overlap=overlap))
     per_frame_ms = result.seconds["target"] / result.frames["target"] * 1e3
     stages = dict(result.stage_ms)
     if not overlap:

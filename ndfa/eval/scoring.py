@@ -28,6 +28,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from ndfa.io.recording.ground_truth import changed_instances
+
 
 @dataclass(frozen=True)
 class Score:
@@ -61,12 +63,6 @@ class Score:
             out["rotated"] = {"mugs": list(self.rotated_ids), "found_as_rotated": list(self.rotated_found_ids),
                               "recall": self.rotated_recall}
         return out
-
-
-def changed_instances(ground_truth: dict) -> dict[int, str]:
-    """Instance id -> change kind, from a recording's ground-truth JSON."""
-    return {int(o["instance_id"]): o["change"] for o in ground_truth.get("objects", [])
-            if o.get("change") not in (None, "unchanged")}
 
 
 def scorable_instances(ground_truth: dict, visible: dict[str, set[int]]) -> set[int]:

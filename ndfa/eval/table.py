@@ -23,6 +23,7 @@ from ndfa.core.progress import LabelledProgress
 from ndfa.eval.baselines.common import BaselineError, run_baseline
 from ndfa.eval.baselines.nn import NNBaseline, NNConfig
 from ndfa.eval.baselines.tsdf import TSDFBaseline, TSDFConfig
+from ndfa.eval.runs import score_detection
 from ndfa.eval.scoring import rotated_reports, score
 from ndfa.io.atomic import atomic_path, write_parquet
 from ndfa.io.recording import Frame, RecordingReader
@@ -125,8 +126,8 @@ def evaluate_methods(source: Path, target: Path, nn: NNConfig = NNConfig(), tsdf
 
     started = time.perf_counter()
     progress = None if on_frame is None else (lambda session, done, total: on_frame(f"ndfa {session}", done, total))
-    detection = run_detection(Path(source), Path(target), PipelineConfig(), sinks=list(sinks),
-                              options=RunOptions(frame_step=frame_step), on_frame=progress)
+    detection = score_detection(run_detection(Path(source), Path(target), PipelineConfig(), sinks=list(sinks),
+                                              options=RunOptions(frame_step=frame_step), on_frame=progress))
     seconds["ndfa"] = time.perf_counter() - started
     reported["ndfa"] = [i for change in detection.changes for i in change.reported_instances]
 

@@ -39,6 +39,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ndfa.change.associate import cosine_similarity
+from ndfa.change.config import DetectorConfig
 from ndfa.core.events import DecisionEvent
 from ndfa.core.geometry import transform_points
 from ndfa.core.sessions import HistoryRow
@@ -87,19 +89,25 @@ class LinkConfig:
     place_m: largest distance (first session's world) between the object and the one it continues:
         the pair registrations are good to about a centimetre (`ndfa detect`'s residual), and two
         mugs on a table stand at least a mug's width (~8 cm) apart.
-    shape_similarity: smallest cosine similarity of their shape codes (the detector's delta_s,
-        `AssociationConfig.shape_similarity`).
+    shape_similarity: smallest cosine similarity of their shape codes: the detector's delta_s
+        (`AssociationConfig.shape_similarity`; `LinkConfig.of` a run's detector config), not a
+        threshold of its own.
     moved_similarity: smallest cosine similarity of a "moved" object's code to the removed object's
-        it moved from for the history to take them as one object. The detector pairs a change with a
-        removal whose codes match to its delta_s (0.7), which different mug models reach too (the
-        `sample` pair: median 0.64, 90th percentile 0.93 between different models; 0.89-0.99 between
-        views of one mug); the paper's delta_s for one object's codes, 0.9, keeps a removed mug and
-        a different, added one apart (docs/sessions.md: 3 of 5 four-session scenes matched
-        object for object at 0.9, 2 at 0.7)."""
+        it moved from for the history to take them as one object: the paper's delta_s
+        (`DetectorConfig.paper()`), stricter than ndfa's on purpose. The detector pairs a change
+        with a removal whose codes match to its delta_s, which different mug models reach too (the
+        `sample` pair: median 0.64, 90th percentile 0.93 between different models; 0.89-0.99
+        between views of one mug); the paper's keeps a removed mug and a different, added one
+        apart (docs/sessions.md)."""
 
     place_m: float = 0.05
-    shape_similarity: float = 0.7
-    moved_similarity: float = 0.9
+    shape_similarity: float = field(default_factory=lambda: DetectorConfig().association.shape_similarity)
+    moved_similarity: float = field(default_factory=lambda: DetectorConfig.paper().association.shape_similarity)
+
+    @classmethod
+    def of(cls, detector: DetectorConfig) -> LinkConfig:
+        """The linking of a run whose detector has these parameters (its delta_s)."""
+        return cls(shape_similarity=detector.association.shape_similarity)
 
 
 @dataclass
@@ -246,4 +254,4 @@ def _cosine_or_one(a: np.ndarray | None, b: np.ndarray | None) -> float:
 
 
 def _cosine(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.dot(a, b) / (np.linalg.norm(a) * np.linalg.norm(b) + 1e-12))
+    return float(cosine_similarity(a, b))

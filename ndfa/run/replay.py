@@ -7,7 +7,7 @@ parameter studies and error analysis in a notebook need:
 
     observations = pl.read_parquet("out/tables/observations.parquet")
     result = replay(observations, DetectorConfig(association=AssociationConfig(shape_similarity=0.8)))
-    result.score            # TP/FP/FN over the instances the table labels
+    score_replay(result)    # TP/FP/FN over the instances the table labels (`ndfa.eval.runs`)
 
 The score counts the instances the table has a label for, visible as `ndfa.eval.scoring` asks; it
 matches `ndfa detect`'s own score (from the recording's ground truth) whenever every mug of the
@@ -17,7 +17,7 @@ Every decision carries a score (`DecisionEvent.score`, docs/scores.md); `reporte
 instances a run reports when its decisions are thresholded at another score than the detector's
 own 0.5 -- one replay, then any number of thresholds (`ndfa eval --pr-curve`):
 
-    result.score_at(0.3)    # TP/FP/FN with every decision scoring >= 0.3 reported
+    score_replay(result, 0.3)    # TP/FP/FN with every decision scoring >= 0.3 reported
 """
 
 from __future__ import annotations
@@ -31,8 +31,7 @@ from ndfa.change.associate import Measurement
 from ndfa.change.detector import ChangeDetector, DetectorConfig, reported_changes
 from ndfa.change.register import RegistrationPrior
 from ndfa.core.conventions import is_visible
-from ndfa.core.events import CHANGE_SCORE, DecisionEvent, ObservationEvent
-from ndfa.eval.scoring import Score, rotated_reports, score
+from ndfa.core.events import CHANGE_SCORE, SESSIONS, DecisionEvent, ObservationEvent
 
 
 @dataclass
@@ -40,17 +39,9 @@ class ReplayResult:
     changes: list[DecisionEvent]  # as `ndfa detect` reports them: a moved object replaces its "added"
     events: list                  # every event of the detector, in order
     detector: ChangeDetector      # its final state (maps, registration), for inspection
-    score: Score | None
     decisions: list[DecisionEvent] = field(default_factory=list)  # every decision, "unchanged" too, with scores
-    truth: dict | None = None                                     # the table's labels, as `score` takes them
+    truth: dict | None = None     # the table's labels, as `ndfa.eval.scoring.score` takes them
     visible: dict[str, set[int]] = field(default_factory=dict)    # per session, the instances the table saw
-
-    def score_at(self, threshold: float) -> Score | None:
-        """The score of the run with every decision scoring at least `threshold` reported
-        (`reported_at`); at 0.5 (`CHANGE_SCORE`) it is `score`."""
-        if self.truth is None:
-            return None
-        return score(reported_at(self.decisions, threshold), self.truth, self.visible)
 
 
 def reported_at(decisions: list[DecisionEvent], threshold: float = CHANGE_SCORE) -> list[int]:
@@ -103,12 +94,9 @@ def replay(observations: pl.DataFrame, config: DetectorConfig = DetectorConfig()
     events += detector.finish()
     decisions = [e for e in events if isinstance(e, DecisionEvent)]
     changes = reported_changes(decisions)
-    truth = _truth(observations)
     seen = observations.filter(is_visible(pl.col("n_pixels")))
-    visible = {s: set(seen.filter(pl.col("session") == s)["instance_id"].to_list()) for s in ("source", "target")}
-    result_score = (score([i for c in changes for i in c.reported_instances], truth, visible, rotated_reports(changes))
-                    if truth else None)
-    return ReplayResult(changes, events, detector, result_score, decisions, truth, visible)
+    visible = {s: set(seen.filter(pl.col("session") == s)["instance_id"].to_list()) for s in SESSIONS}
+    return ReplayResult(changes, events, detector, decisions, _truth(observations), visible)
 
 
 def _truth(observations: pl.DataFrame) -> dict | None:

@@ -31,6 +31,8 @@ from ndfa.core.errors import RecordingError
 from ndfa.core.frame import Frame
 from ndfa.io.recording import RecordingReader
 from ndfa.trajectory.level import level_frame
+from ndfa.trajectory.metrics import absolute_trajectory_error, relative_pose_error
+from ndfa.trajectory.session import UNTRACKED_POSES, choose_method, estimate_session_poses
 from ndfa.trajectory.up import UpEstimate, angle_deg, estimate_up, imu_gravity, up_from_imu
 
 UpMode = Literal["auto", "z", "estimate"]
@@ -190,8 +192,6 @@ def _true_poses(reader: RecordingReader) -> dict[int, np.ndarray]:
 
 def _pose_quality(estimate: dict[int, np.ndarray], truth: dict[int, np.ndarray]) -> dict | None:
     """ATE and per-frame RPE of `estimate` against `truth` when every frame has a true pose."""
-    from ndfa.trajectory.metrics import absolute_trajectory_error, relative_pose_error
-
     if len(estimate) < 3 or set(truth) != set(estimate):
         return None
     indices = sorted(estimate)
@@ -204,8 +204,6 @@ def _pose_quality(estimate: dict[int, np.ndarray], truth: dict[int, np.ndarray])
 def _estimate_poses(reader: RecordingReader) -> tuple[dict[int, np.ndarray], str, list[str], dict[int, np.ndarray]]:
     """Every frame's pose by odometry over the whole session (`ndfa.trajectory.session`), how they
     were estimated, warnings about the input, and the frames' true poses (those it has)."""
-    from ndfa.trajectory.session import UNTRACKED_POSES, choose_method, estimate_session_poses
-
     truth: dict[int, np.ndarray] = {}
 
     def keep_truth(frame: Frame) -> None:

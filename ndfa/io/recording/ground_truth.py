@@ -9,7 +9,13 @@ from __future__ import annotations
 import math
 from typing import Any
 
-_SESSIONS = ("source", "target")
+from ndfa.core.events import SESSIONS
+
+
+def changed_instances(ground_truth: dict[str, Any]) -> dict[int, str]:
+    """Instance id -> change kind, from a recording's ground-truth JSON."""
+    return {int(o["instance_id"]): o["change"] for o in ground_truth.get("objects", [])
+            if o.get("change") not in (None, "unchanged")}
 
 
 def ground_truth_problem(truth: dict[str, Any]) -> str | None:
@@ -45,7 +51,7 @@ def _item_problem(item: Any, with_poses_per_session: bool) -> str | None:
     if with_poses_per_session:
         if item.get("change") is not None and not isinstance(item["change"], str):
             return f'"change" must be a string, got {type(item["change"]).__name__}'
-        for session in _SESSIONS:
+        for session in SESSIONS:
             placed = item.get(session)
             if placed and not (isinstance(placed, dict) and _is_pose(placed.get("pose_world_object"))):
                 return f'"{session}" must be null or an object with a 4x4 "pose_world_object"'

@@ -1,0 +1,123 @@
+"""One pair of consecutive sessions in a pass (`ndfa.run.sessions`): its detector, what it decided,
+and its events as the sinks get them (sessions named, positions in the first session's world)."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ndfa.change.detector import ChangeDetector, reported_changes
+from ndfa.core.events import DecisionEvent, Event, GraphEvent, RegistrationEvent
+from ndfa.core.geometry import transform_points
+from ndfa.run.align import RegistrationMode, SceneAlignment
+from ndfa.run.stream import change_summary, registration_summary
+
+
+@dataclass
+class PairResult:
+    """Sessions `source` (index `index`) -> `target` (index `index + 1`): the pair's detector while
+    the passes run, and what it decided. `score`: set by `ndfa.eval.runs` (a `Score` with masks,
+    a `PositionScore` on segmented frames) when the target recording has ground truth."""
+
+    index: int
+    source: str
+    target: str
+    detector: ChangeDetector
+    alignment: SceneAlignment | None = None           # the scene-level hypothesis offered to the detector
+    placement: np.ndarray | None = None               # the source session's T_{0<-k}
+    decisions: list[DecisionEvent] = field(default_factory=list)  # every decision, sessions "source"/"target"
+    registration_event: RegistrationEvent | None = None  # the last accepted: the T_rel of the last decisions
+    notes: list[str] = field(default_factory=list)
+    score: object | None = None
+
+    @property
+    def label(self) -> str:
+        return f"{self.index}-{self.index + 1}"
+
+    @property
+    def registration(self) -> dict | None:
+        """The accepted T_rel (target -> source session) as the summaries give it, or None."""
+        return None if self.registration_event is None else registration_summary(self.registration_event)
+
+    @property
+    def reported(self) -> list[DecisionEvent]:
+        """The changes to report, as the detector made them (sessions "source"/"target", its worlds)."""
+        return reported_changes(self.decisions)
+
+    @property
+    def changes(self) -> list[DecisionEvent]:
+        """The changes to report, sessions named, source positions in the first session's world."""
+        return [self.to_first(named(c, self.source if c.session == "source" else self.target)) for c in self.reported]
+
+    def start_target(self, alignment: SceneAlignment | None, placement: np.ndarray | None) -> SceneAlignment | None:
+        """Before the target pass: the scene-level hypothesis of T_rel (offered to the detector when it
+        holds) and where the source session lies in the first one's world."""
+        self.alignment, self.placement = alignment, placement
+        prior = None if alignment is None else alignment.prior()
+        if prior is not None:
+            self.detector.add_registration_prior(prior)
+        return alignment
+
+    def relabel(self, event: Event) -> Event:
+        """The event as the sinks get it: sessions named, source-world positions in the first session's
+        world. Keeps the pair's decisions and registration on the way."""
+        if isinstance(event, DecisionEvent):
+            self.decisions.append(event)
+        if isinstance(event, RegistrationEvent) and event.accepted:
+            self.registration_event = event
+        return self.to_first(named(event, self.source if getattr(event, "session", "target") == "source"
+                                   else self.target))
+
+    def to_first(self, event: Event) -> Event:
+        """Source-world positions of `event` in the first session's world (the first pair's are)."""
+        placement = self.placement
+        if self.index == 0 or placement is None or not isinstance(event, (DecisionEvent, GraphEvent, RegistrationEvent)):
+            return event
+        rotation = placement[:3, :3]
+        if isinstance(event, DecisionEvent):
+            if event.center_source is None:
+                return event
+            return dataclasses.replace(event, center_source=_point(placement, event.center_source))
+        if isinstance(event, GraphEvent):
+            return dataclasses.replace(
+                event, center_source=_point(placement, event.center_source),
+                partner_center_source=_point(placement, event.partner_center_source),
+                target_edges_source=np.asarray(event.target_edges_source).reshape(-1, 3) @ rotation.T,
+                source_edges=np.asarray(event.source_edges).reshape(-1, 3) @ rotation.T)
+        return dataclasses.replace(
+            event, transform=None if event.transform is None else placement @ event.transform,
+            source_centers=transform_points(placement, np.asarray(event.source_centers).reshape(-1, 3)))
+
+    def note_registration(self, mode: RegistrationMode) -> None:
+        """After the passes: notes on a pair without T_rel, and what could give it one."""
+        detector, alignment = self.detector, self.alignment
+        if detector.registration is not None or not detector.target.objects:
+            return
+        self.notes.append("no registration between the sessions was found: no target object was tested, "
+                          "so only the source's observed objects could be reported")
+        if alignment is not None and not alignment.ok:
+            self.notes.append(f"the scene-level hypothesis did not hold ({alignment.describe()})")
+            if alignment.method == "shared world" and mode == "auto":
+                self.notes.append("the sessions' poses are given but do not share one world: --registration scene "
+                                  "aligns their scene clouds instead")
+
+    def as_dict(self) -> dict:
+        out = {"pair": self.label, "source": self.source, "target": self.target,
+               "changes": [change_summary(c) for c in self.changes], "registration": self.registration,
+               "scene_alignment": None if self.alignment is None else self.alignment.as_dict(), "notes": self.notes}
+        if self.score is not None:
+            out["score"] = self.score.as_dict()  # type: ignore[attr-defined]
+        return out
+
+
+def named(event: Event, name: str) -> Event:
+    """`event` with its `session` set to the session's name (events without one as they are)."""
+    if not hasattr(event, "session"):
+        return event
+    return dataclasses.replace(event, session=name)  # type: ignore[call-arg]
+
+
+def _point(pose: np.ndarray, point: np.ndarray) -> np.ndarray:
+    return transform_points(pose, np.asarray(point, dtype=float)[None])[0]

@@ -1,0 +1,143 @@
+"""What a pass over recordings needs around the pipeline: the sinks, the run options, the checked
+recordings, the frames staged ahead of the detector, and what a session saw."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+
+from ndfa.core.errors import RecordingError
+from ndfa.core.events import SESSIONS, DecisionEvent, Event, FrameEvent, ObservationEvent, RegistrationEvent
+from ndfa.core.frame import Frame
+from ndfa.io.recording import INSTANCES, RecordingReader
+from ndfa.io.recording.prefetch import prefetched
+from ndfa.pipeline import ChangeDetectionPipeline, ObservedFrame
+from ndfa.run.align import AlignConfig, RegistrationMode
+from ndfa.run.world import PoseMode, SessionWorld, UpMode
+
+
+class Sink(Protocol):
+    def log(self, event: Event) -> None: ...
+    def close(self) -> None: ...
+
+
+def emit(event: object, sinks: Sequence[Sink]) -> None:
+    for sink in sinks:
+        sink.log(event)  # type: ignore[arg-type]  (the session events of `ndfa.core.sessions` too)
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """How recordings are run, beside the pipeline's config: the same for two sessions
+    (`ndfa.run.detect.run_detection`) and for more (`ndfa.run.sessions.run_sessions`).
+
+    frame_step: every n-th frame of each recording.
+    up, poses: what each session's world gets when it lacks it (`ndfa.run.world.prepare_session`).
+    registration, align: the scene-level hypothesis of T_rel offered to each pair's detector
+        (`ndfa.run.align.registration_prior`).
+    """
+
+    frame_step: int = 1
+    up: UpMode = "auto"
+    poses: PoseMode = "auto"
+    registration: RegistrationMode = "auto"
+    align: AlignConfig = field(default_factory=AlignConfig)
+
+
+def open_recordings(paths: Sequence[Path], names: Sequence[str], segment: bool = True
+                    ) -> tuple[list[RecordingReader], list[str]]:
+    """Open and check every recording; notes say what differs between them but is allowed.
+
+    segment: a recording without instance masks is accepted (its frames are segmented
+    geometrically by the pipeline); False: it is an error.
+    """
+    readers, notes = [], []
+    for name, path in zip(names, paths, strict=True):
+        reader = RecordingReader(path)
+        if not reader.has_instances:
+            if not segment:
+                raise RecordingError(f"{path}: has no instance masks ({INSTANCES}) and segmentation is off")
+            notes.append(f"{who(name)} has no instance masks: each of its frames is segmented geometrically "
+                         "(support planes removed, DBSCAN; ndfa.perception.segmentation)")
+        if len(reader) == 0:
+            raise RecordingError(f"{path}: has no frames")
+        readers.append(reader)
+    first = [next(reader.frames(stop=1)) for reader in readers]
+    for k in range(len(readers) - 1):
+        before, after = first[k], first[k + 1]
+        if not np.allclose(before.K, after.K) or before.image_size != after.image_size:
+            notes.append(f"{names[k]} and {names[k + 1]} cameras differ (intrinsics or image size); each frame is "
+                         "back-projected with its own K, so this is supported")
+    return readers, notes
+
+
+def who(name: str) -> str:
+    """A session as a note names it: "the source", "session_2"."""
+    return f"the {name}" if name in SESSIONS else name
+
+
+def staged(pipeline: ChangeDetectionPipeline, frames: Iterator[Frame], world: SessionWorld,
+           full_reconstruction: bool, overlap: bool = True) -> Iterator[ObservedFrame]:
+    """The frames read, perceived and encoded for `pipeline.decide`, in frame order. `overlap`:
+    reading and perception run ahead in one thread, encoding in another
+    (`ndfa.io.recording.prefetch`), while the caller decides. The stages hold no state and the
+    detector sees the frames in order, so the events are those of `pipeline.process`; the NDF's
+    runtime and much of numpy's work release the GIL, so on two cores the stages run at the same
+    time (docs/speed.md)."""
+    depth = 4 if overlap else 0
+    perceived = prefetched((pipeline.perceive(world.apply(frame)) for frame in frames), depth)
+    return prefetched((pipeline.encode(observed, full_reconstruction) for observed in perceived), depth)
+
+
+def change_summary(c: DecisionEvent) -> dict:
+    """A reported change as the `--json` summaries list it (of `ndfa detect` with two sessions or more)."""
+    position = c.center_source if c.center_source is not None else c.center_world
+    return {"object": c.object_id, "session": c.session, "kind": c.kind, "frame": c.frame_index,
+            "position": [round(float(v), 4) for v in position], "instance_ids": list(c.instance_ids),
+            "score": None if np.isnan(c.score) else round(float(c.score), 4)} \
+        | ({} if c.angle_deg is None else {"angle_deg": round(c.angle_deg, 1)})
+
+
+def registration_summary(event: RegistrationEvent) -> dict:
+    """An accepted T_rel as the `--json` summaries give it."""
+    return {"method": event.method, "inliers": len(event.inlier_pairs), "pairs": event.n_pairs,
+            "residual_m": round(float(event.residual_m), 4) if np.isfinite(event.residual_m) else None,
+            "frame": event.frame_index,
+            "inlier_pairs": [list(p) for p in event.inlier_pairs]}
+
+
+@dataclass
+class SessionCounts:
+    """What one session's pass saw, to say why it found no objects."""
+
+    frames: int = 0
+    frames_with_instances: int = 0
+    encoded: int = 0
+    skipped: dict[str, int] = field(default_factory=dict)  # reason (numbers stripped) -> views
+
+    def count(self, event: Event) -> None:
+        if isinstance(event, FrameEvent):
+            self.frames += 1
+            instances = event.frame.instances
+            self.frames_with_instances += int(instances is not None and bool(instances.any()))
+        elif isinstance(event, ObservationEvent) and event.skipped is None:
+            self.encoded += 1
+        elif isinstance(event, ObservationEvent):
+            reason = " ".join(w for w in event.skipped.split(":")[0].split() if not w[0].isdigit())
+            self.skipped[reason] = self.skipped.get(reason, 0) + 1
+
+    def why_none(self) -> str:
+        """One line: the first stage that came up empty."""
+        if self.frames == 0:
+            return "no frames were read"
+        if self.frames_with_instances == 0:
+            return (f"none of its {self.frames} frames has an object mask or segment (without masks: no support "
+                    "plane with object-sized clusters on it was found; is the world z-up? see `ndfa info`)")
+        if self.encoded == 0:
+            reasons = ", ".join(f"{n} {r}" for r, n in sorted(self.skipped.items(), key=lambda x: -x[1]))
+            return f"every view of an object was skipped ({reasons})"
+        return f"{self.encoded} views were encoded but none was kept (each object needs repeated views)"
