@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import test_registration_real as kitchen
 
+from ndfa.eval.runs import score_detection
 from ndfa.io.recording import RecordingReader
 from ndfa.run.detect import RunOptions, run_detection
 from ndfa.run.plant import run_plant
@@ -56,7 +57,7 @@ def _near(centers: np.ndarray, xy: np.ndarray) -> bool:
 @pytest.fixture(scope="module")
 def planted_run(slices, tmp_path_factory):
     planted = run_plant(*slices, tmp_path_factory.mktemp("planted"), _plan(change=True), color_K=COLOR_K, color_offset_m=COLOR_OFFSET_M)
-    return planted, run_detection(planted.paths["source"], planted.paths["target"])
+    return planted, score_detection(run_detection(planted.paths["source"], planted.paths["target"]))
 
 
 def test_planted_changes_are_the_detectors_objects_where_planted(planted_run):
@@ -85,6 +86,6 @@ def test_the_same_plan_with_nothing_changed_copies_the_frames_and_reports_no_cha
         for a, b in zip(RecordingReader(original).frames(), RecordingReader(copy).frames(), strict=True):
             assert np.array_equal(a.depth, b.depth) and np.array_equal(a.rgb, b.rgb)
             assert np.allclose(a.pose_world_camera, b.pose_world_camera, atol=1e-12)
-    result = run_detection(same.paths["source"], same.paths["target"], options=RunOptions())
+    result = score_detection(run_detection(same.paths["source"], same.paths["target"], options=RunOptions()))
     assert result.changes == []
     assert result.score is not None and (result.score.tp, result.score.fp, result.score.fn) == (0, 0, 0)

@@ -7,6 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from ndfa.change.associate import Measurement
 from ndfa.change.config import DetectorConfig
@@ -141,6 +142,7 @@ def test_a_prior_the_objects_do_not_support_never_vetoes_a_ransac_fit_of_many_ob
         np.testing.assert_allclose(detector.registration.transform, np.linalg.inv(offset), atol=0.02)
 
 
+@pytest.mark.slow
 def test_the_papers_path_takes_no_prior_and_its_run_offers_none(tmp_path):
     from typer.testing import CliRunner
 

@@ -306,7 +306,8 @@ def test_one_recording_is_refused_in_one_line():
 @pytest.fixture(scope="module")
 def turned(tmp_path_factory):
     """Three sessions of a small scene with two mugs turned in place in the second, detected
-    through the CLI (the many-session pass: each pair's source replayed into its detector)."""
+    through the CLI (the session pass over three: session 1 is pair 0-1's target and pair 1-2's
+    source)."""
     out = tmp_path_factory.mktemp("turned")
     result = CliRunner().invoke(app, ["ingest", "sim", "--preset", "sample", "--seed", "0", "--sessions", "3",
                                       "--rotated", "2", "--models", "20", "--switched", "0",
@@ -322,8 +323,9 @@ def turned(tmp_path_factory):
 @pytest.mark.slow
 def test_every_pair_of_a_many_session_run_reports_its_turned_mugs_rotated(turned):
     # The pair's source objects carry their views' handle headings as the two-session run's do
-    # (before one `Measurement` builder, the replayed source lost them: no "rotated" in any pair,
-    # pair 0-1 TP 1 / FN 2 where `ndfa detect session_0 session_1` finds 3 of 3).
+    # (before one `Measurement` builder, the many-session pass rebuilt the source's measurements
+    # without them: no "rotated" in any pair, pair 0-1 TP 1 / FN 2 where `ndfa detect session_0
+    # session_1` finds 3 of 3).
     from ndfa.io.recording import RecordingReader
 
     recordings, summary = turned
