@@ -31,6 +31,7 @@ def _sensor_folder(folder: Path, lines: slice) -> Path:
     return folder
 
 
+@pytest.mark.slow  # odometry and detection on 40 real frames: make test runs it, make check does not
 @pytest.mark.skipif(not REDKITCHEN.is_dir(), reason=f"the 7-Scenes redkitchen sequence is not at {REDKITCHEN} "
                     "(../shared absent)")
 def test_readme_own_data_commands_on_a_folder_without_groundtruth(tmp_path):
