@@ -5,11 +5,12 @@
 Each TABLES_DIR holds the tables and the JSON summary of one `ndfa detect SRC TGT --tables
 TABLES_DIR --json TABLES_DIR/summary.json` run. The detector is replayed on each run's observations
 (`ndfa.run.replay`: no re-encoding, about a second a scene) with ndfa's defaults, with each addition
-(`ndfa.change.config.ADDITIONS`) switched off alone, and with the paper's parameters and every
-addition off (`DetectorConfig.paper()`); with `--knobs`, also each knob of an addition switched
-off alone. The TP / FP / FN summed over the scenes are printed per row, with the scenes whose
-figures moved. The scene-level registration prior a run offered its
-detector (its summary's `scene_alignment`, when it held) is offered to the replay too.
+(`ndfa.change.config.ADDITIONS`) switched off alone, with the paper's parameters and every addition
+on, and with the paper's parameters and every addition off (`DetectorConfig.paper()`); with
+`--knobs`, also each knob of an addition switched off alone. The TP / FP / FN summed over the
+scenes are printed per row, with the scenes whose figures moved. The scene-level registration prior
+a run offered its detector (its summary's `scene_alignment`, when it held) is offered to the
+replay too.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ import polars as pl
 from ndfa.change.config import ADDITIONS, DetectorConfig
 from ndfa.change.register import RegistrationPrior
 from ndfa.eval.runs import score_replay
+from ndfa.run.align import AlignConfig
 from ndfa.run.replay import replay
 
 
@@ -34,7 +36,7 @@ def prior_of(summary: dict) -> RegistrationPrior | None:
     if not alignment or not alignment["ok"] or alignment["transform"] is None:
         return None
     # A shared world is binding; a scene alignment from a clear overlap (`AlignConfig.binding_fitness`).
-    binding = alignment["method"] == "shared world" or (alignment["fitness"] or 0.0) >= 0.6
+    binding = alignment["method"] == "shared world" or (alignment["fitness"] or 0.0) >= AlignConfig().binding_fitness
     return RegistrationPrior(alignment["method"], np.array(alignment["transform"]).reshape(4, 4), binding=binding)
 
 
@@ -61,7 +63,10 @@ def main() -> None:
     rows += [(f"without {name}", DetectorConfig().without(name)) for name in ADDITIONS]
     if args.knobs:
         rows += knob_rows()
-    rows += [("paper (DetectorConfig.paper())", DetectorConfig.paper())]
+    paper = DetectorConfig.paper()
+    rows += [("paper's parameters, additions on", dataclasses.replace(
+        DetectorConfig(), association=paper.association, registration=paper.registration, decision=paper.decision))]
+    rows += [("paper (DetectorConfig.paper())", paper)]
     detected = {name: (s.get("tp"), s.get("fp"), s.get("fn")) for name, (_, s) in runs.items()}
     print(f"{'config':40} {'TP':>4} {'FP':>4} {'FN':>4}  scenes that differ from ndfa's replay (TP/FP/FN)")
     reference: dict[str, tuple[int, int, int]] = {}
