@@ -80,6 +80,13 @@ def number_text(value: float) -> str:
     return text if len(text) <= 24 else f"{text[:6]}...({len(text)} digits)"
 
 
+def non_empty(param: typer.CallbackParam, value: str | None) -> str | None:
+    """A callback for a name (a session's): not empty, not only blanks (None: not given)."""
+    if value is not None and not value.strip():
+        raise OptionError(f"{option_name(param)} must be a non-empty name, got {value!r}")
+    return value
+
+
 def at_least(low: float) -> Callback:
     """`in_range(ge=low)`: counts, strides, seeds."""
     return in_range(ge=low)

@@ -50,6 +50,7 @@ def ingest_bag_command(
     if out is None:
         raise typer.BadParameter("--out is required (or --list)")
     estimator, monitor = pose_estimator(poses)
+    out.parent.mkdir(parents=True, exist_ok=True)  # as `detect --log`; removed again if the import fails
 
     with progress_bar() as progress:
         task = progress.add_task(f"writing {out.name}", total=None)

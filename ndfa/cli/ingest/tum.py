@@ -11,7 +11,7 @@ import typer
 from rich.table import Table
 
 from ndfa.cli.app import console, progress_bar
-from ndfa.cli.checks import input_dir, output_file, positive
+from ndfa.cli.checks import input_dir, non_empty, output_file, positive
 from ndfa.cli.ingest import ingest_app
 from ndfa.cli.ingest.estimated_poses import estimate_session_poses, input_warnings, pose_estimator
 from ndfa.core.errors import NdfaError
@@ -19,6 +19,7 @@ from ndfa.io.ingest import MAX_DT_S
 from ndfa.io.ingest.tum_layout import DEFAULT_INTRINSICS, DEPTH_SCALE, INTRINSICS_PRESETS
 
 _PRESETS = " | ".join(INTRINSICS_PRESETS)
+MAX_PIXELS = 1e5  # no camera's focal length or principal point, in pixels, comes near
 
 
 def _parse_intrinsics(text: Optional[str]) -> object:
@@ -31,8 +32,10 @@ def _parse_intrinsics(text: Optional[str]) -> object:
         values = ()
     if len(values) != 4:
         raise NdfaError(f"--intrinsics must be {', '.join(INTRINSICS_PRESETS)} or fx,fy,cx,cy, got {text!r}")
-    if not (np.all(np.isfinite(values)) and values[0] > 0 and values[1] > 0):
-        raise NdfaError(f"--intrinsics: fx and fy must be finite and > 0, cx and cy finite, got {text!r}")
+    if not (np.all(np.isfinite(values)) and 0 < values[0] <= MAX_PIXELS and 0 < values[1] <= MAX_PIXELS
+            and max(abs(values[2]), abs(values[3])) <= MAX_PIXELS):
+        raise NdfaError(f"--intrinsics: fx and fy must be > 0, and all four at most {MAX_PIXELS:g} pixels "
+                        f"(a focal length or centre beyond any camera's image), got {text!r}")
     return values
 
 
@@ -51,13 +54,14 @@ def ingest_tum_command(
     poses: str = typer.Option("given", help="given (groundtruth.txt; without it the recording keeps no poses and "
                                             "`ndfa detect` estimates them) | estimate | rgbd | kiss-icp (estimated "
                                             "now; groundtruth.txt, if any, is kept as the true poses)."),
-    session: Optional[str] = typer.Option(None, help="Session name (default: the folder's name)."),
+    session: Optional[str] = typer.Option(None, help="Session name (default: the folder's name).", callback=non_empty),
 ) -> None:
     """Import a TUM RGB-D folder into one recording, and say what was dropped and why."""
     from ndfa.io.ingest.tum import TumWarning, ingest_tum  # lazy: PIL (a twentieth of a second)
 
     estimator, monitor = pose_estimator(poses)
     camera = _parse_intrinsics(intrinsics)
+    out.parent.mkdir(parents=True, exist_ok=True)  # as `detect --log`; removed again if the import fails
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", TumWarning)  # listed under the table instead

@@ -17,8 +17,8 @@ Decisions, each counted or noted so the summary says what happened:
   (ndfa's method needs depth, colour is for looking at), and counted in `depth_without_rgb`;
 - poses are interpolated to the depth stamps (linear translation, slerp rotation); a frame outside
   the groundtruth's time span, or inside a gap longer than `tum_lists.MAX_POSE_GAP_S`, is dropped;
-- timestamps that are not strictly increasing in file order (or negative) make the folder fall
-  back to file order: line i of depth.txt pairs with line i of rgb.txt, frames get synthetic stamps
+- a list whose lines are out of time order is sorted by stamp (with a warning); stamps that are
+  not usable even so (repeated, or negative) make the folder fall back to file order: line i of depth.txt pairs with line i of rgb.txt, frames get synthetic stamps
   i / `FALLBACK_RATE_HZ`, and groundtruth.txt pairs by line when it has one line per depth frame;
 - a frame whose depth, rgb or mask PNG is missing is skipped and counted (checked when the folder
   is indexed, so the counts are known before anything is written).
@@ -170,6 +170,14 @@ class TumFolder:
         rgb_list = read_list(self.folder, RGB_LIST, required=False)
         groundtruth = read_list(self.folder, GROUNDTRUTH, required=False)
         self.has_groundtruth = groundtruth is not None
+        # Lines out of time order are sorted by stamp when the stamps allow it for depth and rgb
+        # alike; otherwise both stay in file order, to be paired line by line.
+        depth_sorted = depth_list.in_time_order(negative_ok=False)
+        rgb_sorted = rgb_list.in_time_order(negative_ok=True) if rgb_list is not None else None
+        if depth_sorted.increasing and (rgb_sorted is None or rgb_sorted.increasing):
+            depth_list, rgb_list = depth_sorted, rgb_sorted
+            groundtruth = groundtruth.in_time_order(negative_ok=True) if groundtruth else None
+        depth_list, rgb_list, groundtruth = (self._warned(stamped) for stamped in (depth_list, rgb_list, groundtruth))
         depth_usable = depth_list.increasing and bool(np.all(depth_list.stamps >= 0))
         in_time_order = depth_usable and (rgb_list is None or rgb_list.increasing)
 
@@ -198,11 +206,21 @@ class TumFolder:
             self.info["poses"] = f"given ({GROUNDTRUTH})"
             true_poses = read_list(self.folder, TRUE_POSES, required=False)
             if true_poses is not None:
+                true_poses = self._warned(true_poses.in_time_order(negative_ok=True) if in_time_order else true_poses)
+            if true_poses is not None:
                 entries = self._place_poses(entries, true_poses, depth_list, in_time_order, "true_pose")
         entries = [entry for entry in entries if self._files_exist(entry)]
         if not entries:
             self._warn(f"{self.folder}: no frame of {DEPTH_LIST} can be imported")
         return entries
+
+    def _warned(self, stamped: StampedList | None) -> StampedList | None:
+        """A list as it is used, what reading it worked around (units, order) warned about."""
+        if stamped is None:
+            return None
+        for message in stamped.warnings:
+            self._warn(message)
+        return stamped
 
     def _files_exist(self, entry: TumEntry) -> bool:
         """Whether the entry's PNGs are there; count the frame as dropped when one is not."""

@@ -2,11 +2,17 @@
 
 rgb.txt and depth.txt hold lines "timestamp relative/path.png", groundtruth.txt (and ndfa's
 ndfa_true_poses.txt) lines "timestamp tx ty tz qx qy qz qw"; '#' starts a comment line.
+
+Timestamps are seconds. A list whose stamps are too large for seconds (beyond 1.8e10 s, the latest
+time an MCAP recording holds) holds them in milliseconds, microseconds or nanoseconds since 1970,
+told apart by their size (from 1e11, 1e14, 1e17: a realistic unit mistake of a converter): they
+are read as seconds, with a warning; stamps that no unit makes such seconds are refused. A list whose lines are out of time
+order is sorted by stamp, with a warning (`StampedList.in_time_order`).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -14,12 +20,15 @@ import numpy as np
 from ndfa.core.errors import IngestError
 from ndfa.core.geometry import interpolate_pose
 from ndfa.io.ingest.tum_layout import GROUNDTRUTH, TRUE_POSES
+from ndfa.io.recording.writer import MAX_TIMESTAMP_S
 
 # A depth frame between two groundtruth poses further apart than this is dropped: the motion
 # capture lost the camera there, and interpolating across the gap would invent a pose.
 MAX_POSE_GAP_S = 0.1
 # Two stamps closer than this are the same moment (TUM files print 4 to 6 decimals).
 SAME_STAMP_S = 1e-6
+# Stamps this large are no seconds since 1970: (threshold, units per second, unit), largest first.
+OTHER_UNITS = ((1e17, 1e9, "nanoseconds"), (1e14, 1e6, "microseconds"), (1e11, 1e3, "milliseconds"))
 
 
 @dataclass
@@ -30,6 +39,7 @@ class StampedList:
     stamps: np.ndarray  # (N,) float64 seconds
     fields: list[list[str]]
     line_numbers: list[int]  # 1-based line numbers in the file, for messages
+    warnings: list[str] = field(default_factory=list)  # what reading it worked around
 
     @property
     def increasing(self) -> bool:
@@ -45,11 +55,30 @@ class StampedList:
                         f"{self.line_numbers[k - 1]} ({self.stamps[k - 1]})")
         return "none"
 
+    def in_time_order(self, negative_ok: bool) -> StampedList:
+        """This list, its lines sorted by stamp when they are out of order but the stamps are usable
+        (distinct; none negative unless `negative_ok`), with a warning; otherwise as it is (the caller
+        falls back to file order)."""
+        if self.increasing:
+            return self
+        order = np.argsort(self.stamps, kind="stable")
+        stamps = self.stamps[order]
+        if not (np.all(np.diff(stamps) > 0) and (negative_ok or np.all(stamps >= 0))):
+            return self
+        moved = int(np.sum(order != np.arange(len(order))))
+        return replace(self, stamps=stamps, fields=[self.fields[k] for k in order],
+                       line_numbers=[self.line_numbers[k] for k in order],
+                       warnings=[*self.warnings, f"{self.path}: lines not in time order ({self.disorder(True)}); "
+                                 f"sorted by timestamp ({moved} of {len(order)} lines moved)"])
+
 
 def read_list(folder: Path, name: str, required: bool) -> StampedList | None:
     """Parse the list file `name` of `folder`: '#' comments and blank lines skipped, a number first
     on every other line (then 7 more for the pose files). None when it is missing and not required."""
     path = folder / name
+    if path.exists() and not path.is_file():
+        raise IngestError(f"{path}: is {'a directory' if path.is_dir() else 'not a regular file'}, not a list file "
+                          f"(lines 'timestamp PATH')")
     if not path.is_file():
         if required:
             raise IngestError(f"{path}: no such file; a TUM RGB-D folder needs {name} "
@@ -58,7 +87,7 @@ def read_list(folder: Path, name: str, required: bool) -> StampedList | None:
     columns = 8 if name in (GROUNDTRUTH, TRUE_POSES) else 2
     stamps, rows, numbers = [], [], []
     try:
-        lines = path.read_text().splitlines()
+        lines = path.read_text(encoding="utf-8-sig").splitlines()  # a byte order mark (some editors write one) skipped
     except (OSError, UnicodeDecodeError) as error:
         raise IngestError(f"{path} cannot be read: {error}") from error
     for number, line in enumerate(lines, start=1):
@@ -80,7 +109,21 @@ def read_list(folder: Path, name: str, required: bool) -> StampedList | None:
         stamps.append(stamp)
         rows.append(parts[1:columns])
         numbers.append(number)
-    return StampedList(path, np.array(stamps, dtype=np.float64), rows, numbers)
+    seconds, warnings = _in_seconds(path, np.array(stamps, dtype=np.float64))
+    return StampedList(path, seconds, rows, numbers, warnings)
+
+
+def _in_seconds(path: Path, stamps: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """The stamps in seconds (see the module docstring), and the warning when they were not."""
+    top = float(np.max(np.abs(stamps))) if len(stamps) else 0.0
+    if top < MAX_TIMESTAMP_S:
+        return stamps, []
+    for threshold, per_second, unit in OTHER_UNITS:
+        if top >= threshold and top / per_second < MAX_TIMESTAMP_S:
+            return stamps / per_second, [f"{path}: timestamps up to {top:.6g} look like {unit}, not seconds; read "
+                                         f"as seconds ({unit} / {per_second:g})"]
+    raise IngestError(f"{path}: timestamps up to {top:.6g} are no time in seconds (nor in milliseconds, microseconds "
+                      f"or nanoseconds): TUM lists hold seconds, up to {MAX_TIMESTAMP_S:.4g} (what MCAP can hold)")
 
 
 def _check_quaternion(q: list[float]) -> None:

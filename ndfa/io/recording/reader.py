@@ -248,6 +248,14 @@ class RecordingReader:
                 f"{self.path}: channel {channels.CALIBRATION} at {_time(time_ns)} has {len(calibration.K)} values in K, "
                 "expected 9"
             )
+        fx, fy = calibration.K[0], calibration.K[4]
+        if not (np.all(np.isfinite(calibration.K)) and fx > 0 and fy > 0):
+            # A zero focal length back-projects every pixel to infinity: the error would surface far
+            # downstream as "observation 0: N points are NaN or infinite", naming neither file nor channel.
+            raise RecordingError(
+                f"{self.path}: channel {channels.CALIBRATION} at {_time(time_ns)}: K must be finite with focal lengths "
+                f"fx, fy > 0, got fx {fx:g}, fy {fy:g}"
+            )
         if calibration.width and (calibration.height, calibration.width) != depth.shape:
             raise RecordingError(
                 f"{self.path}: channel {channels.CALIBRATION} at {_time(time_ns)} is for images of (H, W) = "

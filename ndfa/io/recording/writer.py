@@ -42,6 +42,9 @@ CHUNK_SIZE_BYTES = 4 * 1024 * 1024
 # The depth encoding holds millimetres in a uint16, so 65.535 m is the farthest depth it can store.
 _MAX_DEPTH_MM = np.iinfo(np.uint16).max
 
+# The latest time an MCAP message can carry: log_time is unsigned 64-bit nanoseconds (year 2554).
+MAX_TIMESTAMP_S = 18_446_744_073.0  # floor((2**64 - 1) / 1e9): rounding to ns stays below 2**64
+
 # Keys the writer puts into the meta message itself; the caller's meta must not set them.
 _WRITER_META_KEYS = ("format", "format_version", "depth_scale", "units")
 _REQUIRED_META_KEYS = ("source", "session")
@@ -145,6 +148,10 @@ class RecordingWriter:
         if frame.index >= 2**32:
             raise RecordingError(f"{self.path}: frame index {frame.index} does not fit the MCAP sequence (uint32)")
 
+        if not 0 <= frame.timestamp < MAX_TIMESTAMP_S:  # NaN fails too
+            raise RecordingError(
+                f"{self.path}: frame {frame.index} has timestamp {frame.timestamp:g} s, outside what MCAP holds "
+                f"(0 to {MAX_TIMESTAMP_S:.4g} s: unsigned 64-bit nanoseconds); are the stamps in seconds?")
         time_ns = int(round(frame.timestamp * 1e9))
         if self._last_time_ns is not None and time_ns <= self._last_time_ns:
             raise RecordingError(

@@ -1,0 +1,137 @@
+"""TUM folders as converters and editors leave them (issue 31): lines out of time order, stamps in
+milliseconds or nanoseconds, a byte order mark, a list that is a folder; and the recording's limits
+on stamps and on the camera's focal length."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import one_line
+from test_tum import frame_ids, make_folder, pose_at
+
+from ndfa.core.errors import IngestError, RecordingError
+from ndfa.core.frame import Frame
+from ndfa.io.ingest.tum import TumWarning, ingest_tum
+from ndfa.io.recording import RecordingReader, RecordingWriter
+
+
+def shuffled_lines(path: Path, order: list[int]) -> None:
+    """Rewrite a list file with its data lines in `order` (comments first, as they were)."""
+    lines = path.read_text().splitlines(keepends=True)
+    comments = [line for line in lines if line.startswith("#")]
+    data = [line for line in lines if not line.startswith("#")]
+    path.write_text("".join(comments + [data[k] for k in order]))
+
+
+def scaled_stamps(path: Path, factor: float, offset: float = 0.0) -> None:
+    """Rewrite a list file with every stamp s as (s + offset) * factor."""
+    out = []
+    for line in path.read_text().splitlines(keepends=True):
+        if line.startswith("#"):
+            out.append(line)
+            continue
+        stamp, rest = line.split(" ", 1)
+        out.append(f"{(float(stamp) + offset) * factor:.6f} {rest}")
+    path.write_text("".join(out))
+
+
+def test_lines_out_of_order_are_sorted_by_their_stamps(tmp_path):
+    folder = make_folder(tmp_path / "tum")
+    shuffled_lines(folder / "depth.txt", [3, 0, 4, 1, 2])
+    shuffled_lines(folder / "rgb.txt", [1, 0, 2, 4, 3])
+    shuffled_lines(folder / "groundtruth.txt", [*range(50, 0, -1), 0])
+    with pytest.warns(TumWarning) as warned:
+        summary = ingest_tum(folder, tmp_path / "out.mcap")
+    messages = [str(w.message) for w in warned]
+    for name, moved in (("depth.txt", "5 of 5"), ("rgb.txt", "4 of 5"), ("groundtruth.txt", "50 of 51")):
+        assert any(f"{name}: lines not in time order" in m and f"sorted by timestamp ({moved} lines moved)" in m
+                   for m in messages), messages
+    assert summary.written == 5 and "synthetic" not in summary.timestamps
+    frames = list(RecordingReader(tmp_path / "out.mcap").frames())
+    assert frame_ids(frames) == [0, 1, 2, 3, 4]
+    assert [f.rgb[0, 0, 0] for f in frames] == [0, 1, 2, 3, 4]  # paired by time, not by line
+    for frame in frames:  # was: poses 1.5 m off, paired by line
+        assert np.abs(frame.pose_world_camera - pose_at(frame.timestamp)).max() < 1e-6
+
+
+@pytest.mark.parametrize("factor, unit", [(1e3, "milliseconds"), (1e6, "microseconds"), (1e9, "nanoseconds")])
+def test_stamps_in_another_unit_are_read_as_seconds_with_a_warning(tmp_path, factor, unit):
+    folder = make_folder(tmp_path / "tum")
+    epoch = 1_305_031_102.0  # a TUM sequence's Unix time
+    for name in ("depth.txt", "rgb.txt"):
+        scaled_stamps(folder / name, factor, epoch)
+    scaled_stamps(folder / "groundtruth.txt", 1.0, epoch)  # the poses in seconds, as TUM's
+    with pytest.warns(TumWarning) as warned:
+        summary = ingest_tum(folder, tmp_path / "out.mcap")
+    messages = [str(w.message) for w in warned]
+    assert sum(f"look like {unit}, not seconds" in m for m in messages) == 2, messages
+    assert summary.written == 5
+    frames = list(RecordingReader(tmp_path / "out.mcap").frames())
+    assert [f.timestamp - epoch for f in frames] == pytest.approx([0.0, 0.1, 0.2, 0.3, 0.4], abs=1e-5)
+    for frame in frames:
+        assert np.abs(frame.pose_world_camera - pose_at(frame.timestamp - epoch)).max() < 1e-4
+
+
+def test_stamps_no_unit_makes_seconds_are_refused_with_the_hint(tmp_path):
+    folder = make_folder(tmp_path / "tum", groundtruth=None)
+    scaled_stamps(folder / "depth.txt", 1e300, 1.0)
+    with pytest.raises(IngestError, match=r"depth\.txt: timestamps up to 1\.4e\+300 are no time in seconds.*TUM lists "
+                                          r"hold seconds"):
+        ingest_tum(folder, tmp_path / "out.mcap")
+    assert not (tmp_path / "out.mcap").exists()
+
+
+def test_the_writer_refuses_a_stamp_mcap_cannot_hold(tmp_path):
+    frame = Frame(0, 2e10, None, np.ones((4, 4), np.float32), np.diag([300.0, 300.0, 1.0]), np.eye(4), None)
+    with RecordingWriter(tmp_path / "x.mcap", {"source": "test", "session": "x"}) as writer:
+        with pytest.raises(RecordingError, match=r"frame 0 has timestamp 2e\+10 s, outside what MCAP holds.*seconds\?"):
+            writer.write_frame(frame)
+        writer.write_frame(Frame(0, 1.0, None, np.ones((4, 4), np.float32), np.diag([300.0, 300.0, 1.0]),
+                                 np.eye(4), None))
+
+
+def test_a_byte_order_mark_is_skipped(tmp_path):
+    folder = make_folder(tmp_path / "tum", comments=False)
+    for name in ("depth.txt", "rgb.txt", "groundtruth.txt"):
+        (folder / name).write_bytes(b"\xef\xbb\xbf" + (folder / name).read_bytes())
+    assert ingest_tum(folder, tmp_path / "out.mcap").written == 5
+
+
+def test_a_list_that_is_a_folder_is_named(tmp_path):
+    folder = make_folder(tmp_path / "tum")
+    (folder / "rgb.txt").unlink()
+    (folder / "rgb.txt").mkdir()
+    with pytest.raises(IngestError, match=r"rgb\.txt: is a directory, not a list file"):
+        ingest_tum(folder, tmp_path / "out.mcap")  # was: read as missing, every frame without colour
+
+
+def test_a_zero_focal_length_names_the_file_and_channel(tmp_path):
+    path = tmp_path / "k0.mcap"
+    with RecordingWriter(path, {"source": "test", "session": "x"}) as writer:
+        writer.write_frame(Frame(0, 1.0, None, np.ones((4, 4), np.float32), np.zeros((3, 3)), np.eye(4), None))
+    with pytest.raises(RecordingError, match=rf"{path}: channel /camera/calibration at .*: K must be finite with focal "
+                                             r"lengths fx, fy > 0, got fx 0, fy 0"):
+        RecordingReader(path)
+
+
+@pytest.mark.parametrize("args, fragment", [
+    (["--session", ""], "--session must be a non-empty name, got ''"),
+    (["--session", "  "], "--session must be a non-empty name"),
+    (["--intrinsics", "525,525,1e308,1e308"], "at most 100000 pixels"),
+    (["--intrinsics", "0,525,320,240"], "fx and fy must be > 0"),
+])
+def test_ingest_tum_options_out_of_reason_are_refused(tmp_path, ndfa, args, fragment):
+    folder = make_folder(tmp_path / "tum")
+    one_line(ndfa("ingest", "tum", folder, "--out", tmp_path / "out.mcap", *args), fragment)
+    assert not (tmp_path / "out.mcap").exists()
+
+
+def test_ingest_tum_makes_missing_folders_as_detect_log_does(tmp_path, ndfa):
+    folder = make_folder(tmp_path / "tum")
+    code, _, err = ndfa("ingest", "tum", folder, "--out", tmp_path / "new" / "deeper" / "out.mcap")
+    assert code == 0, err
+    assert len(RecordingReader(tmp_path / "new" / "deeper" / "out.mcap")) == 5
+    (folder / "depth.txt").unlink()  # a failing import: the folders it made go again
+    code, _, err = ndfa("ingest", "tum", folder, "--out", tmp_path / "other" / "deeper" / "out.mcap")
+    assert code == 2 and "depth.txt" in err
+    assert not (tmp_path / "other").exists()
