@@ -135,3 +135,10 @@ def test_ingest_tum_makes_missing_folders_as_detect_log_does(tmp_path, ndfa):
     code, _, err = ndfa("ingest", "tum", folder, "--out", tmp_path / "other" / "deeper" / "out.mcap")
     assert code == 2 and "depth.txt" in err
     assert not (tmp_path / "other").exists()
+
+
+def test_a_symbolic_link_loop_is_called_one(tmp_path, ndfa):
+    folder = make_folder(tmp_path / "tum")
+    (tmp_path / "loop").symlink_to(tmp_path / "loop")
+    one_line(ndfa("ingest", "tum", folder, "--out", tmp_path / "out.mcap", "--masks", tmp_path / "loop"),
+             "--masks", "a symbolic link that leads nowhere (broken, or a loop)")

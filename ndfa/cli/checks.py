@@ -210,7 +210,9 @@ def input_file(param: typer.CallbackParam, value: Path | None) -> Path | None:
 def input_dir(param: typer.CallbackParam, value: Path | None) -> Path | None:
     """A callback for an option naming a folder to read."""
     if value is not None and not value.is_dir():
-        raise OptionError(f"{option_name(param)} {value}: {'not a directory' if value.exists() else 'no such directory'}")
+        problem = ("not a directory" if value.exists() else
+                   "a symbolic link that leads nowhere (broken, or a loop)" if value.is_symlink() else "no such directory")
+        raise OptionError(f"{option_name(param)} {value}: {problem}")
     return value
 
 
