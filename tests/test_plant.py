@@ -196,3 +196,10 @@ def test_colour_camera_sees_a_depth_pixel_where_its_intrinsics_and_offset_put_it
     assert (carried[seen] == 7).all()
     same, _ = ColorGrid(depth_K, depth_K).splat(mask, depth)
     assert np.array_equal(same, mask)
+
+
+def test_auto_without_a_plan_finds_the_real_mug_and_removes_it(pair, tmp_path):
+    result = run_plant(*pair, tmp_path / "out", [], auto_seed=1, noise=OFF)
+    real = [o for o in result.objects if o.real]
+    assert len(real) == 1 and real[0].change == "removed"
+    assert np.linalg.norm(real[0].source_xy - MUG_AT) < 0.03

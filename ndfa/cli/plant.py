@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Optional
 
 import typer
+from rich.markup import escape
 from rich.table import Table
 
 from ndfa.cli.app import app, bar_per_label, console, err_console, progress_bar
@@ -25,7 +26,8 @@ def plant_command(
                                         callback=input_file),
     auto: bool = typer.Option(False, "--auto", help="Place the meshes by --seed on the largest support surface both "
                               "recordings saw: one mug moved (>= 0.5 m where the surface allows), one added, "
-                              "and one of the plan's real objects removed."),
+                              "and one of the real objects removed: the plan's, or without a plan those found "
+                              "(segments in most frames that see their place, in both sessions)."),
     seed: int = typer.Option(0, help="The placements of --auto.", callback=seed_range),
     log: Optional[Path] = typer.Option(None, help="Write frames before and after planting to this Rerun file (.rrd).",
                                        callback=output_file),
@@ -58,12 +60,12 @@ def plant_command(
     for obj in result.objects:
         def at(xy):
             return "-" if xy is None else f"{xy[0]:.2f}, {xy[1]:.2f}"
-        table.add_row(obj.name, obj.change, at(obj.source_xy), at(obj.target_xy))
+        table.add_row(escape(obj.name), obj.change, at(obj.source_xy), at(obj.target_xy))
     console.print(table)
     for session, path in result.paths.items():
         err_console.print(f"{session}: {path} ({result.frames[session]} frames, {result.edited[session]} edited)")
     for note in result.notes:
-        err_console.print(f"note: {note}", highlight=False)
+        err_console.print(f"note: {note}", highlight=False, markup=False)
 
 
 def _color_camera(text: str):

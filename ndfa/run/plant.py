@@ -25,20 +25,25 @@ import numpy as np
 
 from ndfa.core.conventions import MAX_DEPTH_M, MIN_DEPTH_M, is_visible
 from ndfa.core.errors import OptionError, RecordingError
+from ndfa.core.frame import Frame
 from ndfa.core.geometry import invert_pose, make_pose, rotation_z
 from ndfa.core.progress import LabelledProgress
 from ndfa.io.recording import RecordingReader, RecordingWriter
+from ndfa.perception.segmentation import segment_frame
 from ndfa.run.plant_plan import CLEARANCE_M, PlantedObject, auto_plan, load_mesh, mesh_color
 from ndfa.run.world import prepare_session
 from ndfa.sim.noise import DepthNoise
 from ndfa.sim.plant import ColorGrid, Cylinder, MeshInserter, camera_of, remove_object, world_points
-from ndfa.sim.plant_place import free_spots, largest_plane, support_at
+from ndfa.sim.plant_place import SAME_OBJECT_M, free_spots, group_centers, largest_plane, support_at
 from ndfa.sim.render import RenderObject
 
 SESSIONS = ("source", "target")
 CLOUD_FRAMES = 30   # frames per session in the scene cloud (spread over the session)
 CLOUD_STRIDE = 4    # every 4th pixel along each axis
 SUPPORT_REACH_M = 0.15  # the support under an object: points this far around its region
+DISCOVER_FRAMES = 20  # frames per session segmented to find the real objects (--auto without a plan)
+RECUR_SHARE = 0.5    # ... an object is found in at least this share of the frames that see its place
+OCCLUDED_M = 0.10    # a place is hidden from a frame whose depth there is this much nearer
 SINK_M = 0.001      # a mesh stands this far into its support, so no gap shows under it
 _WRITER_META_KEYS = ("format", "format_version", "depth_scale", "units")
 
@@ -93,6 +98,10 @@ def run_plant(source: Path, target: Path, out_dir: Path, plan: list[PlantedObjec
     if auto_seed is not None:
         if any(not o.real for o in plan):
             raise OptionError("--auto places the meshes itself: a plan given with it may list real objects only")
+        if not plan:
+            plan = discover_real_objects(readers, pose_level_world)
+            notes.append(f"real objects found (segments in most frames seeing their place, in both sessions): "
+                         f"{'; '.join(o.describe() for o in plan) or 'none'}")
         found = largest_plane(clouds)
         if found is None:
             raise RecordingError(f"{source}, {target}: no horizontal support surface seen by both")
@@ -153,6 +162,46 @@ def scene_cloud(reader: RecordingReader, pose_level_world: np.ndarray) -> np.nda
         local = rays[valid] * depth[valid, None]
         points.append(local @ pose[:3, :3].T + pose[:3, 3])
     return np.concatenate(points) if points else np.empty((0, 3))
+
+
+def discover_real_objects(readers: dict[str, RecordingReader], pose_level_world: np.ndarray) -> list[PlantedObject]:
+    """The real objects of a pair: groups of segments (`ndfa.perception.segmentation`, on
+    `DISCOVER_FRAMES` frames of each session) found in at least `RECUR_SHARE` of the frames that
+    see their place, in each session."""
+    views: dict[str, list[tuple[Frame, np.ndarray]]] = {}
+    for session, reader in readers.items():
+        views[session] = []
+        for frame in reader.frames(step=max(1, len(reader) // DISCOVER_FRAMES)):
+            level = replace(frame, pose_world_camera=pose_level_world @ frame.pose_world_camera)
+            labels = segment_frame(level)
+            points = world_points(level.depth, camera_of(level.K, level.image_size), level.pose_world_camera)
+            centers = [points[labels == k].mean(axis=0) for k in range(1, int(labels.max()) + 1) if (labels == k).any()]
+            views[session].append((level, np.array(centers).reshape(-1, 3)))
+    candidates = group_centers(np.vstack([c for frames in views.values() for _, c in frames]))
+    found = []
+    for center in candidates:
+        shares = []
+        for frames in views.values():
+            seeing = [c for level, c in frames if _sees(level, center)]
+            hits = sum(bool(len(c)) and float(np.min(np.linalg.norm(c[:, :2] - center[:2], axis=1))) <= SAME_OBJECT_M
+                       for c in seeing)
+            shares.append(hits / len(seeing) if seeing else 0.0)
+        if min(shares) >= RECUR_SHARE:
+            found.append(PlantedObject(f"real object {len(found) + 1}", "unchanged", True, center[:2], center[:2]))
+    return found
+
+
+def _sees(frame: Frame, point: np.ndarray) -> bool:
+    """Whether `frame` sees `point` (levelled world): in the image, in range, nothing much nearer."""
+    local = invert_pose(frame.pose_world_camera) @ np.append(point, 1.0)
+    if not MIN_DEPTH_M < local[2] < MAX_DEPTH_M:
+        return False
+    u, v = (frame.K @ (local[:3] / local[2]))[:2]
+    height, width = frame.image_size
+    if not (0 <= round(v) < height and 0 <= round(u) < width):
+        return False
+    measured = frame.depth[round(v), round(u)]
+    return measured == 0 or measured > local[2] - OCCLUDED_M
 
 
 def _place(plan: list[PlantedObject], session: str, cloud: np.ndarray) -> list[_Placed]:

@@ -138,3 +138,21 @@ def choose_spots(spots: np.ndarray, count: int, rng: np.random.Generator, apart_
             free = wide if len(wide) else free[[int(np.argmax(far))]]
         chosen.append(free[rng.integers(len(free))])
     return np.array(chosen)
+
+
+# Segments' centers this close (horizontally) in different frames are one object.
+SAME_OBJECT_M = 0.06
+
+
+def group_centers(centers: np.ndarray) -> np.ndarray:
+    """Greedy groups of segment `centers` (N, 3) whose horizontal positions lie within
+    `SAME_OBJECT_M` of the most crowded one left: (K, 3) medians, the most populated first."""
+    remaining = np.asarray(centers, dtype=float).reshape(-1, 3)
+    groups = []
+    while len(remaining):
+        flat = remaining[:, :2]
+        counts = (np.linalg.norm(flat[:, None] - flat[None], axis=2) <= SAME_OBJECT_M).sum(axis=1)
+        near = np.linalg.norm(flat - flat[int(np.argmax(counts))], axis=1) <= SAME_OBJECT_M
+        groups.append(np.median(remaining[near], axis=0))
+        remaining = remaining[~near]
+    return np.array(groups).reshape(-1, 3)
