@@ -19,7 +19,8 @@ from ndfa.io.export.bag import LINK_FROM_OPTICAL, _BagWriter, _write_frame
 from ndfa.io.ingest.bag import ingest_bag, list_topics
 from ndfa.io.recording import RecordingReader
 from ndfa.run.world import prepare_session
-from ndfa.trajectory.up import angle_deg, imu_gravity
+from ndfa.trajectory.up import angle_deg
+from ndfa.trajectory.up_imu import imu_gravity
 
 SAMPLE = Path(__file__).resolve().parents[1] / "recordings" / "sample"
 STAMP0 = 1_767_600_000 * 10**9  # ns

@@ -15,6 +15,8 @@ from typer.testing import CliRunner
 from ndfa.cli import app
 from ndfa.io.recording import RecordingReader
 
+pytestmark = pytest.mark.slow  # imports and runs ndfa detect end to end on real frames
+
 REDKITCHEN = Path(__file__).resolve().parents[2] / "shared" / "data" / "redkitchen_7scenes"
 
 

@@ -14,7 +14,8 @@ from ndfa.core.geometry import axis_angle_to_matrix, invert_pose, make_pose
 from ndfa.io.recording import RecordingReader
 from ndfa.io.tum_format import read_tum
 from ndfa.trajectory.level import level_frame, level_poses, levelling_rotation
-from ndfa.trajectory.up import angle_deg, estimate_up, up_from_accelerations
+from ndfa.trajectory.up import angle_deg, estimate_up
+from ndfa.trajectory.up_imu import up_from_accelerations
 
 REPO = Path(__file__).resolve().parents[1]
 SAMPLE = REPO / "recordings" / "sample" / "source.mcap"
@@ -73,30 +74,38 @@ def test_first_camera_world(sample_frames):
     assert angle_deg(estimate.up_world, first[:3, :3].T @ Z) < 0.5
 
 
-def test_disagreeing_poses_are_refused(sample_frames):
+def test_disagreeing_poses_never_give_a_confident_up(sample_frames):
+    # Each pose tilted by its own 8-20 deg: refused (the cameras' axes are not upright then) or used
+    # with "low" confidence and a warning that says why -- never a confident up.
     rng = np.random.default_rng(3)
     wobbles = iter([make_pose(tilt_rotation(rng.uniform(8.0, 20.0), rng.uniform(0.0, 360.0)), np.zeros(3))
                     for _ in sample_frames])
     estimate = estimate_up(with_poses(sample_frames, lambda pose: next(wobbles) @ pose))
-    assert not estimate.ok and estimate.up_world is None
-    assert estimate.reason.startswith("frames disagree")
-    with pytest.raises(TrajectoryError, match="frames disagree"):
-        estimate.levelling()
+    if estimate.ok:
+        assert estimate.confidence == "low" and estimate.warning, estimate
+    else:
+        assert estimate.up_world is None and "not held upright, or the poses are wrong" in estimate.reason
+        with pytest.raises(TrajectoryError, match="not held upright"):
+            estimate.levelling()
 
 
-def test_wall_only_and_empty_input_are_refused():
+def test_wall_only_and_no_depth_fall_back_to_the_cameras_with_a_warning():
     rng = np.random.default_rng(0)
+    tilt = tilt_rotation(25.0, 40.0)  # the world tilted: the cameras' up is tilt @ z, not z
     wall = [Frame(i, float(i), None, (2.0 + 0.002 * rng.normal(size=(240, 320))).astype(np.float32), K,
-                  make_pose(axis_angle_to_matrix([0.0, 0.0, 0.7 * i]) @ UPRIGHT, np.zeros(3))) for i in range(5)]
+                  make_pose(tilt @ axis_angle_to_matrix([0.0, 0.0, 0.7 * i]) @ UPRIGHT, np.zeros(3))) for i in range(5)]
     estimate = estimate_up(wall)
-    assert not estimate.ok and "no horizontal plane" in estimate.reason
+    assert estimate.ok and estimate.method == "cameras" and estimate.confidence == "low"
+    assert "no horizontal plane" in estimate.warning and "up from the cameras" in estimate.warning
+    assert angle_deg(estimate.up_world, tilt @ Z) < 0.01
     assert estimate.frames == 5 and estimate.frames_used == 5
 
     no_depth = [Frame(i, float(i), None, np.zeros((240, 320), np.float32), K, make_pose(UPRIGHT, np.zeros(3)))
                 for i in range(3)]
     estimate = estimate_up(no_depth)
-    assert not estimate.ok and estimate.frames_used == 0 and "no planar surfaces" in estimate.reason
-    assert "no frames" in estimate_up([]).reason
+    assert estimate.ok and estimate.method == "cameras" and estimate.frames_used == 0
+    assert "no planar surfaces" in estimate.warning
+    assert not estimate_up([]).ok and "no frames" in estimate_up([]).reason
 
 
 def test_floor_seen_by_a_synthetic_camera():

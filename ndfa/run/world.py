@@ -12,7 +12,9 @@ The core works on frames with camera poses in a z-up world (`ndfa.core.conventio
   were estimated: odometry's world starts at the first camera). Any other is
   checked: gravity is taken from the IMU when the importer recorded its still readings (a bag with
   an Imu topic: meta "imu"), checked by the support planes; otherwise it is estimated from the
-  support planes (`ndfa.trajectory.up`), on frames spread over the session. A world tilted by more
+  support planes with the cameras' axes as prior and fallback (`ndfa.trajectory.up`), on frames
+  spread over the session. A "low" confidence up (the cameras' fallback, split or unstable planes)
+  is used with a warning that says why. A world tilted by more
   than `LEVEL_ABOVE_DEG` is levelled (every pose rotated about the world origin), one within it is
   left exactly as it is. When no up can be found the run stops with the reason, unless the user
   says the world is z-up (`up="z"`).
@@ -33,7 +35,8 @@ from ndfa.io.recording import RecordingReader
 from ndfa.trajectory.level import level_frame
 from ndfa.trajectory.metrics import absolute_trajectory_error, relative_pose_error
 from ndfa.trajectory.session import UNTRACKED_POSES, choose_method, estimate_session_poses
-from ndfa.trajectory.up import UpEstimate, angle_deg, estimate_up, imu_gravity, up_from_imu
+from ndfa.trajectory.up import UpEstimate, angle_deg, estimate_up
+from ndfa.trajectory.up_imu import imu_gravity, up_from_imu
 
 UpMode = Literal["auto", "z", "estimate"]
 PoseMode = Literal["auto", "given", "estimate", "truth"]
@@ -89,19 +92,24 @@ class SessionWorld:
         tilt = self.up.tilt_deg
         action = f"levelled by {tilt:.1f} deg" if self.levelling is not None else \
             f"the recording's z (estimate within {tilt:.1f} deg of it)"
+        confidence = f"confidence {self.up.confidence} (+-{self.up.uncertainty_deg:.1f} deg)"
         if self.up_source != "imu":
-            return (f"{action}; estimated from {self.up.frames_agreeing}/{self.up.frames_used} agreeing frames, "
-                    f"spread {self.up.spread_deg:.1f} deg")
+            if self.up.method == "cameras":
+                return f"{action}; from the cameras' axes (the planes' fallback), {confidence}"
+            return (f"{action}; estimated from horizontal planes, {confidence}, {self.up.frames_agreeing}/"
+                    f"{self.up.frames_used} agreeing frames, spread {self.up.spread_deg:.1f} deg")
         check = self.up_check
-        if check is None or check.up_world is None:
+        if check is None or check.up_world is None or check.method != "planes":
             checked = "not checked by the planes"
         else:
             checked = f"the planes' estimate {angle_deg(check.up_world, self.up.up_world):.1f} deg from it"
         return (f"{action}; from the IMU (still readings at {self.up.frames_used} frames, {self.up.frames_agreeing} "
-                f"agreeing, spread {self.up.spread_deg:.1f} deg); {checked}")
+                f"agreeing, spread {self.up.spread_deg:.1f} deg), {confidence}; {checked}")
 
     def as_dict(self) -> dict:
         return {"poses": self.pose_source, "up": self.up_source,
+                "up_confidence": None if self.up is None else self.up.confidence,
+                "up_uncertainty_deg": None if self.up is None else self.up.uncertainty_deg,
                 "up_estimate": None if self.up is None else self.up.to_dict(),
                 "up_check": None if self.up_check is None else self.up_check.to_dict(),
                 "levelled": self.levelling is not None, "notes": list(self.notes), "pose_quality": self.pose_quality}
@@ -139,7 +147,7 @@ def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
     if imu is not None:
         # The IMU measures gravity; the planes check it (a wrong mounting in the tf, wrong poses).
         world.up, world.up_source, world.up_check = imu, "imu", planes
-        if planes.up_world is None:
+        if planes.up_world is None or planes.method != "planes":
             world.notes.append(f"the planes could not check the IMU's up: {planes.reason}")
         elif (difference := angle_deg(imu.up_world, planes.up_world)) > IMU_PLANES_AGREE_DEG:
             world.notes.append(f"up from the IMU and from the planes differ by {difference:.1f} deg (more than "
@@ -147,6 +155,8 @@ def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
                                "wrong? the IMU's is used")
     else:
         world.up, world.up_source = planes, "estimated"
+    if world.up.ok and world.up.confidence == "low":
+        world.notes.append(f"world up is doubtful: {world.up.warning}")
     if not world.up.ok:
         raise RecordingError(f"{reader.path}: no world up found ({world.up.reason}); "
                              "if its world is z-up, say so with --up z")

@@ -9,6 +9,10 @@
 - `random`: everything drawn from the seed (tables, mugs, change counts and kinds, routes, noise,
   pose offset and drift), with at most a third of the source mugs changed; any field can still
   be set explicitly.
+- `office`: `random`'s desks, mugs, changes and routes in an open-plan office recorded hand-held
+  with a RealSense D435: clutter on the desks, a monitor at each desk whose screen returns no or
+  wrong depth, a ceiling with strip lights, textures, hand-held motion (sweeps, pitch towards the
+  desks, shake) at 30 Hz from a standing eye height, depth aligned to colour (docs/sim_raw_sensor.md).
 """
 
 from __future__ import annotations
@@ -24,7 +28,7 @@ from ndfa.sim.noise import DepthNoise
 from ndfa.sim.pose_error import PoseError
 from ndfa.sim.trajectory import ROUTES, TrajectoryConfig
 
-PRESETS = ("paper", "sample", "random")
+PRESETS = ("paper", "sample", "random", "office")
 
 
 @dataclass(frozen=True)
@@ -56,6 +60,10 @@ class SimConfig:
     # 0 leaves the seed's scene as it was.
     rotated: int = 0
     rotated_deg: tuple[float, float] = (45.0, 180.0)
+    # An office (`ndfa.sim.office`, `ndfa.sim.aligned_depth`); all off by default.
+    monitors_per_table: int = 0     # monitors at each desk's outer edge; screens with no or wrong depth
+    ceiling: bool = False           # a ceiling with strip lights on the walls
+    aligned_depth: bool = False     # depth aligned to colour as a RealSense writes it (occlusion bands)
 
     def __post_init__(self) -> None:
         lo, hi = self.mugs_per_table
@@ -70,6 +78,8 @@ class SimConfig:
             raise SimError(f"clutter per table must be >= 0, got {self.clutter_per_table}")
         if not 0.0 <= self.world_tilt_deg <= 90.0:
             raise SimError(f"world tilt must be in [0, 90] degrees, got {self.world_tilt_deg}")
+        if self.monitors_per_table < 0:
+            raise SimError(f"monitors per table must be >= 0, got {self.monitors_per_table}")
         if self.rotated < 0:
             raise SimError(f"rotated mugs must be >= 0, got {self.rotated}")
         lo_deg, hi_deg = self.rotated_deg
@@ -85,6 +95,8 @@ def make_config(preset: str, seed: int = 0, **overrides) -> SimConfig:
         config = _sample(seed)
     elif preset == "random":
         config = _random(seed)
+    elif preset == "office":
+        config = _office(seed)
     else:
         raise SimError(f"unknown preset {preset!r}; expected one of {', '.join(PRESETS)}")
     unknown = set(overrides) - {f.name for f in dataclasses.fields(SimConfig)}
@@ -150,4 +162,28 @@ def _random(seed: int) -> SimConfig:
             drift_translation_m=float(rng.uniform(0.0, 0.002)),
             drift_yaw_deg=float(rng.uniform(0.0, 0.05)),
         ),
+    )
+
+
+# A RealSense D435's colour stream at 640 x 480 (depth aligned to it): about 69 x 42 deg.
+D435_COLOUR = PinholeCamera(640, 480, 615.0, 615.0, 319.5, 239.5)
+
+
+def _office(seed: int) -> SimConfig:
+    """`random`'s scene for `seed` as an office recorded hand-held (see the module docstring)."""
+    scene = _random(seed)
+    return dataclasses.replace(
+        scene,
+        preset="office",
+        clutter_per_table=3,
+        monitors_per_table=1,
+        ceiling=True,
+        textures=True,
+        aligned_depth=True,
+        camera=D435_COLOUR,
+        fps=30.0,
+        # 8 cm per frame keeps the frame count (the rendering and odometry cost) random's; at 30 Hz a fast
+        # walk (2.4 m/s), while the turns stay a hand's (at most 90 deg/s: 3 deg per frame);
+        # from a standing eye height (0.6 m over the desks: about 20 deg down to a desk's middle).
+        trajectory=TrajectoryConfig(step_m=0.08, height_above_table_m=0.6, motion="handheld"),
     )

@@ -21,6 +21,7 @@ import numpy as np
 
 from ndfa.core.errors import SimError
 from ndfa.core.geometry import look_at
+from ndfa.sim.handheld import MOTIONS, HandheldMotion, handheld_poses
 from ndfa.sim.scene import Table
 
 ROUTES = ("perimeter", "corridor", "weave", "circles")
@@ -46,10 +47,20 @@ class TrajectoryConfig:
     # over 100 deg in one frame, which no real camera does and no odometry can follow. Off keeps the
     # published scenes' routes (with given poses the whips do not matter); `ingest sim --raw` sets it.
     max_turn_deg: float = 0.0
+    # "smooth" (the gaze above) or "handheld" (`ndfa.sim.handheld`: sweeps, pitch towards the desks,
+    # shake, at the recording's frame rate; max_turn_deg then plays no part).
+    motion: str = "smooth"
+    handheld: HandheldMotion = HandheldMotion()
+
+    def __post_init__(self) -> None:
+        if self.motion not in MOTIONS:
+            raise SimError(f"unknown camera motion {self.motion!r}; expected one of {MOTIONS}")
 
 
-def camera_poses(tables: list[Table], config: TrajectoryConfig, rng: np.random.Generator) -> np.ndarray:
-    """Camera-to-world poses (N, 4, 4) along `config.route`."""
+def camera_poses(tables: list[Table], config: TrajectoryConfig, rng: np.random.Generator,
+                 fps: float = 5.0) -> np.ndarray:
+    """Camera-to-world poses (N, 4, 4) along `config.route`, one per frame at `fps` (which only
+    the hand-held motion's rates depend on)."""
     waypoints, closed = route_waypoints(tables, config.route, config.clearance_m)
     loop = np.vstack([waypoints, waypoints[:1]]) if closed else waypoints
     frames = float(np.linalg.norm(np.diff(loop, axis=0), axis=1).sum()) / config.step_m
@@ -66,6 +77,8 @@ def camera_poses(tables: list[Table], config: TrajectoryConfig, rng: np.random.G
     wobble *= config.height_wobble_m / max(np.abs(wobble).max(), 1e-9)
     heights = table_height + config.height_above_table_m + wobble
     eyes = np.c_[positions_xy, heights]
+    if config.motion == "handheld":
+        return handheld_poses(eyes, targets, fps, config.handheld, rng)
     if config.max_turn_deg > 0:
         targets = eyes + limit_turns(targets - eyes, config.max_turn_deg)
     return np.stack([look_at(eye, target) for eye, target in zip(eyes, targets)])

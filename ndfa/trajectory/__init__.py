@@ -11,7 +11,8 @@ from ndfa.trajectory.metrics import AbsoluteError, RelativeError, absolute_traje
 from ndfa.trajectory.rewrite import METHODS, PoseReport, rewrite_poses
 from ndfa.trajectory.rgbd import RgbdOdometry, RgbdOdometryConfig
 from ndfa.trajectory.session import SessionPoses, estimate_session_poses
-from ndfa.trajectory.up import UpConfig, UpEstimate, estimate_up, up_from_accelerations
+from ndfa.trajectory.up import UpConfig, UpEstimate, estimate_up
+from ndfa.trajectory.up_imu import up_from_accelerations
 
 __all__ = [
     "AbsoluteError",

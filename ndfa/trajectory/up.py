@@ -5,20 +5,29 @@ Why it is needed: with estimated poses the world is the first camera's frame (up
 camera's -y), and datasets use their own world frames. In such a world the segmentation finds no
 horizontal support plane, the object trees cut the wrong axes and the NDF's up cue points sideways.
 
-How (`estimate_up`): man-made scenes have large horizontal planes (floor, table tops, shelves)
-whose normals all point up, while walls and cabinet fronts point sideways. Per frame, the depth
-image is cut into small patches; the patches that are planar give one normal each, oriented
-towards the camera and rotated into the world with the frame's pose. The normals of all frames
-(each frame weighing the same) are voted into direction bins on the sphere. Up is the strongest
-cluster among the directions not far from the cameras' mean -y axis (people and robots hold
-cameras roughly upright: walls lie about 90 degrees from it, the floor within the camera's pitch),
-refined as the mean of its inlier normals. The estimate is checked frame by frame: each frame that
-sees a horizontal plane gives its own up, and the frames must agree with the estimate. When there
-is no horizontal plane, or the frames disagree (wrong poses), the estimate says so in one line
-(`ok=False`, `reason`) instead of guessing.
+How (`estimate_up`, docs/world_up.md):
 
-A recording with an IMU has a cheaper prior: the accelerometer of a still sensor reads +g along up
-(`up_from_accelerations`).
+1. **The cameras' up** (`cameras_up`), the prior: people and robots hold cameras roughly upright,
+   so each camera's x axis is nearly level and its -y axis points roughly up (off by the pitch).
+   When the camera panned, up is the direction the x axes are all perpendicular to (the least
+   eigenvector of their scatter: no pitch bias); without a pan, the cameras' mean -y made
+   perpendicular to their mean x. A camera that was not held upright (x axes far from level, or -y
+   far from up on average) is refused: nothing else here can be trusted then.
+2. **Planes**: per frame, the depth image is cut into small patches; the planar ones give a normal
+   (oriented towards the camera, rotated into the world) and an area. Each frame weighs the same,
+   its patches by area. Up is the mode of the normals' density on the sphere within a cone about
+   the cameras' up, the candidates near it preferred (a Gaussian weight): floors, desks and shelf
+   tops agree on it, while walls, monitors, tilted papers and clutter spread elsewhere and a
+   ceiling (seen from below) points down. The mode is refined by mean shift over its normals.
+3. **Confidence**: the frames are resampled (a bootstrap) and the mode found again: the RMS angle
+   of those modes is `uncertainty_deg`. Up is "high" confidence when that is small, no rival mode
+   of comparable weight lies elsewhere, and most frames that see the plane agree with it (each
+   frame's own mode: wrong poses show here). Otherwise "low", and `warning` says why.
+4. **Fallback**: when the planes are scarce (too little horizontal surface, or too few frames see
+   it) or split (two comparable modes, neither the one near the cameras' up), up is the cameras'
+   up, with confidence "low" and a warning that says so.
+
+A recording with an IMU has a better prior: `ndfa.trajectory.up_imu`.
 
 No file I/O here: callers pass frames (e.g. `RecordingReader.frames(step=...)`) or arrays.
 """
@@ -29,86 +38,83 @@ import dataclasses
 import time
 from collections.abc import Iterable
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
-from scipy import ndimage, sparse
-from scipy.spatial import cKDTree
+from scipy import sparse
 
-from ndfa.core.conventions import STANDARD_GRAVITY, depth_in_range, world_up
+from ndfa.core.conventions import world_up
 from ndfa.core.errors import TrajectoryError
 from ndfa.core.frame import Frame
-from ndfa.core.geometry import backproject
 from ndfa.trajectory.level import levelling_rotation
+from ndfa.trajectory.up_sphere import PatchConfig, direction_bins, local_maxima, mean_shift, nearest_bin, planar_patches
 
-# The cameras' mean -y axis (the prior for up) must be at least this long: for upright cameras it
-# is about the cosine of their mean pitch; for cameras (or poses) pointing every way, about 1/sqrt(n).
+# The cameras' mean -y axis must be at least this long: for upright cameras it is about the cosine
+# of their mean pitch; for cameras (or poses) pointing every way, about 1/sqrt(n).
 MIN_UPRIGHT = 0.2
+BOOTSTRAP_NORMALS = 20000  # normals near up the bootstrap's mean shifts use at most (evenly sampled)
 
 
 @dataclass(frozen=True)
 class UpConfig:
-    """Settings of `estimate_up` (defaults checked on the 7-Scenes redkitchen slice and the
-    simulator's scenes: docs/world_up.md).
+    """Settings of `estimate_up` (checked on the 7-Scenes kitchen, the simulator's rooms and its
+    handheld office: docs/world_up.md).
 
-    pixel_stride: the depth image is sampled every `pixel_stride` pixels in both directions; normals
-        need far fewer points than the image has.
-    patch_size: a patch is `patch_size` x `patch_size` samples (20 x 20 pixels at the defaults, about
-        7 cm at 2 m for a 585 px focal length): large enough to average the depth noise, small
-        enough to fit on a table top.
-    max_patch_rms_m, patch_rms_per_m2: a patch is planar when the RMS distance of its points to
-        their best-fit plane is below max_patch_rms_m + patch_rms_per_m2 * z^2 (z: its depth in
-        metres), because the noise of a triangulating depth camera grows with z^2. Depth edges and
-        curved surfaces (mugs, chair legs) fail it.
-    max_patches_per_frame: planar patches kept per frame (evenly sampled), for speed.
+    patches: how depth images are cut into planar patches (`up_sphere.planar_patches`).
     min_patches_per_frame: a frame with fewer planar patches gives no normals (nearly no depth).
-    bins: number of direction bins on the sphere (a Fibonacci lattice: ~4.5 degrees apart at 2000).
-    cluster_deg: radius of a cluster: a bin's strength is the weight of the normals within it.
-    prior_cone_deg: up is searched within this angle of the cameras' mean -y axis (or of `prior_up`).
-        Walls are ~90 degrees from -y for an upright camera; the floor is at the camera's mean
-        pitch, so cameras pitched down more than this on average are not supported.
-    inlier_deg: the normals within this angle of up are its inliers (refinement, support, frames).
-    min_support_fraction: the up cluster must hold at least this fraction of all planar normals
-        (each frame weighing the same), or the scene has no horizontal plane.
-    frame_min_patches: a frame sees a horizontal plane when its strongest cluster within the cone
-        holds at least this many of its normals; its own up is that cluster refined (as the
-        estimate, but from the frame's normals alone).
-    agree_deg: a frame agrees when its own up is within this angle of the estimate.
-    min_agreeing_frames, min_agreeing_fraction: the estimate stands when at least this many frames,
-        and this fraction of the frames that see a horizontal plane, agree.
+    bins, kernel_deg: the density of the normals is evaluated on `bins` directions (a Fibonacci
+        lattice, ~2.3 degrees apart at 8000), each counting the normals' weight within kernel_deg.
+    prior_cone_deg: up is searched within this angle of the cameras' up (or of `prior_up`).
+    prior_sigma_deg: the candidates' density is weighed by a Gaussian of their angle to that prior
+        (this standard deviation): of two horizontal-looking modes the one nearer the prior wins.
+    inlier_deg: the normals within this angle of up are its inliers (mean shift, support, frames).
+    min_support_fraction: up's inliers must hold at least this fraction of the planar area (each
+        frame weighing the same), and at least `min_frames` frames must have `frame_min_share` of
+        their planar area among them; otherwise the planes are scarce.
+    agree_deg: a frame agrees when its own mode (mean shift from up over its own normals) is
+        within this angle of up; fewer than min_agreeing_fraction of the frames that see the plane
+        agreeing makes the estimate "low" confidence (poses wrong?).
+    split_deg, split_ratio: another mode more than split_deg from up with at least split_ratio of
+        its weighted density splits the planes.
+    camera_agree_deg: a split is resolved by the one mode within this angle of the cameras' up.
+    bootstrap: frame resamplings for `uncertainty_deg`; high_confidence_deg: at most this for "high".
+    max_roll_deg: the cameras' x axes (RMS) at most this far from level, when they panned.
+    max_camera_tilt_deg: the cameras' -y axes (RMS) at most this far from up.
+    min_pan: the second eigenvalue of the x axes' scatter (about the mean squared sine of the
+        pan about its middle) from which the x axes define up.
     """
 
-    pixel_stride: int = 4
-    patch_size: int = 5
-    max_patch_rms_m: float = 0.002
-    patch_rms_per_m2: float = 0.001
-    max_patches_per_frame: int = 3000
+    patches: PatchConfig = PatchConfig()
     min_patches_per_frame: int = 20
-    bins: int = 2000
-    cluster_deg: float = 10.0
+    bins: int = 8000
+    kernel_deg: float = 5.0
     prior_cone_deg: float = 60.0
-    inlier_deg: float = 10.0
+    prior_sigma_deg: float = 30.0
+    inlier_deg: float = 7.0
     min_support_fraction: float = 0.05
-    frame_min_patches: int = 10
+    min_frames: int = 3
+    frame_min_share: float = 0.05
     agree_deg: float = 5.0
-    min_agreeing_frames: int = 3
-    min_agreeing_fraction: float = 0.6
+    min_agreeing_fraction: float = 0.5
+    split_deg: float = 15.0
+    split_ratio: float = 0.5
+    camera_agree_deg: float = 10.0
+    bootstrap: int = 25
+    high_confidence_deg: float = 1.5
+    max_roll_deg: float = 15.0
+    max_camera_tilt_deg: float = 45.0
+    min_pan: float = 0.01
 
     def __post_init__(self) -> None:
-        for name in ("pixel_stride", "bins", "max_patches_per_frame", "min_patches_per_frame",
-                     "frame_min_patches", "min_agreeing_frames"):
+        for name in ("bins", "min_patches_per_frame", "min_frames"):
             if not getattr(self, name) >= 1:
                 raise TrajectoryError(f"up estimate {name} must be >= 1, got {getattr(self, name)}")
-        if self.patch_size < 3:
-            raise TrajectoryError(f"up estimate patch_size must be >= 3 (a plane needs 3 points), got {self.patch_size}")
-        for name in ("cluster_deg", "prior_cone_deg", "inlier_deg", "agree_deg"):
+        for name in ("kernel_deg", "prior_cone_deg", "prior_sigma_deg", "inlier_deg", "agree_deg", "split_deg",
+                     "camera_agree_deg", "high_confidence_deg", "max_roll_deg", "max_camera_tilt_deg"):
             if not 0.0 < getattr(self, name) < 180.0:
                 raise TrajectoryError(f"up estimate {name} must be in (0, 180) degrees, got {getattr(self, name)}")
-        for name in ("min_support_fraction", "min_agreeing_fraction"):
+        for name in ("min_support_fraction", "frame_min_share", "min_agreeing_fraction", "split_ratio", "min_pan"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise TrajectoryError(f"up estimate {name} must be in [0, 1], got {getattr(self, name)}")
-        if self.max_patch_rms_m < 0.0 or self.patch_rms_per_m2 < 0.0:
-            raise TrajectoryError("up estimate max_patch_rms_m and patch_rms_per_m2 must be >= 0")
 
 
 @dataclass(frozen=True)
@@ -118,15 +124,20 @@ class UpEstimate:
     ok: whether up was found; when False, `up_world` is None and `reason` says why in one line.
     reason: one line: what was found (ok) or what was missing.
     up_world: unit 3-vector, the world's up (minus gravity) in the session's world frame, or None.
-    method: "planes" (normals of horizontal planes, `estimate_up`) or "imu" (`up_from_accelerations`).
+    method: "planes" (normals of horizontal planes), "cameras" (the cameras' axes: the planes'
+        fallback) or "imu" (`up_imu.up_from_accelerations`).
     frames: frames (or IMU samples) given.
     frames_used: frames with enough planar patches (IMU: still samples).
     frames_agreeing: frames whose own horizontal plane (IMU: sample) is within agree_deg of up.
-    support_fraction: fraction of all planar normals (each frame weighing the same) within
-        inlier_deg of up (IMU: fraction of the samples that are still). 0 when not found.
+    support_fraction: fraction of the planar area (each frame weighing the same) within inlier_deg
+        of up (IMU: fraction of the samples that are still). 0 when not found.
     spread_deg: RMS angle between the frames' own ups (IMU: the still samples) and up; nan when
         there are none.
     seconds: time the estimate took.
+    confidence: "high" or "low" ("" when not found); warning: why it is low, in one line.
+    uncertainty_deg: RMS angle of up over resamplings of the frames (planes, cameras) or of the
+        samples' spread over their root count (IMU); nan when not found.
+    cameras_deg: angle between up and the cameras' up (nan when not known).
     """
 
     ok: bool
@@ -139,6 +150,10 @@ class UpEstimate:
     support_fraction: float
     spread_deg: float
     seconds: float = 0.0
+    confidence: str = ""
+    warning: str = ""
+    uncertainty_deg: float = float("nan")
+    cameras_deg: float = float("nan")
 
     @property
     def tilt_deg(self) -> float:
@@ -163,250 +178,203 @@ class UpEstimate:
         return values
 
 
-# -- estimate from planes ---------------------------------------------------------------------
+@dataclass(frozen=True)
+class CameraUp:
+    """Up from the cameras' own axes (`cameras_up`): up, how it was found, and how upright the
+    cameras were. up is None when they were not upright (`reason` says why)."""
+
+    up: np.ndarray | None
+    method: str  # "level x axes" (they panned) or "mean -y" (they did not)
+    reason: str
+    roll_deg: float  # RMS angle of the x axes from level (about up)
+    tilt_deg: float  # RMS angle of the -y axes from up (pitch and roll)
+    uncertainty_deg: float  # RMS angle of up over resamplings of the cameras
+
+
+def cameras_up(rotations: np.ndarray, config: UpConfig = UpConfig()) -> CameraUp:
+    """Up from the cameras' rotations (n, 3, 3) (camera-to-world), see the module docstring."""
+    rotations = np.asarray(rotations, dtype=np.float64).reshape(-1, 3, 3)
+    n = len(rotations)
+    mean_down = rotations[:, :, 1].mean(axis=0)
+    if n == 0 or np.linalg.norm(mean_down) < MIN_UPRIGHT:
+        return CameraUp(None, "", f"the cameras' -y axes point every way (mean length {np.linalg.norm(mean_down):.2f} < "
+                        f"{MIN_UPRIGHT:g} over {n} frames): cameras not upright or poses wrong", float("nan"),
+                        float("nan"), float("nan"))
+    up, method = _up_of_axes(rotations, config)
+    rng = np.random.default_rng(0)
+    resampled = [_up_of_axes(rotations[rng.integers(0, n, n)], config)[0] for _ in range(config.bootstrap)]
+    uncertainty = float(np.sqrt(np.mean([angle_deg(u, up) ** 2 for u in resampled])))
+    roll = float(np.degrees(np.sqrt(np.mean(np.arcsin(np.clip(rotations[:, :, 0] @ up, -1.0, 1.0)) ** 2))))
+    tilt = float(np.degrees(np.sqrt(np.mean(np.arccos(np.clip(-rotations[:, :, 1] @ up, -1.0, 1.0)) ** 2))))
+    reason = f"{method} of {n} cameras: x axes {roll:.1f} deg from level, -y {tilt:.1f} deg from up (RMS)"
+    if roll > config.max_roll_deg or tilt > config.max_camera_tilt_deg:
+        return CameraUp(None, method, f"the camera was not held upright, or the poses are wrong ({reason}; at most "
+                        f"{config.max_roll_deg:g} and {config.max_camera_tilt_deg:g} deg): no up can be trusted",
+                        roll, tilt, uncertainty)
+    return CameraUp(up, method, reason, roll, tilt, uncertainty)
+
+
+def _up_of_axes(rotations: np.ndarray, config: UpConfig) -> tuple[np.ndarray, str]:
+    x_axes, mean_up = rotations[:, :, 0], -rotations[:, :, 1].mean(axis=0)
+    eigenvalues, eigenvectors = np.linalg.eigh(x_axes.T @ x_axes / len(x_axes))
+    if eigenvalues[1] >= max(config.min_pan, 5.0 * eigenvalues[0]):
+        up, method = eigenvectors[:, 0], "level x axes"
+    else:  # no pan: the x axes fix only one direction perpendicular to up
+        mean_x = x_axes.mean(axis=0) / max(np.linalg.norm(x_axes.mean(axis=0)), 1e-12)
+        up, method = mean_up - (mean_up @ mean_x) * mean_x, "mean -y"
+    up = up / max(np.linalg.norm(up), 1e-12)
+    return (up if up @ mean_up >= 0.0 else -up), method
 
 
 def estimate_up(frames: Iterable[Frame], config: UpConfig = UpConfig(), prior_up: np.ndarray | None = None) -> UpEstimate:
-    """World up from the normals of the horizontal planes the frames see (see the module docstring).
+    """World up from the normals of the horizontal planes the frames see, the cameras' up as prior
+    and fallback (see the module docstring).
 
     frames: the session's frames (depth in metres, K, camera-to-world poses). Every frame given is
         used, one at a time (only its normals are kept), so pass a subset for speed, e.g.
-        `reader.frames(stop=50)` or `reader.frames(step=len(reader) // 50)`: 50 frames are plenty
-        when they see the floor or a table.
-    prior_up: where to search for up instead of the cameras' mean -y axis (e.g. an IMU's estimate,
-        or the world's z for a world believed to be roughly z-up).
+        `reader.frames(step=len(reader) // 60)`.
+    prior_up: where to search for up instead of the cameras' up (e.g. an IMU's estimate); the
+        cameras must still have been upright.
     """
     started = time.perf_counter()
-    normals: list[np.ndarray] = []  # per frame with planar patches: world normals (n, 3)
-    camera_down_sum = np.zeros(3)
-    n_frames = 0
+    rotations, normals, areas = [], [], []
     for frame in frames:
-        n_frames += 1
         rotation = frame.pose_world_camera[:3, :3]
-        camera_down_sum += rotation[:, 1]
-        frame_normals = planar_normals(frame.depth, frame.K, config)
+        rotations.append(rotation)
+        frame_normals, frame_areas = planar_patches(frame.depth, frame.K, config.patches)
         if len(frame_normals) >= config.min_patches_per_frame:
             normals.append(frame_normals @ rotation.T)
+            areas.append(frame_areas)
+    return up_from_normals(rotations, normals, areas, config, prior_up, started)
 
-    def failed(reason: str, support: float = 0.0, agreeing: int = 0, spread: float = float("nan")) -> UpEstimate:
-        return UpEstimate(False, reason, None, "planes", n_frames, len(normals), agreeing, support, spread,
-                          time.perf_counter() - started)
 
+def up_from_normals(rotations: list[np.ndarray], normals: list[np.ndarray], areas: list[np.ndarray],
+                    config: UpConfig = UpConfig(), prior_up: np.ndarray | None = None,
+                    started: float | None = None) -> UpEstimate:
+    """`estimate_up` once the planar patches are found: the cameras' rotations (camera-to-world, one
+    per frame given), and per frame with enough patches their unit normals in the world (n, 3) and
+    areas (n,)."""
+    started = time.perf_counter() if started is None else started
+    n_frames = len(rotations)
     if n_frames == 0:
-        return failed("no frames given")
-    if not normals:
-        return failed(f"no planar surfaces in any of {n_frames} frames (no depth in range, or too little of it)")
-
-    if prior_up is None:
-        prior = -camera_down_sum / n_frames
-        if np.linalg.norm(prior) < MIN_UPRIGHT:
-            return failed(f"the cameras' -y axes point every way (mean length {np.linalg.norm(prior):.2f} < {MIN_UPRIGHT:g} "
-                          f"over {n_frames} frames): cameras not upright or poses wrong; no prior for up")
-    else:
-        prior = np.asarray(prior_up, dtype=np.float64)
-    prior = prior / np.linalg.norm(prior)
-
-    all_normals = np.concatenate(normals)
-    weights = np.concatenate([np.full(len(n), 1.0 / len(n)) for n in normals]) / len(normals)
-    centres, neighbours = _direction_bins(config.bins, config.cluster_deg)
-    bins = _nearest_bin(centres, all_normals)
-    in_cone = centres @ prior >= np.cos(np.radians(config.prior_cone_deg))
-    strength = neighbours @ np.bincount(bins, weights=weights, minlength=config.bins)
-    if not np.any(in_cone & (strength > 0.0)):
-        return failed(f"no horizontal plane: no planar surface within {config.prior_cone_deg:g} deg of the "
-                      f"cameras' up in {len(normals)} frames with planes (only walls?)")
-    peak = int(np.argmax(np.where(in_cone, strength, -1.0)))
-    up = _mean_shift(centres[peak], all_normals, weights, config.inlier_deg)
-    support = float(weights[all_normals @ up >= np.cos(np.radians(config.inlier_deg))].sum())
-
-    # Each frame's own up, found as the global one but from its normals alone: frames agree when
-    # their own horizontal planes point the same way in the world.
-    frame_ups = []
-    for frame_normals, frame_bins in zip(normals, np.split(bins, np.cumsum([len(n) for n in normals])[:-1])):
-        frame_strength = np.where(in_cone, neighbours @ np.bincount(frame_bins, minlength=config.bins), 0)
-        frame_peak = int(np.argmax(frame_strength))
-        if frame_strength[frame_peak] >= config.frame_min_patches:
-            frame_ups.append(_mean_shift(centres[frame_peak], frame_normals, np.ones(len(frame_normals)), config.inlier_deg))
-    angles = np.array([angle_deg(frame_up, up) for frame_up in frame_ups])
-    agreeing = int((angles <= config.agree_deg).sum())
-    spread = float(np.sqrt(np.mean(angles**2))) if frame_ups else float("nan")
-    if len(frame_ups) < config.min_agreeing_frames:
-        return failed(f"no horizontal plane: only {len(frame_ups)} of {len(normals)} frames with planes see one "
-                      f"(need {config.min_agreeing_frames})", support, agreeing, spread)
-    if agreeing < config.min_agreeing_frames or agreeing < config.min_agreeing_fraction * len(frame_ups):
-        return failed(f"frames disagree: {agreeing} of {len(frame_ups)} frames with a horizontal plane agree within "
-                      f"{config.agree_deg:g} deg (spread {spread:.1f} deg; need {config.min_agreeing_frames} and "
-                      f"{config.min_agreeing_fraction:.0%}): poses wrong?", support, agreeing, spread)
-    if support < config.min_support_fraction:
-        return failed(f"no horizontal plane: the strongest candidate holds {support:.1%} of the planar surface "
-                      f"(< {config.min_support_fraction:.0%}) in {len(normals)} frames", support, agreeing, spread)
-
-    tilt = angle_deg(up, world_up())
-    reason = (f"up from horizontal planes: {agreeing} of {len(frame_ups)} frames agree (spread {spread:.1f} deg), "
-              f"{support:.0%} of the planar surface, {tilt:.1f} deg from the world's z")
-    return UpEstimate(True, reason, up, "planes", n_frames, len(normals), agreeing, support, spread,
-                      time.perf_counter() - started)
-
-
-def planar_normals(depth: np.ndarray, K: np.ndarray, config: UpConfig = UpConfig()) -> np.ndarray:
-    """Unit normals (n, 3) in the camera frame of the planar patches of a depth image (metres, 0 or
-    out of range = invalid), each oriented towards the camera; at most config.max_patches_per_frame,
-    evenly sampled.
-
-    A patch is config.patch_size^2 samples (every config.pixel_stride-th pixel) with valid depth; its
-    normal is the least-variance axis of its points (a plane fit), computed for all patches at once
-    from box-filtered moments.
-    """
-    stride = config.pixel_stride
-    z = np.asarray(depth, dtype=np.float64)[::stride, ::stride]
-    valid = depth_in_range(z)
-    rows, cols = np.mgrid[0:z.shape[0], 0:z.shape[1]]
-    z_valid = np.where(valid, z, 0.0)
-    points = backproject(K, rows.ravel() * stride, cols.ravel() * stride, z_valid.ravel()).reshape(*z.shape, 3)
-
-    size = config.patch_size
-    if z.shape[0] < size or z.shape[1] < size:
-        return np.zeros((0, 3))
-    complete = ndimage.uniform_filter(valid.astype(np.float64), size, mode="constant") > 1.0 - 1e-6
-    half = size // 2
-    complete[:half], complete[-half:], complete[:, :half], complete[:, -half:] = False, False, False, False
-    if not complete.any():
-        return np.zeros((0, 3))
-    # The moments of each patch, evaluated only at the complete patches' centres.
-    mean = np.stack([ndimage.uniform_filter(points[..., i], size, mode="constant")[complete] for i in range(3)], axis=1)
-    covariance = np.empty((len(mean), 3, 3))
-    for i in range(3):
-        for j in range(i, 3):
-            second = ndimage.uniform_filter(points[..., i] * points[..., j], size, mode="constant")[complete]
-            covariance[:, i, j] = covariance[:, j, i] = second - mean[:, i] * mean[:, j]
-    eigenvalues, eigenvectors = np.linalg.eigh(covariance)
-    rms = np.sqrt(np.maximum(eigenvalues[:, 0], 0.0))
-    planar = rms <= config.max_patch_rms_m + config.patch_rms_per_m2 * mean[:, 2] ** 2
-    normals, centres = eigenvectors[planar, :, 0], mean[planar]
-    normals *= -np.sign(np.einsum("ij,ij->i", normals, centres))[:, None]  # towards the camera
-    if len(normals) > config.max_patches_per_frame:
-        normals = normals[np.linspace(0, len(normals) - 1, config.max_patches_per_frame).astype(int)]
-    return normals
-
-
-def _mean_shift(start: np.ndarray, normals: np.ndarray, weights: np.ndarray, radius_deg: float, iterations: int = 10) -> np.ndarray:
-    """The weighted mean direction of the normals within radius_deg of it, found by iterating from
-    `start` (mean shift on the sphere with a flat kernel)."""
-    direction = start / np.linalg.norm(start)
-    cos_radius = np.cos(np.radians(radius_deg))
-    for _ in range(iterations):
-        near = normals @ direction >= cos_radius
-        if not near.any():
-            break
-        mean = weights[near] @ normals[near]
-        updated = mean / np.linalg.norm(mean)
-        if updated @ direction > 1.0 - 1e-12:
-            return updated
-        direction = updated
-    return direction
-
-
-@lru_cache(maxsize=4)
-def _direction_bins(count: int, radius_deg: float) -> tuple[np.ndarray, sparse.csr_matrix]:
-    """Bin centres (count, 3), evenly spread on the unit sphere (a Fibonacci lattice), and the
-    sparse (count, count) matrix whose row i marks the bins within radius_deg of bin i."""
-    k = np.arange(count) + 0.5
-    polar = np.arccos(1.0 - 2.0 * k / count)
-    azimuth = np.pi * (1.0 + np.sqrt(5.0)) * k
-    centres = np.stack([np.cos(azimuth) * np.sin(polar), np.sin(azimuth) * np.sin(polar), np.cos(polar)], axis=1)
-    chord = 2.0 * np.sin(np.radians(radius_deg) / 2.0)
-    pairs = cKDTree(centres).query_pairs(chord, output_type="ndarray")
-    rows = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(count)])
-    cols = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(count)])
-    return centres, sparse.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(count, count))
-
-
-def _nearest_bin(centres: np.ndarray, directions: np.ndarray) -> np.ndarray:
-    return cKDTree(centres).query(directions)[1]
-
-
-# -- estimate from an IMU ---------------------------------------------------------------------
-
-
-def up_from_accelerations(acc_camera: np.ndarray, poses: np.ndarray, still_tolerance: float = 0.3,
-                          agree_deg: float = 5.0, min_samples: int = 10) -> UpEstimate:
-    """World up from accelerometer readings of a (mostly) still sensor.
-
-    A still accelerometer measures the reaction to gravity: +9.81 m/s^2 along up (ROS REP 145,
-    sensor_msgs/Imu). Each sample whose magnitude is within still_tolerance (m/s^2) of standard
-    gravity counts as still; its direction, rotated into the world with the camera's pose at that
-    time, is one vote for up, and up is their mean.
-
-    acc_camera: (N, 3) linear accelerations in m/s^2, expressed in the camera's (OpenCV) frame: the
-        caller applies the IMU-to-camera rotation and interpolates the poses to the IMU's times.
-    poses: (N, 4, 4) (or (N, 3, 3) rotations) camera-to-world at the samples' times.
-    agree_deg: a still sample agrees when its up is within this angle of the mean; most must.
-    min_samples: fewer still samples than this give no estimate.
-    """
-    started = time.perf_counter()
-    acc = np.asarray(acc_camera, dtype=np.float64).reshape(-1, 3)
-    rotations = np.asarray(poses, dtype=np.float64)[..., :3, :3].reshape(-1, 3, 3)
-    if len(acc) != len(rotations):
-        raise TrajectoryError(f"up from accelerations needs one pose per sample, got {len(acc)} samples and {len(rotations)} poses")
-    n = len(acc)
-    magnitude = np.linalg.norm(acc, axis=1)
-    still = np.isfinite(magnitude) & (np.abs(magnitude - STANDARD_GRAVITY) <= still_tolerance)
-    n_still = int(still.sum())
-    fraction = n_still / n if n else 0.0
-    if n_still < min_samples:
-        return UpEstimate(False, f"{n_still} of {n} accelerometer samples are still (|a| within {still_tolerance:g} m/s^2 "
-                          f"of g; need {min_samples})", None, "imu", n, n_still, 0, fraction, float("nan"),
+        return UpEstimate(False, "no frames given", None, "planes", 0, 0, 0, 0.0, float("nan"))
+    cameras = cameras_up(np.array(rotations), config)
+    if cameras.up is None:
+        return UpEstimate(False, cameras.reason, None, "planes", n_frames, len(normals), 0, 0.0, float("nan"),
                           time.perf_counter() - started)
-    ups = np.einsum("nij,nj->ni", rotations[still], acc[still] / magnitude[still, None])
-    up = ups.mean(axis=0)
-    up /= np.linalg.norm(up)
-    angles = np.degrees(np.arccos(np.clip(ups @ up, -1.0, 1.0)))
-    agreeing = int((angles <= agree_deg).sum())
-    spread = float(np.sqrt(np.mean(angles**2)))
-    seconds = time.perf_counter() - started
-    if agreeing < 0.5 * n_still:
-        return UpEstimate(False, f"still accelerometer samples disagree: {agreeing} of {n_still} within {agree_deg:g} deg "
-                          f"(spread {spread:.1f} deg): poses or IMU-to-camera rotation wrong?", None, "imu", n, n_still,
-                          agreeing, fraction, spread, seconds)
-    reason = (f"up from {n_still} still accelerometer samples: {agreeing} agree (spread {spread:.1f} deg), "
-              f"{angle_deg(up, world_up()):.1f} deg from the world's z")
-    return UpEstimate(True, reason, up, "imu", n, n_still, agreeing, fraction, spread, seconds)
+    prior = cameras.up if prior_up is None else np.asarray(prior_up, dtype=np.float64) / np.linalg.norm(prior_up)
+
+    def fallback(why: str, support: float = 0.0, agreeing: int = 0, spread: float = float("nan")) -> UpEstimate:
+        warning = f"{why}; up from the cameras ({cameras.reason}): good when the camera was held level"
+        return UpEstimate(True, warning, cameras.up, "cameras", n_frames, len(normals), agreeing, support, spread,
+                          time.perf_counter() - started, "low", warning, cameras.uncertainty_deg, 0.0)
+
+    if not normals:
+        return fallback(f"no planar surfaces in any of {n_frames} frames (no depth in range, or too little of it)")
+    planes = _PlaneNormals(normals, areas, prior, config)
+    if planes.score.max() <= 0.0:
+        return fallback(f"no horizontal plane: no planar surface within {config.prior_cone_deg:g} deg of the cameras' "
+                        f"up in {len(normals)} frames with planes (only walls?)")
+    maxima = local_maxima(planes.score, planes.neighbours)
+    up = planes.refine(planes.centres[maxima[0]])
+    support, seeing, agreeing, spread = planes.agreement(up)
+    if support < config.min_support_fraction or seeing < config.min_frames:
+        return fallback(f"horizontal planes scarce: {support:.1%} of the planar area (need "
+                        f"{config.min_support_fraction:.0%}) in {seeing} frames (need {config.min_frames})",
+                        support, agreeing, spread)
+    warnings = []
+    rivals = [m for m in maxima[1:] if angle_deg(planes.centres[m], up) > config.split_deg
+              and planes.score[m] >= config.split_ratio * planes.score[maxima[0]]]
+    if rivals:
+        rival = planes.refine(planes.centres[rivals[0]])
+        split = (f"the planes split between two directions {angle_deg(up, rival):.1f} deg apart "
+                 f"(weights {planes.score[rivals[0]] / planes.score[maxima[0]]:.2f} : 1)")
+        near = [c for c in (up, rival) if angle_deg(c, cameras.up) <= config.camera_agree_deg]
+        if len(near) != 1:
+            return fallback(split, support, agreeing, spread)
+        up = near[0]
+        warnings.append(f"{split}: the one {angle_deg(up, cameras.up):.1f} deg from the cameras' up is taken")
+        support, seeing, agreeing, spread = planes.agreement(up)
+    # A camera held rolled looks, by its axes alone, like an upright one in another world; the planes
+    # tell: its -y axes are then far from their up.
+    tilt = float(np.sqrt(np.mean([angle_deg(-rotation[:, 1], up) ** 2 for rotation in rotations])))
+    if tilt > config.max_camera_tilt_deg:
+        return UpEstimate(False, f"the camera was not held upright: its -y axes are {tilt:.1f} deg (RMS) from the "
+                          f"horizontal planes' up (at most {config.max_camera_tilt_deg:g}; {cameras.reason})", None,
+                          "planes", n_frames, len(normals), agreeing, support, spread, time.perf_counter() - started)
+    uncertainty = planes.bootstrap_uncertainty(up)
+    if uncertainty > config.high_confidence_deg:
+        warnings.append(f"up moves by {uncertainty:.1f} deg (RMS) when the frames are resampled")
+    if agreeing < config.min_agreeing_fraction * seeing:
+        warnings.append(f"frames disagree: {agreeing} of the {seeing} frames that see the plane agree within "
+                        f"{config.agree_deg:g} deg (spread {spread:.1f} deg): poses wrong?")
+    confidence = "low" if warnings else "high"
+    reason = (f"up from horizontal planes ({confidence} confidence, +-{uncertainty:.1f} deg): {support:.0%} of the "
+              f"planar area, {agreeing} of {seeing} frames agree (spread {spread:.1f} deg), "
+              f"{angle_deg(up, cameras.up):.1f} deg from the cameras' up, {angle_deg(up, world_up()):.1f} deg from the "
+              "world's z")
+    return UpEstimate(True, reason, up, "planes", n_frames, len(normals), agreeing, support, spread,
+                      time.perf_counter() - started, confidence, "; ".join(warnings), uncertainty,
+                      angle_deg(up, cameras.up))
 
 
-def imu_gravity(meta: dict) -> dict[float, np.ndarray]:
-    """A recording's still accelerometer readings by frame timestamp: {Frame.timestamp: (3,) m/s^2 in
-    the camera's optical frame}, from meta["imu"]["gravity_camera"] as `ndfa ingest bag` records it
-    (ndfa.io.ingest.bag_imu); empty when the recording has none."""
-    imu = meta.get("imu")
-    rows = imu.get("gravity_camera") if isinstance(imu, dict) else None
-    if not isinstance(rows, list):
-        return {}
-    gravity = {}
-    for row in rows:
-        if isinstance(row, list) and len(row) == 4 and all(isinstance(v, (int, float)) for v in row):
-            gravity[float(row[0])] = np.array(row[1:], dtype=np.float64)
-    return gravity
+class _PlaneNormals:
+    """The session's planar normals in the world, weighted (each frame the same, its patches by
+    area), and their density on the sphere weighed by the prior (see `estimate_up`)."""
 
+    def __init__(self, normals: list[np.ndarray], areas: list[np.ndarray], prior: np.ndarray, config: UpConfig):
+        self.config = config
+        self.normals = np.concatenate(normals)
+        self.frame_of = np.concatenate([np.full(len(n), i) for i, n in enumerate(normals)])
+        self.weights = np.concatenate([a / a.sum() for a in areas]) / len(normals)
+        self.centres, self.neighbours = direction_bins(config.bins, config.kernel_deg)
+        bins = nearest_bin(self.centres, self.normals)
+        from_prior = np.degrees(np.arccos(np.clip(self.centres @ prior, -1.0, 1.0)))
+        self.prior_weight = np.where(from_prior <= config.prior_cone_deg,
+                                     np.exp(-0.5 * (from_prior / config.prior_sigma_deg) ** 2), 0.0)
+        self.frame_histograms = sparse.csr_matrix((self.weights, (self.frame_of, bins)),
+                                                  shape=(len(normals), config.bins))
+        self.score = self._score(np.ones(len(normals)))
 
-def up_from_imu(gravity: dict[float, np.ndarray], frames: Iterable[tuple[float, np.ndarray]],
-                max_dt_s: float = 1e-6, min_samples: int = 3, agree_deg: float = 5.0) -> UpEstimate:
-    """World up from per-frame accelerometer readings (`imu_gravity`) and the frames' poses: each
-    frame (timestamp, (4, 4) camera-to-world pose) with a reading within `max_dt_s` of its timestamp
-    is one sample of `up_from_accelerations`. Fewer than `min_samples` such frames give no estimate."""
-    times = np.array(sorted(gravity), dtype=np.float64)
-    acc, poses, looked = [], [], 0
-    for timestamp, pose in frames:
-        looked += 1
-        if not len(times):
-            continue
-        nearest = times[np.argmin(np.abs(times - timestamp))]
-        if abs(nearest - timestamp) <= max_dt_s:
-            acc.append(gravity[float(nearest)])
-            poses.append(pose)
-    if len(acc) < min_samples:
-        return UpEstimate(False, f"an IMU reading at {len(acc)} of the {looked} frames looked at (need {min_samples})",
-                          None, "imu", looked, len(acc), 0, 0.0, float("nan"))
-    return up_from_accelerations(np.array(acc), np.array(poses), agree_deg=agree_deg, min_samples=min_samples)
+    def _score(self, frame_counts: np.ndarray) -> np.ndarray:
+        return (self.neighbours @ (self.frame_histograms.T @ frame_counts)) * self.prior_weight
+
+    def refine(self, start: np.ndarray, frame_counts: np.ndarray | None = None) -> np.ndarray:
+        weights = self.weights if frame_counts is None else self.weights * frame_counts[self.frame_of]
+        return mean_shift(start, self.normals, weights, self.config.inlier_deg)
+
+    def agreement(self, up: np.ndarray) -> tuple[float, int, int, float]:
+        """up's share of the planar area; the frames that see it; of those, the frames whose own mode
+        is within agree_deg of it; and the RMS angle of their own modes."""
+        inlier = self.normals @ up >= np.cos(np.radians(self.config.inlier_deg))
+        share = np.bincount(self.frame_of[inlier], self.weights[inlier], minlength=self.frame_of[-1] + 1)
+        frames = np.flatnonzero(share * len(share) >= self.config.frame_min_share)
+        angles = np.array([angle_deg(mean_shift(up, self.normals[self.frame_of == f], self.weights[self.frame_of == f],
+                                                self.config.inlier_deg), up) for f in frames])
+        spread = float(np.sqrt(np.mean(angles**2))) if len(angles) else float("nan")
+        return float(share.sum()), len(frames), int((angles <= self.config.agree_deg).sum()), spread
+
+    def bootstrap_uncertainty(self, up: np.ndarray) -> float:
+        """RMS angle between up and the modes of `config.bootstrap` resamplings of the frames."""
+        rng = np.random.default_rng(0)
+        n = self.frame_histograms.shape[0]
+        # Mean shift only over the normals near up (for speed): a mode farther away counts as its bin.
+        near_deg = 4.0 * self.config.inlier_deg
+        near = np.flatnonzero(self.normals @ up >= np.cos(np.radians(near_deg)))
+        near = near[::max(1, len(near) // BOOTSTRAP_NORMALS)]
+        normals, weights, frame_of = self.normals[near], self.weights[near], self.frame_of[near]
+        angles = []
+        for _ in range(self.config.bootstrap):
+            counts = np.bincount(rng.integers(0, n, n), minlength=n).astype(np.float64)
+            score = self._score(counts)
+            if score.max() <= 0.0:
+                angles.append(180.0)
+                continue
+            peak = self.centres[int(np.argmax(score))]
+            if angle_deg(peak, up) < near_deg - self.config.inlier_deg:
+                peak = mean_shift(peak, normals, weights * counts[frame_of], self.config.inlier_deg)
+            angles.append(angle_deg(peak, up))
+        return float(np.sqrt(np.mean(np.square(angles))))
 
 
 def angle_deg(a: np.ndarray, b: np.ndarray) -> float:

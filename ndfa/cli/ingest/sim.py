@@ -12,6 +12,7 @@ from rich.table import Table
 from ndfa.cli.app import bar_per_label, console, err_console, progress_bar
 from ndfa.cli.checks import in_range, input_dir, output_dir, positive, seed_range
 from ndfa.cli.ingest import ingest_app
+from ndfa.sim.handheld import MOTIONS
 from ndfa.sim.mesh_io import load_mug_dir
 from ndfa.sim.noise import DepthNoise
 from ndfa.sim.presets import make_config
@@ -43,7 +44,7 @@ def _parse_range(text: str, what: str) -> tuple[int, int]:
 def ingest_sim_command(
     out: Path = typer.Option(..., "--out", "-o", help="Output directory for source.mcap and target.mcap "
                              "(with --sessions N > 2: session_0.mcap ... session_{N-1}.mcap).", callback=output_dir),
-    preset: str = typer.Option("paper", help="paper | sample | random."),
+    preset: str = typer.Option("paper", help="paper | sample | random | office (docs/sim_raw_sensor.md)."),
     sessions: int = typer.Option(2, help="Sessions to render, with the change counts applied between each "
                                          "consecutive pair (docs/sessions.md).", callback=in_range(ge=2, le=100)),
     seed: int = typer.Option(0, help="Seed of everything random in the scene.", callback=seed_range),
@@ -74,11 +75,18 @@ def ingest_sim_command(
                                           callback=in_range(ge=0, le=1, why="metres per frame")),
     drift_yaw: Optional[float] = typer.Option(None, help="Target drift: random-walk yaw step std, degrees/frame.",
                                               callback=in_range(ge=0, le=180, why="degrees per frame")),
-    textures: bool = typer.Option(False, "--textures", help="Procedural colour texture on walls, floor and table tops."),
-    clutter: int = typer.Option(0, help="Non-mug objects per table (boxes, books, bowls, bottles); static, listed "
-                                        "as clutter in the ground truth.",
-                                callback=in_range(ge=0, le=MAX_CLUTTER, why="a table is full long before: pieces that "
-                                                  "find no free spot are left out")),
+    textures: Optional[bool] = typer.Option(None, "--textures/--no-textures", help="Procedural colour texture on "
+                                            "walls, floor and table tops (default: the preset's; office: on)."),
+    clutter: Optional[int] = typer.Option(None, help="Non-mug objects per table (boxes, books, bowls, bottles); static, "
+                                                     "listed as clutter in the ground truth (default: the preset's; "
+                                                     "office: 3).",
+                                          callback=in_range(ge=0, le=MAX_CLUTTER, why="a table is full long before: "
+                                                            "pieces that find no free spot are left out")),
+    motion: Optional[str] = typer.Option(None, help="Camera motion: smooth | handheld (sweeps up to 90 deg/s, pitch "
+                                                    "towards the desks, shake, at --fps; default: the preset's, office: "
+                                                    "handheld)."),
+    fps: Optional[float] = typer.Option(None, help="Frame rate of the recording (default: the preset's; office: 30).",
+                                        callback=in_range(gt=0, le=1000, why="frames per second of a camera")),
     raw: bool = typer.Option(False, "--raw", help="Record as a sensor does: no instance masks, no camera poses "
                                                   "(/tf); the true poses stay in the ground truth."),
     world_tilt: float = typer.Option(0.0, help="Tilt the recorded world frame this many degrees away from z-up "
@@ -116,6 +124,12 @@ def ingest_sim_command(
         overrides["target_route"] = target_route
     if step is not None:
         overrides["trajectory"] = dataclasses.replace(config.trajectory, step_m=step)
+    if motion is not None:
+        if motion not in MOTIONS:
+            raise typer.BadParameter(f"--motion must be one of {', '.join(MOTIONS)}, got {motion!r}")
+        overrides["trajectory"] = dataclasses.replace(overrides.get("trajectory", config.trajectory), motion=motion)
+    if fps is not None:
+        overrides["fps"] = fps
     if max_turn is None:
         max_turn = RAW_MAX_TURN_DEG if raw else 0.0
     if max_turn:
@@ -129,8 +143,11 @@ def ingest_sim_command(
                                    drift_translation_m=drift, drift_yaw_deg=drift_yaw).items() if v is not None}
     if error:
         overrides["target_pose_error"] = dataclasses.replace(config.target_pose_error, **error)
-    overrides.update(textures=textures, clutter_per_table=clutter, raw=raw, world_tilt_deg=world_tilt,
-                     rotated=rotated, rotated_deg=tuple(rotated_deg))
+    overrides.update(raw=raw, world_tilt_deg=world_tilt, rotated=rotated, rotated_deg=tuple(rotated_deg))
+    if textures is not None:
+        overrides["textures"] = textures
+    if clutter is not None:
+        overrides["clutter_per_table"] = clutter
     config = make_config(preset, seed, **overrides)
 
     check_output_dir(out)

@@ -5,7 +5,7 @@ the readings within `WINDOW_S` of the depth stamp whose magnitude is within `STI
 (the sensor not accelerating) are averaged and rotated from the IMU's frame into the camera's
 optical frame with the tf between them (on a camera with a built-in IMU, a static transform). A
 frame around which the sensor was moving gets no reading. `ndfa detect` turns these per-frame
-readings into world up with the frames' poses (`ndfa.trajectory.up.up_from_imu`).
+readings into world up with the frames' poses (`ndfa.trajectory.up_imu.up_from_imu`).
 
 Without a tf between the IMU's frame and the camera's, the readings cannot be put in the camera's
 axes: the meta says so and holds none (an IMU's mounting is not guessed).

@@ -35,7 +35,9 @@ from ndfa.core.progress import LabelledProgress
 from ndfa.io.recording import Frame, RecordingWriter
 from ndfa.io.recording.channels import DEPTH_SCALE_M
 from ndfa.io.recording.writer import depth_to_millimetres
+from ndfa.sim.aligned_depth import AlignedDepth
 from ndfa.sim.mug import Mug
+from ndfa.sim.office import OfficeFixtures, office_fixtures
 from ndfa.sim.presets import SimConfig
 from ndfa.sim.render import RenderObject, SceneRenderer
 from ndfa.sim.sessions import build_sessions, history_truth, session_names
@@ -81,6 +83,7 @@ def ingest_sim(
     # The room's look is part of the static scene: one set of textures for every session.
     world = worlds.base
     textures = room_textures(world.room, world.tables, np.random.default_rng([config.seed, 14])) if config.textures else None
+    fixtures = office(config, world)
     visible: dict[str, list[int]] = {}  # filled session by session: each recording's ground truth holds those so far
     history = None if sessions == 2 else {"names": names, "objects": history_truth(worlds, world_tilt(config))}
     summaries = []
@@ -91,7 +94,7 @@ def ingest_sim(
                            {"source": names[pair], "target": names[pair + 1]}, history)
         ground_truth = world_ground_truth(plan.world, config)
         summaries.append(_render_session(plan, config, out_dir / f"{name}.mcap", ground_truth, on_progress,
-                                         textures, visible))
+                                         textures, visible, fixtures))
     return summaries
 
 
@@ -122,6 +125,14 @@ class SessionPlan:
         return np.random.default_rng([seed, 11] if self.index <= 1 else [seed, 11, self.index])
 
 
+def office(config: SimConfig, world: World) -> OfficeFixtures | None:
+    """The office's monitors and ceiling (`ndfa.sim.office`), when `config` has any."""
+    if not (config.monitors_per_table or config.ceiling):
+        return None
+    return office_fixtures(world.tables, config.monitors_per_table, config.ceiling,
+                           np.random.default_rng([config.seed, 15]))
+
+
 def world_tilt(config: SimConfig) -> np.ndarray:
     """pose_world_level of `config`'s recordings: the identity unless `world_tilt_deg` is set."""
     return tilt_pose(config.world_tilt_deg, np.random.default_rng([config.seed, 13]))
@@ -129,7 +140,8 @@ def world_tilt(config: SimConfig) -> np.ndarray:
 
 def _render_session(plan: SessionPlan, config: SimConfig, path: Path, ground_truth: dict,
                     on_progress: LabelledProgress | None, textures: RoomTextures | None = None,
-                    visible: dict[str, list[int]] | None = None) -> SessionSummary:
+                    visible: dict[str, list[int]] | None = None,
+                    fixtures: OfficeFixtures | None = None) -> SessionSummary:
     """Render one session into `path`. `visible` (session name -> instance ids) gains this
     session's visible instances, and the recording's ground truth holds those of its pair rendered
     so far (and with more than two sessions, of every session rendered so far)."""
@@ -138,7 +150,7 @@ def _render_session(plan: SessionPlan, config: SimConfig, path: Path, ground_tru
     stream = plan.index
     route = getattr(config, plan.route_of)
     true_poses = camera_poses(world.tables, dataclasses.replace(config.trajectory, route=route),
-                              np.random.default_rng([config.seed, 10, stream]))
+                              np.random.default_rng([config.seed, 10, stream]), config.fps)
     recorded_poses, offset = true_poses, None
     if plan.role == "target" and config.target_pose_error.enabled and not config.raw:
         recorded_poses, offset = config.target_pose_error.apply(true_poses, plan.pose_error_rng(config.seed))
@@ -150,7 +162,8 @@ def _render_session(plan: SessionPlan, config: SimConfig, path: Path, ground_tru
     if offset is not None:  # perturbed = offset @ drift @ true holds in the tilted world with this offset
         offset = pose_world_level @ offset @ pose_world_level.T
 
-    renderer = SceneRenderer(render_objects(world, plan.role, textures))
+    renderer = SceneRenderer(render_objects(world, plan.role, textures, fixtures))
+    screen_rng = np.random.default_rng([config.seed, 16, stream])
     if config.raw:
         # What a sensor writes: no poses (the writer then leaves /tf out) and no instance masks.
         poses_meta, instances_meta = "none", "none"
@@ -177,7 +190,12 @@ def _render_session(plan: SessionPlan, config: SimConfig, path: Path, ground_tru
         for index, pose in enumerate(true_poses):
             view = renderer.render(camera, pose)
             depth = config.depth_noise.apply(view.depth, view.normals_camera, noise_rng, camera)
-            for instance_id, n_pixels in visible_pixels(view.instance, depth).items():
+            instance = view.instance
+            if fixtures is not None:  # what the sensor reads on the screens; screens are not objects
+                depth, instance = fixtures.sensor(depth, instance, screen_rng)
+            if config.aligned_depth:
+                depth = AlignedDepth().apply(depth, camera.fx)
+            for instance_id, n_pixels in visible_pixels(instance, depth).items():
                 pixels_seen[instance_id] = max(n_pixels, pixels_seen.get(instance_id, 0))
             writer.write_frame(Frame(
                 index=index,
@@ -187,7 +205,7 @@ def _render_session(plan: SessionPlan, config: SimConfig, path: Path, ground_tru
                 K=camera.K,
                 # A raw recording's frames carry the identity, the recording has no poses.
                 pose_world_camera=np.eye(4) if config.raw else recorded_poses_world[index],
-                instances=None if config.raw else view.instance,
+                instances=None if config.raw else instance,
                 pose_world_camera_true=true_poses_world[index] if offset is not None or config.raw else None,
             ))
             if on_progress is not None:
@@ -221,9 +239,11 @@ def visible_pixels(instance: np.ndarray, depth: np.ndarray) -> dict[int, int]:
     return {int(i): int(counts[i]) for i in np.flatnonzero(counts)}
 
 
-def render_objects(world: World, session: str, textures: RoomTextures | None = None) -> list[RenderObject]:
-    """Room, tables, the session's mugs and the clutter as renderable objects (level world frame);
-    mugs and clutter carry their instance ids, room and tables the `textures` if given."""
+def render_objects(world: World, session: str, textures: RoomTextures | None = None,
+                   fixtures: OfficeFixtures | None = None) -> list[RenderObject]:
+    """Room, tables, the session's mugs, the clutter and an office's fixtures as renderable objects
+    (level world frame); mugs, clutter and screens carry their instance ids, room and tables the
+    `textures` if given."""
     gray, wood = (0.75, 0.75, 0.72), (0.55, 0.40, 0.28)
     room_textures_ = textures.room if textures is not None else [None] * len(world.room.meshes())
     table_textures = textures.tables if textures is not None else [None] * len(world.tables)
@@ -234,6 +254,9 @@ def render_objects(world: World, session: str, textures: RoomTextures | None = N
         objects.append(RenderObject(mesh, instance_id, world.colors[instance_id]))
     for item in world.clutter:
         objects.append(RenderObject(item.mesh.transformed(world.clutter_pose(item)), item.instance_id, item.color))
+    if fixtures is not None:
+        objects += [RenderObject(mesh, instance_id, colour) for mesh, instance_id, colour
+                    in fixtures.render_parts(world.tables, world.room)]
     return objects
 
 
@@ -285,6 +308,10 @@ def world_ground_truth(world: World, config: SimConfig) -> dict:
             "table_id": item.table_id,
             "pose_world_object": (pose_world_level @ world.clutter_pose(item)).tolist(),
         } for item in world.clutter]
+    fixtures = office(config, world)
+    if fixtures is not None:  # fixed in every session; not objects
+        truth["office"] = {"ceiling": fixtures.ceiling, "monitors": [
+            {"table_id": m.table_id, "x": m.x, "screen": m.reading} for m in fixtures.monitors]}
     if config.world_tilt_deg:
         truth["world_tilt"] = {
             "degrees": config.world_tilt_deg,
