@@ -203,3 +203,10 @@ def test_auto_without_a_plan_finds_the_real_mug_and_removes_it(pair, tmp_path):
     real = [o for o in result.objects if o.real]
     assert len(real) == 1 and real[0].change == "removed"
     assert np.linalg.norm(real[0].source_xy - MUG_AT) < 0.03
+
+
+def test_the_kitchen_plans_of_the_docs_read():
+    docs = Path(__file__).resolve().parents[1] / "docs"
+    assert [(o.name, o.change) for o in read_plan(docs / "plant_kitchen.toml")] == [
+        ("white mug", "removed"), ("patterned mug", "unchanged"), ("moved mug", "moved"), ("added mug", "added")]
+    assert {o.change for o in read_plan(docs / "plant_kitchen_same.toml")} == {"unchanged"}
