@@ -156,7 +156,10 @@ class _Outputs:
         for staged in list(self.open):
             staged.discard()
         for path, folder in reversed(self.committed):
-            self.restore(path, folder)
+            try:
+                self.restore(path, folder)
+            except OSError:  # its folder removed meanwhile (a scratch folder): nothing there to restore
+                pass
         for path, existing in reversed(self.declared):
             for folder in [path, *path.parents]:  # the folders made below the one that existed
                 if folder == existing or existing not in folder.parents:
