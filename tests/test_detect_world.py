@@ -124,20 +124,20 @@ def test_truth_poses_replace_the_given_ones_and_need_a_ground_truth_channel(tmp_
 
 
 def test_estimated_poses_are_scored_against_the_true_ones_when_a_recording_has_them():
-    from ndfa.run.world import SessionWorld, _pose_quality
+    from ndfa.run.world import SessionWorld, _pose_error
 
     truth = {i: make_pose(axis_angle_to_matrix(np.array([0.0, 0.0, 0.1 * i])), np.array([0.1 * i, 0.02 * i * i, 0.0]))
              for i in range(10)}
     elsewhere = _tilt(30.0)   # the estimate's own world: ATE aligns it away
-    quality = _pose_quality({i: elsewhere @ pose for i, pose in truth.items()}, truth)
+    quality = _pose_error({i: elsewhere @ pose for i, pose in truth.items()}, truth)
     assert quality is not None and quality["ate_rmse_m"] < 1e-9 and quality["rpe_translation_m"] < 1e-9
     jumped = {i: elsewhere @ pose @ (make_pose(np.eye(3), np.array([0.05, 0, 0])) if i >= 5 else np.eye(4))
               for i, pose in truth.items()}
-    quality = _pose_quality(jumped, truth)
+    quality = _pose_error(jumped, truth)
     assert quality is not None and 0.01 < quality["ate_rmse_m"] < 0.05
-    assert _pose_quality(jumped, {i: truth[i] for i in range(5)}) is None   # not every frame has a true pose
-    world = SessionWorld("target", pose_source="estimated", up_source="z", pose_quality=quality)
-    assert "ATE RMSE" in world.describe() and world.as_dict()["pose_quality"] == quality
+    assert _pose_error(jumped, {i: truth[i] for i in range(5)}) is None   # not every frame has a true pose
+    world = SessionWorld("target", pose_source="estimated", up_source="z", pose_error=quality)
+    assert "ATE RMSE" in world.describe() and world.as_dict()["pose_error"] == quality
 
 
 @pytest.mark.slow

@@ -161,6 +161,20 @@ class TimingEvent:
     stage_ms: dict[str, float]
 
 
+@dataclass(frozen=True, kw_only=True)
+class PoseQualityEvent:
+    """A session's estimated poses judged without ground truth, before its pass (the run emits it,
+    not the pipeline: `ndfa.trajectory.quality`). verdict: "good", "doubtful" or "unusable";
+    error_cm: the estimated error (NaN: nothing to estimate it from); text: the one-line summary;
+    figures: the evidence by name."""
+
+    session: str
+    verdict: str
+    error_cm: float
+    text: str
+    figures: dict[str, float | int | None] = field(default_factory=dict)
+
+
 Event = (FrameEvent | ObservationEvent | AssociationEvent | TreeEvent | RegistrationEvent | GraphEvent | DecisionEvent
          | TimingEvent)
 """Every event the core returns and the sinks accept."""

@@ -14,6 +14,8 @@ Entity layout (world frame: the source's; `target/` is placed into it with T_rel
                                       shape match's source edges (blue), in the source world
     decisions                         changes as labelled points, and a text log of every decision
     timings/{stage}                   ms per frame
+    pose_quality/{session}            estimated poses judged without ground truth: the verdict and
+                                      figures as text, the estimated error (cm) as a scalar under it
 
 The file carries its own layout (`detection_blueprint`), so that `rerun out.rrd`, `ndfa view` and
 `ndfa view --web` open on the question the run answers: what changed, and where. Labels are drawn
@@ -52,6 +54,7 @@ from ndfa.core.events import (
     FrameEvent,
     GraphEvent,
     ObservationEvent,
+    PoseQualityEvent,
     RegistrationEvent,
     TimingEvent,
     TreeEvent,
@@ -272,6 +275,11 @@ class RerunSink:
         self.rec.log("decisions/log", rr.TextLog(
             f"frame {e.frame_index}: {e.session} object {e.object_id} {e.kind}{_turn(e)} (score {e.score:.2f}): {e.reason}",
             level="INFO" if e.kind == "unchanged" else "WARN"))
+
+    def _PoseQualityEvent(self, e: PoseQualityEvent) -> None:
+        self.rec.log(f"pose_quality/{e.session}", rr.TextDocument(e.text), static=True)
+        if np.isfinite(e.error_cm):
+            self.rec.log(f"pose_quality/{e.session}/estimated_error_cm", rr.Scalars(e.error_cm), static=True)
 
     def _TimingEvent(self, e: TimingEvent) -> None:
         for stage, ms in e.stage_ms.items():

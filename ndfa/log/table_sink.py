@@ -12,6 +12,9 @@
                            a change; docs/scores.md) and the ground-truth change of the object's
                            mask when the recordings carry it; a rotation's turn in `angle_deg`
     timings.parquet        ms per stage per frame
+    pose_quality.parquet   one row per session whose poses were estimated: the verdict (good /
+                           doubtful / unusable), the estimated error and the figures behind it
+                           (`ndfa.trajectory.quality`, docs/pose_quality.md)
     history.parquet        a run over more than two sessions (`ndfa.run.sessions`): one row per object
                            per session (`ndfa.core.sessions.HistoryRow`); its registration, graphs
                            and decisions rows then name their `pair` ("0-1", ...), its sessions are
@@ -37,6 +40,7 @@ from ndfa.core.events import (
     FrameEvent,
     GraphEvent,
     ObservationEvent,
+    PoseQualityEvent,
     RegistrationEvent,
     TimingEvent,
     TreeEvent,
@@ -44,7 +48,8 @@ from ndfa.core.events import (
 from ndfa.core.sessions import HistoryEvent, HistoryRow, PairEvent
 from ndfa.io.atomic import write_parquet
 
-TABLES = ("observations", "associations", "objects", "tree_nodes", "registration", "graphs", "decisions", "timings")
+TABLES = ("observations", "associations", "objects", "tree_nodes", "registration", "graphs", "decisions", "timings",
+          "pose_quality")
 
 
 class TableSink:
@@ -131,6 +136,9 @@ class TableSink:
                 "reason": event.reason, **_xyz("position", position), "partner_id": event.partner_id,
                 "instance_ids": list(event.instance_ids), "score": event.score, "angle_deg": event.angle_deg,
                 "truth": self._truth(event.instance_ids[0]) if event.instance_ids else None})
+        elif isinstance(event, PoseQualityEvent):
+            self.rows["pose_quality"].append({"session": event.session, "verdict": event.verdict,
+                                              "estimated_error_cm": event.error_cm} | event.figures)
         elif isinstance(event, TimingEvent):
             self.rows["timings"].append({"session": event.session, "frame": event.frame_index} | event.stage_ms)
 

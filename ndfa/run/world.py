@@ -34,6 +34,7 @@ from ndfa.core.frame import Frame
 from ndfa.io.recording import RecordingReader
 from ndfa.trajectory.level import level_frame
 from ndfa.trajectory.metrics import absolute_trajectory_error, relative_pose_error
+from ndfa.trajectory.quality import PoseQuality, judge
 from ndfa.trajectory.session import UNTRACKED_POSES, choose_method, estimate_session_poses
 from ndfa.trajectory.up import UpEstimate, angle_deg, estimate_up
 from ndfa.trajectory.up_imu import imu_gravity, up_from_imu
@@ -65,9 +66,11 @@ class SessionWorld:
     levelling: np.ndarray | None = None     # (3, 3) rotation applied to every pose, or None
     poses: dict[int, np.ndarray] | None = None  # estimated camera-to-world poses by frame index
     notes: list[str] = field(default_factory=list)  # warnings about the input: frames named, one line each
+    # How far the estimated poses can be trusted, judged without ground truth (`ndfa.trajectory.quality`).
+    pose_quality: PoseQuality | None = None
     # The estimated poses against the recording's true ones (a simulator's ground-truth channel), when
     # it has them: {"ate_rmse_m", "ate_max_m", "rpe_translation_m", "rpe_rotation_deg", "frames"}.
-    pose_quality: dict | None = None
+    pose_error: dict | None = None
 
     def apply(self, frame: Frame) -> Frame:
         """`frame` with the estimated pose (if any), levelled (if needed)."""
@@ -78,11 +81,12 @@ class SessionWorld:
     def describe(self) -> str:
         """One line: which poses and which up this session runs on, and how they were found; then one
         indented line per warning about the session's input (`notes`)."""
-        quality = "" if self.pose_quality is None else (
-            f" (against the true poses: ATE RMSE {100 * self.pose_quality['ate_rmse_m']:.1f} cm, "
-            f"max {100 * self.pose_quality['ate_max_m']:.1f} cm, RPE {1000 * self.pose_quality['rpe_translation_m']:.1f} mm "
-            f"/ {self.pose_quality['rpe_rotation_deg']:.2f} deg per frame)")
-        return f"{self.session}: poses {self.pose_source}{quality}; up {self.describe_up()}" + "".join(
+        error = "" if self.pose_error is None else (
+            f" (against the true poses: ATE RMSE {100 * self.pose_error['ate_rmse_m']:.1f} cm, "
+            f"max {100 * self.pose_error['ate_max_m']:.1f} cm, RPE {1000 * self.pose_error['rpe_translation_m']:.1f} mm "
+            f"/ {self.pose_error['rpe_rotation_deg']:.2f} deg per frame)")
+        quality = "" if self.pose_quality is None else f"; {self.pose_quality.describe()}"
+        return f"{self.session}: poses {self.pose_source}{error}{quality}; up {self.describe_up()}" + "".join(
             f"\n  warning: {self.session}: {note}" for note in self.notes)
 
     def describe_up(self) -> str:
@@ -112,7 +116,9 @@ class SessionWorld:
                 "up_uncertainty_deg": None if self.up is None else self.up.uncertainty_deg,
                 "up_estimate": None if self.up is None else self.up.to_dict(),
                 "up_check": None if self.up_check is None else self.up_check.to_dict(),
-                "levelled": self.levelling is not None, "notes": list(self.notes), "pose_quality": self.pose_quality}
+                "levelled": self.levelling is not None, "notes": list(self.notes),
+                "pose_quality": None if self.pose_quality is None else self.pose_quality.to_dict(),
+                "pose_error": self.pose_error}
 
 
 def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
@@ -126,9 +132,9 @@ def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
     if poses == "truth":
         world.poses, world.pose_source = _true_poses(reader), "true (the ground-truth channel)"
     elif poses == "estimate" or (poses == "auto" and not reader.has_poses):
-        world.poses, world.pose_source, input_notes, truth = _estimate_poses(reader)
+        world.poses, world.pose_source, input_notes, truth, world.pose_quality = _estimate_poses(reader)
         world.notes.extend(input_notes)
-        world.pose_quality = _pose_quality(world.poses, truth)
+        world.pose_error = _pose_error(world.poses, truth)
     elif not reader.has_poses:
         raise RecordingError(f"{reader.path}: has no camera poses and pose estimation is off (--poses given)")
 
@@ -200,7 +206,7 @@ def _true_poses(reader: RecordingReader) -> dict[int, np.ndarray]:
     return poses
 
 
-def _pose_quality(estimate: dict[int, np.ndarray], truth: dict[int, np.ndarray]) -> dict | None:
+def _pose_error(estimate: dict[int, np.ndarray], truth: dict[int, np.ndarray]) -> dict | None:
     """ATE and per-frame RPE of `estimate` against `truth` when every frame has a true pose."""
     if len(estimate) < 3 or set(truth) != set(estimate):
         return None
@@ -211,9 +217,11 @@ def _pose_quality(estimate: dict[int, np.ndarray], truth: dict[int, np.ndarray])
             "rpe_translation_m": rpe.translation_rmse_m, "rpe_rotation_deg": rpe.rotation_rmse_deg}
 
 
-def _estimate_poses(reader: RecordingReader) -> tuple[dict[int, np.ndarray], str, list[str], dict[int, np.ndarray]]:
+def _estimate_poses(reader: RecordingReader) -> tuple[dict[int, np.ndarray], str, list[str], dict[int, np.ndarray],
+                                                      PoseQuality | None]:
     """Every frame's pose by odometry over the whole session (`ndfa.trajectory.session`), how they
-    were estimated, warnings about the input, and the frames' true poses (those it has)."""
+    were estimated, warnings about the input, the frames' true poses (those it has) and the poses'
+    quality judged without them."""
     truth: dict[int, np.ndarray] = {}
 
     def keep_truth(frame: Frame) -> None:
@@ -223,4 +231,6 @@ def _estimate_poses(reader: RecordingReader) -> tuple[dict[int, np.ndarray], str
     session = estimate_session_poses(reader.frames(), choose_method(next(iter(reader.frames(stop=1)), None)),
                                      reader.path, on_frame=keep_truth)
     notes = session.input_report.warnings(untracked_poses=UNTRACKED_POSES) if session.poses else []
-    return dict(zip(session.indices, session.poses, strict=True)), f"estimated ({session.describe_method()})", notes, truth
+    quality = None if session.evidence is None else judge(session.evidence)
+    return (dict(zip(session.indices, session.poses, strict=True)), f"estimated ({session.describe_method()})", notes,
+            truth, quality)

@@ -25,8 +25,10 @@ import numpy as np
 
 from ndfa.core.frame import Frame
 from ndfa.trajectory.checks import InputCheckConfig, InputMonitor, InputReport, fill_untracked
+from ndfa.trajectory.consistency import DepthSketch, sketch_depth
 from ndfa.trajectory.kiss import DepthOdometry, OdometryConfig
 from ndfa.trajectory.open3d_threads import open3d_threads
+from ndfa.trajectory.quality import PoseEvidence, gather_evidence
 from ndfa.trajectory.rgbd import RgbdOdometry, RgbdOdometryConfig
 
 SESSION_METHODS = ("rgbd", "kiss-icp")
@@ -40,6 +42,7 @@ class SessionPoses:
     poses: (4, 4) camera-to-world per frame, in the frames' order; timestamps, indices: theirs.
     odometry: the estimator after the session (its counters: keyframes, loops, ms per frame, ...).
     input_report: the input checks' findings (`InputReport.warnings(UNTRACKED_POSES)`).
+    evidence: how far the poses can be trusted, without ground truth (`ndfa.trajectory.quality`).
     """
 
     method: str
@@ -48,6 +51,7 @@ class SessionPoses:
     indices: list[int]
     odometry: RgbdOdometry | DepthOdometry
     input_report: InputReport
+    evidence: PoseEvidence | None = None
 
     def describe_method(self) -> str:
         return "rgbd odometry, loop-closed" if self.method == "rgbd" else "kiss-icp, depth only"
@@ -71,6 +75,7 @@ def estimate_session_poses(frames: Iterable[Frame], method: str, source: object,
     fed: list[int] = []  # positions (in the session) of the frames given to the odometry
     timestamps: list[float] = []
     indices: list[int] = []
+    sketches: dict[int, DepthSketch] = {}  # by position, the frames with usable depth
 
     def tracked_frames() -> Iterable[Frame]:
         for position, frame in enumerate(frames):
@@ -78,7 +83,10 @@ def estimate_session_poses(frames: Iterable[Frame], method: str, source: object,
                 on_frame(frame)
             timestamps.append(frame.timestamp)
             indices.append(frame.index)
-            if monitor.observe(frame).has_depth or fed:
+            has_depth = monitor.observe(frame).has_depth
+            if has_depth:
+                sketches[position] = sketch_depth(frame)
+            if has_depth or fed:
                 fed.append(position)
                 yield frame
 
@@ -99,4 +107,6 @@ def estimate_session_poses(frames: Iterable[Frame], method: str, source: object,
     poses: list[np.ndarray | None] = [None] * len(monitor.checks)
     for position, pose in zip(fed, estimate, strict=True):
         poses[position] = pose if monitor.checks[position].has_depth else None
-    return SessionPoses(method, fill_untracked(timestamps, poses), timestamps, indices, odometry, report)
+    filled = fill_untracked(timestamps, poses)
+    evidence = gather_evidence(filled, sketches, odometry, fed)
+    return SessionPoses(method, filled, timestamps, indices, odometry, report, evidence)

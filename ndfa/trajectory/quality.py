@@ -1,0 +1,192 @@
+"""How good a session's estimated poses are, without ground truth: figures, one estimated error in
+centimetres, and one verdict (good / doubtful / unusable). docs/pose_quality.md has the
+calibration against true errors and why the thresholds are where they are.
+
+The evidence (`PoseEvidence`), gathered where the poses are estimated (`ndfa.trajectory.session`):
+
+- the depth images' agreement under the estimated poses (`ndfa.trajectory.consistency`): at
+  revisits (frames far apart along the path that look at the same place) and between neighbours;
+- what the RGB-D odometry did: how far loop closure moved its keyframes, how well the loops agree
+  after it, the share of frames that nothing pinned (a flat view without texture registered by
+  depth alone, or a registration rejected and the motion guessed);
+- the keyframes per frame (churn: the odometry losing its reference over and over).
+
+Pure: frames' depth sketches, poses and the odometry's record in, figures out.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from ndfa.trajectory.consistency import (
+    ConsistencyConfig,
+    DepthSketch,
+    PairCheck,
+    check_pairs,
+    neighbour_pairs,
+    revisit_pairs,
+)
+
+
+@dataclass(frozen=True)
+class PoseEvidence:
+    """The no-truth figures of one session's poses (NaN where a figure has nothing to measure).
+
+    frames, tracked: the session's frames and those with usable depth.
+    revisit_pairs, neighbour_pairs: pairs of each kind that overlapped (each way counted).
+    revisit_conflict_cm, neighbour_conflict_cm: the mean over the pairs of how deep one frame's
+        surfaces reach into the space the other saw empty (`PairCheck.conflict_m`).
+    revisit_violation, neighbour_violation: share of the overlapping points seen through by the
+        other frame (free-space violations; see `ndfa.trajectory.consistency`).
+    keyframes, loops: the RGB-D odometry's keyframes and loop edges (0 for kiss-icp).
+    graph_moved_cm: the largest distance loop closure moved a keyframe.
+    loop_residual_cm: median distance between a loop edge's measured and optimised relative pose.
+    unpinned_share: share of the tracked frames whose motion nothing pinned (see the module docstring).
+    """
+
+    frames: int
+    tracked: int
+    revisit_pairs: int
+    revisit_conflict_cm: float
+    revisit_violation: float
+    neighbour_pairs: int
+    neighbour_conflict_cm: float
+    neighbour_violation: float
+    keyframes: int
+    loops: int
+    graph_moved_cm: float
+    loop_residual_cm: float
+    unpinned_share: float
+
+    def to_dict(self) -> dict:
+        return {key: (None if isinstance(value, float) and not np.isfinite(value) else value)
+                for key, value in asdict(self).items()}
+
+
+def gather_evidence(poses: Sequence[np.ndarray], sketches: dict[int, DepthSketch], odometry: object,
+                    odometry_positions: Sequence[int], config: ConsistencyConfig = ConsistencyConfig()) -> PoseEvidence:
+    """The evidence for a session: `poses` (every frame's, camera-to-world), `sketches` by position
+    in the session (frames with usable depth), the odometry after `finish`, and the session
+    positions of the frames it was fed, in its order."""
+    positions = sorted(sketches)
+    tracked_poses = np.array([poses[p] for p in positions]).reshape(-1, 4, 4)
+    sketch_list = [sketches[p] for p in positions]
+    revisits = neighbours = []
+    if len(positions) >= 2:
+        median_depths = np.array([sketch.median_depth_m for sketch in sketch_list])
+        revisits = check_pairs(sketch_list, tracked_poses, revisit_pairs(tracked_poses, median_depths, config), config)
+        neighbours = check_pairs(sketch_list, tracked_poses, neighbour_pairs(tracked_poses, config), config)
+    keyframes, loops, moved, loop_residual, unpinned = _odometry_figures(poses, odometry, odometry_positions)
+    return PoseEvidence(frames=len(poses), tracked=len(positions),
+                        revisit_pairs=len(revisits), revisit_conflict_cm=_conflict_cm(revisits),
+                        revisit_violation=_violation(revisits), neighbour_pairs=len(neighbours),
+                        neighbour_conflict_cm=_conflict_cm(neighbours), neighbour_violation=_violation(neighbours),
+                        keyframes=keyframes, loops=loops, graph_moved_cm=moved, loop_residual_cm=loop_residual,
+                        unpinned_share=unpinned)
+
+
+def _conflict_cm(checks: list[PairCheck]) -> float:
+    return 100.0 * float(np.mean([check.conflict_m for check in checks])) if checks else float("nan")
+
+
+def _violation(checks: list[PairCheck]) -> float:
+    overlap = sum(check.overlap for check in checks)
+    return sum(check.violating for check in checks) / overlap if overlap else float("nan")
+
+
+def _odometry_figures(poses: Sequence[np.ndarray], odometry: object,
+                      odometry_positions: Sequence[int]) -> tuple[int, int, float, float, float]:
+    """keyframes, loops, graph_moved_cm, loop_residual_cm, unpinned_share from an RgbdOdometry
+    (duck-typed: kiss-icp's DepthOdometry has no keyframes, and gives its rejected refinements)."""
+    from ndfa.trajectory.rgbd import NO_TERM, POINT_TO_PLANE
+
+    keyframes = getattr(odometry, "keyframes", None)
+    fed = max(1, len(odometry_positions))
+    if not keyframes:
+        rejected = getattr(odometry, "refinements_rejected", 0) + getattr(odometry, "starved_frames", 0)
+        return 0, 0, float("nan"), float("nan"), rejected / fed
+    terms, degenerate = list(odometry.terms), list(odometry.degenerate)  # type: ignore[attr-defined]
+    guessed = sum(term == NO_TERM for term in terms[1:])
+    slid = sum(flag and term == POINT_TO_PLANE for term, flag in zip(terms, degenerate, strict=True))
+    unpinned = (guessed + slid + odometry.rejected_frames) / fed  # type: ignore[attr-defined]
+    # Loop closure holds the first keyframe fixed, so the final pose of its frame is the anchor.
+    final = [np.asarray(poses[odometry_positions[keyframe.frame]]) for keyframe in keyframes]
+    anchor = final[0] @ np.linalg.inv(keyframes[0].pose)
+    moved = max(float(np.linalg.norm(pose[:3, 3] - (anchor @ keyframe.pose)[:3, 3]))
+                for pose, keyframe in zip(final, keyframes, strict=True))
+    corrected = [np.linalg.inv(anchor) @ pose for pose in final]
+    loop_edges = [edge for edge in odometry.edges if edge.loop]  # type: ignore[attr-defined]
+    residuals = [float(np.linalg.norm((np.linalg.inv(edge.target_from_source) @ np.linalg.inv(corrected[edge.target])
+                                       @ corrected[edge.source])[:3, 3])) for edge in loop_edges]
+    loop_residual = 100.0 * float(np.median(residuals)) if residuals else float("nan")
+    return len(keyframes), len(loop_edges), 100.0 * moved, loop_residual, unpinned
+
+
+GOOD, DOUBTFUL, UNUSABLE = "good", "doubtful", "unusable"
+VERDICTS = (GOOD, DOUBTFUL, UNUSABLE)
+
+
+@dataclass(frozen=True)
+class QualityThresholds:
+    """Where the estimated error turns the verdict (docs/pose_quality.md: the calibration).
+
+    doubtful_cm, unusable_cm: the estimated error (`PoseQuality.error_cm`) above which the poses
+        are doubtful, unusable.
+    min_pairs: with fewer revisit pairs than this the revisits say too little, and the neighbours'
+        figure stands in.
+    """
+
+    doubtful_cm: float = 2.0
+    unusable_cm: float = 8.0
+    min_pairs: int = 10
+
+
+@dataclass(frozen=True)
+class PoseQuality:
+    """A session's poses judged without ground truth: `error_cm`, the estimated error (how deep the
+    frames' surfaces reach into space other frames saw empty, see `judge`), and the `verdict`."""
+
+    evidence: PoseEvidence
+    error_cm: float
+    verdict: str
+    basis: str  # which pairs the estimate rests on: "revisits", "neighbours" or "none"
+
+    @property
+    def good(self) -> bool:
+        return self.verdict == GOOD
+
+    def describe(self) -> str:
+        """One line: the verdict, the estimated error and what it rests on."""
+        e = self.evidence
+        figure = "no overlapping frames to check" if self.basis == "none" else (
+            f"estimated error {self.error_cm:.1f} cm from {e.revisit_pairs if self.basis == 'revisits' else e.neighbour_pairs} "
+            f"{'revisit' if self.basis == 'revisits' else 'neighbour'} pairs; free-space violations "
+            f"{100 * _zero_nan(e.revisit_violation):.1f}% at revisits, {100 * _zero_nan(e.neighbour_violation):.1f}% "
+            "between neighbours")
+        loops = f"; {e.loops} loops, closure moved keyframes up to {e.graph_moved_cm:.0f} cm" if e.loops else ""
+        return f"pose quality {self.verdict.upper()} ({figure}{loops})"
+
+    def to_dict(self) -> dict:
+        return {"verdict": self.verdict, "estimated_error_cm": None if not np.isfinite(self.error_cm) else round(self.error_cm, 2),
+                "basis": self.basis} | {"figures": self.evidence.to_dict()}
+
+
+def judge(evidence: PoseEvidence, thresholds: QualityThresholds = QualityThresholds()) -> PoseQuality:
+    """The estimated error and the verdict: the revisits' conflict depth where there are enough
+    revisit pairs (drift shows there), else the neighbours' (which sees a broken registration);
+    with neither, nothing contradicts the poses, and nothing vouches for them: doubtful."""
+    if evidence.revisit_pairs >= thresholds.min_pairs:
+        error, basis = max(evidence.revisit_conflict_cm, evidence.neighbour_conflict_cm), "revisits"
+    elif evidence.neighbour_pairs >= thresholds.min_pairs:
+        error, basis = evidence.neighbour_conflict_cm, "neighbours"
+    else:
+        return PoseQuality(evidence, float("nan"), DOUBTFUL, "none")
+    verdict = UNUSABLE if error > thresholds.unusable_cm else DOUBTFUL if error > thresholds.doubtful_cm else GOOD
+    return PoseQuality(evidence, error, verdict, basis)
+
+
+def _zero_nan(value: float) -> float:
+    return value if np.isfinite(value) else 0.0

@@ -1,0 +1,103 @@
+"""The pose-quality figure against the true error: estimate each session's poses as `ndfa detect`
+does, and print (and append to a JSON-lines file) its no-truth evidence, estimated error and
+verdict beside its true ATE. docs/pose_quality.md has the table this gives and the commands.
+
+    python scripts/pose_quality_calibration.py REC.mcap [REC.mcap ...] --out calibration.jsonl
+        [--given-is-truth]    # score against the given poses when a recording has no true ones (7-Scenes)
+        [--frame-step 2]      # every 2nd frame, as `ndfa detect --frame-step 2`
+    python scripts/pose_quality_calibration.py --table calibration.jsonl   # the table and Spearman's rho
+
+A session already in the output file is not estimated again.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+from scipy.stats import spearmanr
+
+from ndfa.io.recording import RecordingReader
+from ndfa.trajectory.metrics import absolute_trajectory_error
+from ndfa.trajectory.quality import judge
+from ndfa.trajectory.session import choose_method, estimate_session_poses
+
+
+def measure(path: Path, given_is_truth: bool, frame_step: int) -> dict:
+    reader = RecordingReader(path)
+    truth: list[np.ndarray | None] = []
+
+    def keep_truth(frame) -> None:
+        true = frame.pose_world_camera_true
+        truth.append(true if true is not None else (frame.pose_world_camera if given_is_truth else None))
+
+    frames = reader.frames(step=frame_step)
+    session = estimate_session_poses(frames, choose_method(next(iter(reader.frames(stop=1)), None)), path,
+                                     on_frame=keep_truth)
+    row: dict = {"session": str(path), "frame_step": frame_step, "frames": len(session.poses)}
+    if all(pose is not None for pose in truth) and len(truth) >= 3:
+        ate = absolute_trajectory_error(session.poses, truth)
+        row["ate_cm"] = 100.0 * ate.rmse_m
+    assert session.evidence is not None
+    row["evidence"] = session.evidence.to_dict()
+    quality = judge(session.evidence)
+    row["estimated_error_cm"], row["verdict"] = quality.error_cm, quality.verdict
+    return row
+
+
+def table(rows: list[dict]) -> None:
+    rows = [row for row in rows if "ate_cm" in row]
+    rejudged = [judge_row(row) for row in rows]
+    print("| session | frames | true ATE (cm) | estimated error (cm) | verdict | revisit residual (cm) | revisit "
+          "violation | neighbour residual (cm) | unpinned | loops | graph moved (cm) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for row, (error, verdict) in sorted(zip(rows, rejudged, strict=True), key=lambda item: item[0]["ate_cm"]):
+        e = row["evidence"]
+        print(f"| {row['session']} | {row['frames']} | {row['ate_cm']:.1f} | {error:.1f} | {verdict} | "
+              f"{_f(e['revisit_residual_cm'])} | {_f(e['revisit_violation'], 3)} | {_f(e['neighbour_residual_cm'])} | "
+              f"{_f(e['unpinned_share'], 2)} | {e['loops']} | {_f(e['graph_moved_cm'])} |")
+    rho = spearmanr([row["ate_cm"] for row in rows], [error for error, _ in rejudged]).statistic
+    print(f"\n{len(rows)} sessions; Spearman rank correlation of the estimated error with the true ATE: {rho:.3f}")
+
+
+def judge_row(row: dict) -> tuple[float, str]:
+    from ndfa.trajectory.quality import PoseEvidence
+
+    evidence = PoseEvidence(**{key: (float("nan") if value is None else value) for key, value in row["evidence"].items()})
+    quality = judge(evidence)
+    return quality.error_cm, quality.verdict
+
+
+def _f(value: float | None, digits: int = 1) -> str:
+    return "-" if value is None else f"{value:.{digits}f}"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("recordings", nargs="*", type=Path)
+    parser.add_argument("--out", type=Path)
+    parser.add_argument("--table", type=Path, help="print the table of this JSON-lines file and stop")
+    parser.add_argument("--given-is-truth", action="store_true")
+    parser.add_argument("--frame-step", type=int, default=1)
+    args = parser.parse_args()
+    if args.table is not None:
+        table([json.loads(line) for line in args.table.read_text().splitlines() if line.strip()])
+        return
+    done = set()
+    if args.out is not None and args.out.exists():
+        done = {(json.loads(line)["session"], json.loads(line)["frame_step"])
+                for line in args.out.read_text().splitlines() if line.strip()}
+    for path in args.recordings:
+        if (str(path), args.frame_step) in done:
+            continue
+        row = measure(path, args.given_is_truth, args.frame_step)
+        print(json.dumps(row), flush=True)
+        if args.out is not None:
+            with args.out.open("a") as file:
+                file.write(json.dumps(row) + "\n")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,115 @@
+"""Pose quality without ground truth (`ndfa.trajectory.quality`) and what its verdict does to the
+reports (`ndfa.run.pose_verdict`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ndfa.core.events import CHANGE_SCORE, DecisionEvent
+from ndfa.core.geometry import axis_angle_to_matrix, make_pose
+from ndfa.run.pose_verdict import DOUBTFUL_SCORE_PULL, weigh_changes
+from ndfa.run.world import SessionWorld
+from ndfa.trajectory.consistency import make_sketch
+from ndfa.trajectory.quality import DOUBTFUL, GOOD, UNUSABLE, PoseEvidence, PoseQuality, gather_evidence, judge
+
+ROOM = (np.array([-2.0, -1.5, 0.0]), np.array([2.0, 1.5, 2.5]))  # an empty box room, metres
+K = np.array([[60.0, 0.0, 40.0], [0.0, 60.0, 30.0], [0.0, 0.0, 1.0]])  # 80 x 60 pixels
+
+
+def _room_depth(pose: np.ndarray) -> np.ndarray:
+    """Depth (z along the optical axis) of the box room seen from inside, by ray casting."""
+    rows, cols = np.mgrid[0:60, 0:80]
+    rays = np.stack([(cols - K[0, 2]) / K[0, 0], (rows - K[1, 2]) / K[1, 1], np.ones(cols.shape)], axis=-1)
+    directions = rays @ pose[:3, :3].T
+    origin = pose[:3, 3]
+    with np.errstate(divide="ignore"):
+        exits = np.where(directions > 0, (ROOM[1] - origin) / directions, (ROOM[0] - origin) / directions)
+    return exits.min(axis=-1)  # distance along the ray in units of z: the depth
+
+
+def _circling(frames: int = 48, turns: float = 2.0) -> list[np.ndarray]:
+    """A camera at 1.2 m walking a 0.4 m circle and looking outwards, level: every place twice."""
+    poses = []
+    level = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])  # optical axis x, image down -z
+    for k in range(frames):
+        angle = 2 * np.pi * turns * k / frames
+        rotation = axis_angle_to_matrix(np.array([0.0, 0.0, angle])) @ level
+        poses.append(make_pose(rotation, np.array([0.4 * np.cos(angle), 0.4 * np.sin(angle), 1.2])))
+    return poses
+
+
+def _evidence(true_poses: list[np.ndarray], estimate: list[np.ndarray]) -> PoseEvidence:
+    sketches = {k: make_sketch(_room_depth(pose).astype(np.float32), K) for k, pose in enumerate(true_poses)}
+    return gather_evidence(estimate, sketches, object(), list(range(len(estimate))))
+
+
+def test_right_poses_are_good_and_drifting_ones_unusable():
+    truth = _circling()
+    right = _evidence(truth, truth)
+    assert right.revisit_pairs >= 10 and right.revisit_violation < 0.01
+    verdict = judge(right)
+    assert verdict.verdict == GOOD and verdict.error_cm < 1.0 and verdict.basis == "revisits"
+    # Odometry that turns 0.4 deg and slides 1 cm too far each frame: 19 deg and 47 cm at the end.
+    step = make_pose(axis_angle_to_matrix(np.radians([0.0, 0.0, 0.4])), np.array([0.01, 0.0, 0.0]))
+    drifting = [np.linalg.matrix_power(step, k) @ pose for k, pose in enumerate(truth)]
+    wrong = judge(_evidence(truth, drifting))
+    assert wrong.verdict == UNUSABLE and wrong.error_cm > 10.0 * max(verdict.error_cm, 0.5)
+    assert wrong.evidence.revisit_violation > 0.05
+    assert "UNUSABLE" in wrong.describe() and wrong.to_dict()["verdict"] == UNUSABLE
+
+
+def test_without_overlapping_frames_nothing_vouches_for_the_poses():
+    truth = _circling(frames=2, turns=0.5)   # two frames looking in opposite directions
+    quality = judge(_evidence(truth, truth))
+    assert quality.verdict == DOUBTFUL and quality.basis == "none" and not np.isfinite(quality.error_cm)
+
+
+def _change(kind: str, score: float, object_id: int = 1) -> DecisionEvent:
+    return DecisionEvent(frame_index=3, session="target", object_id=object_id, kind=kind, reason="test",
+                         center_world=np.zeros(3), center_source=np.zeros(3), score=score)
+
+
+def _world(session: str, verdict: str | None) -> SessionWorld:
+    world = SessionWorld(session, pose_source="estimated", up_source="z")
+    if verdict is not None:
+        evidence = judge(_evidence(_circling(), _circling())).evidence
+        world.pose_quality = PoseQuality(evidence, 1.0, verdict, "revisits")
+    return world
+
+
+@pytest.mark.parametrize("verdict", [GOOD, DOUBTFUL, UNUSABLE])
+def test_the_worst_verdict_weighs_the_changes(verdict):
+    changes = [_change("added", 0.9), _change("moved", 0.6, object_id=2)]
+    weighed = weigh_changes(changes, {"source": _world("source", GOOD), "target": _world("target", verdict)})
+    assert weighed.verdict == verdict
+    if verdict == GOOD:
+        assert weighed.confident == changes and not weighed.withheld and not weighed.notes
+    elif verdict == DOUBTFUL:
+        scores = [c.score for c in weighed.confident]
+        assert scores == pytest.approx([CHANGE_SCORE + (1 - DOUBTFUL_SCORE_PULL) * (s - CHANGE_SCORE) for s in (0.9, 0.6)])
+        assert all(CHANGE_SCORE <= s < original for s, original in zip(scores, (0.9, 0.6), strict=True))
+        assert "doubtful" in weighed.notes[0] and not weighed.withheld
+    else:
+        assert weighed.confident == [] and weighed.withheld == changes
+        assert "target" in weighed.reason and "2 change(s) withheld" in weighed.notes[0]
+
+
+def test_given_poses_are_not_judged():
+    changes = [_change("added", 0.9)]
+    weighed = weigh_changes(changes, {"source": _world("source", None), "target": _world("target", None)})
+    assert weighed.verdict == GOOD and weighed.confident == changes
+
+
+def test_the_json_summary_carries_the_verdict_and_the_withheld_changes():
+    from ndfa.run.detect import DetectionResult
+
+    worlds = {"source": _world("source", GOOD), "target": _world("target", UNUSABLE)}
+    weighed = weigh_changes([_change("added", 0.9)], worlds)
+    result = DetectionResult(changes=weighed.confident, frames={"source": 1, "target": 1}, objects={"source": 0, "target": 0},
+                             seconds={}, stage_ms={}, notes=weighed.notes, worlds=worlds, weighed=weighed)
+    summary = result.summary()
+    assert summary["pose_verdict"] == UNUSABLE and summary["changes"] == []
+    assert [c["kind"] for c in summary["withheld_changes"]] == ["added"] and "unusable" in summary["withheld_changes"][0]["reason"]
+    assert summary["world"]["target"]["pose_quality"]["verdict"] == UNUSABLE
+    assert set(summary["world"]["target"]["pose_quality"]["figures"]) >= {"revisit_conflict_cm", "revisit_violation"}
