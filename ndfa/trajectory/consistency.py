@@ -48,6 +48,7 @@ class ConsistencyConfig:
         after at least this much travel).
     max_pairs: at most this many pairs of each kind are checked, spread evenly over the candidates.
     min_overlap: a pair counts when at least this fraction of i's points lands on j's valid depth.
+        (consecutive frames below it are "unlinked" in `ndfa.trajectory.quality`).
     """
 
     tau_m: float = 0.10
@@ -154,6 +155,11 @@ def neighbour_pairs(poses: np.ndarray, config: ConsistencyConfig) -> list[tuple[
     ends = np.searchsorted(travelled, travelled + config.neighbour_travel_m, side="left")
     pairs = [(i, int(j)) for i, j in enumerate(ends) if j < len(poses)]
     return _spread(pairs, config.max_pairs)
+
+
+def step_pairs(count: int) -> list[tuple[int, int]]:
+    """Every pair of consecutive frames: a jump of the estimate between two frames shows there."""
+    return [(k, k + 1) for k in range(count - 1)]
 
 
 def check_pairs(sketches: list[DepthSketch], poses: np.ndarray, pairs: list[tuple[int, int]],

@@ -31,6 +31,7 @@ from ndfa.io.recording.writer import _WRITER_META_KEYS
 from ndfa.trajectory.checks import InputWarning
 from ndfa.trajectory.kiss import OdometryConfig
 from ndfa.trajectory.metrics import AbsoluteError, RelativeError, absolute_trajectory_error, relative_pose_error
+from ndfa.trajectory.quality import PoseQuality, judge
 from ndfa.trajectory.rgbd import RgbdOdometry, RgbdOdometryConfig
 from ndfa.trajectory.session import UNTRACKED_POSES, choose_method, estimate_session_poses
 
@@ -60,6 +61,7 @@ class PoseReport:
     degenerate_frames: indices of the frames whose depth alone was ambiguous (rgbd).
     keyframes, loop_closures: the rgbd odometry's keyframes and accepted loop edges.
     timestamps (N,) seconds and estimate (N, 4, 4): the estimated trajectory.
+    quality: the estimate judged without ground truth (`ndfa.trajectory.quality`).
     """
 
     recording_in: Path
@@ -79,6 +81,7 @@ class PoseReport:
     rpe: list[RelativeError] = field(default_factory=list)
     timestamps: np.ndarray = field(default_factory=lambda: np.zeros(0))
     estimate: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)))
+    quality: PoseQuality | None = None
 
     def rows(self) -> list[tuple[str, str]]:
         """(figure, value) pairs for a terminal table: errors, time and what the odometry did."""
@@ -97,6 +100,8 @@ class PoseReport:
             rows += [("terms used", ", ".join(f"{term} {n}" for term, n in terms)),
                      ("degenerate depth frames", str(len(self.degenerate_frames))),
                      ("keyframes, loop closures", f"{self.keyframes}, {self.loop_closures}")]
+        if self.quality is not None:
+            rows.append(("pose quality (without truth)", self.quality.describe().removeprefix("pose quality ")))
         return rows
 
 
@@ -149,7 +154,8 @@ def rewrite_poses(recording_in: str | Path, recording_out: str | Path, method: s
     report = PoseReport(recording_in, recording_out, method, used_config, frames=len(session.poses),
                         truth=" and ".join(sorted(truth_kinds)) or "none", ms_per_frame=odometry.ms_per_frame,
                         starved_frames=odometry.starved_frames, refinements_rejected=0,
-                        timestamps=np.array(session.timestamps), estimate=np.array(session.poses).reshape(-1, 4, 4))
+                        timestamps=np.array(session.timestamps), estimate=np.array(session.poses).reshape(-1, 4, 4),
+                        quality=None if session.evidence is None else judge(session.evidence))
     if isinstance(odometry, RgbdOdometry):
         report.refinements_rejected, report.terms = odometry.rejected_frames, list(odometry.terms)
         report.degenerate_frames, report.keyframes = odometry.degenerate_frames, len(odometry.keyframes)
