@@ -116,14 +116,16 @@ def test_given_poses_are_not_judged():
 
 
 def test_the_json_summary_carries_the_verdict_and_the_withheld_changes():
-    from ndfa.run.detect import DetectionResult
+    from ndfa.run.pair import PairResult
 
     worlds = {"source": _world("source", GOOD), "target": _world("target", UNUSABLE)}
-    weighed = weigh_changes([_change("added", 0.9)], worlds)
-    result = DetectionResult(changes=weighed.confident, frames={"source": 1, "target": 1}, objects={"source": 0, "target": 0},
-                             seconds={}, stage_ms={}, notes=weighed.notes, worlds=worlds, weighed=weighed)
-    summary = result.summary()
-    assert summary["pose_verdict"] == UNUSABLE and summary["changes"] == []
+    pair = PairResult(0, "source", "target", detector=None, decisions=[_change("added", 0.9)])  # type: ignore[arg-type]
+    assert [c.kind for c in pair.changes] == ["added"]   # before the verdict: as the detector decided
+    pair.weigh(worlds)
+    summary = pair.as_dict()
+    assert summary["pose_verdict"] == UNUSABLE and summary["changes"] == [] and pair.reported == []
     assert [c["kind"] for c in summary["withheld_changes"]] == ["added"] and "unusable" in summary["withheld_changes"][0]["reason"]
-    assert summary["world"]["target"]["pose_quality"]["verdict"] == UNUSABLE
-    assert set(summary["world"]["target"]["pose_quality"]["figures"]) >= {"revisit_conflict_cm", "revisit_violation"}
+    assert "withheld" in summary["notes"][0]
+    world = worlds["target"].as_dict()
+    assert world["pose_quality"]["verdict"] == UNUSABLE
+    assert set(world["pose_quality"]["figures"]) >= {"revisit_conflict_cm", "revisit_violation", "jumps"}

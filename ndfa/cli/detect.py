@@ -142,9 +142,12 @@ def detect_command(
     with progress_bar() as progress:
         result = score_detection(run_detection(
             source, target, config, sinks, options, on_frame=bar_per_label(progress), pipeline=pipeline,
-            on_world=lambda world: err_console.print(f"world {world.describe()}", highlight=False),
+            on_world=say_world,
             on_alignment=lambda a: err_console.print(f"registration prior: {a.describe()}", highlight=False)))
     err_console.print(result.describe_registration(), highlight=False)
+    weighed = result.pair.weighed
+    if weighed is not None and weighed.verdict != "good":
+        _loud(weighed.notes[0])
     for warning in empty_result_warnings(result):
         err_console.print(f"[yellow]warning:[/yellow] {warning}", highlight=False, soft_wrap=True)
 
@@ -193,7 +196,7 @@ def _detect_sessions(recordings: list[Path], config, pipeline, runtime: str, log
     with progress_bar() as progress:
         result = score_sessions(run_sessions(
             recordings, config, sinks, options, on_frame=bar_per_label(progress), pipeline=pipeline,
-            on_world=lambda world: err_console.print(f"world {world.describe()}", highlight=False),
+            on_world=say_world,
             on_alignment=lambda pair, a: err_console.print(f"pair {pair}: registration prior: {a.describe()}",
                                                            highlight=False)))
     for name, path in zip(result.names, result.paths):
@@ -231,6 +234,21 @@ def _detect_sessions(recordings: list[Path], config, pipeline, runtime: str, log
     for path in (log, tables, json_out):
         if path is not None:
             console.print(f"wrote {path}")
+
+
+def say_world(world) -> None:  # noqa: ANN001 (SessionWorld: imported lazily)
+    """stderr: which poses and up a session runs on; first and loud when its estimated poses are not good."""
+    quality = world.pose_quality
+    if quality is not None and not quality.good:
+        consequence = ("its changes will be withheld" if quality.verdict == "unusable"
+                       else "its changes will be reported with lowered scores")
+        _loud(f"{world.session}: estimated poses {quality.verdict.upper()}: {quality.describe()}; {consequence} "
+              "(docs/pose_quality.md)")
+    err_console.print(f"world {world.describe()}", highlight=False)
+
+
+def _loud(line: str) -> None:
+    err_console.print(f"[bold red]WARNING:[/bold red] {line}", highlight=False, soft_wrap=True)
 
 
 def history_table(result) -> Table:  # noqa: ANN001 (SessionsResult: imported lazily)

@@ -112,6 +112,8 @@ class DetectionResult:
             "world": {session: world.as_dict() for session, world in self.worlds.items()},
             "registration": self.registration,
             "scene_alignment": None if self.alignment is None else self.alignment.as_dict(),
+            "pose_verdict": self.pair.as_dict()["pose_verdict"],
+            "withheld_changes": self.pair.as_dict()["withheld_changes"],
         }
         return out
 

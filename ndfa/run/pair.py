@@ -12,6 +12,7 @@ from ndfa.change.detector import ChangeDetector, reported_changes
 from ndfa.core.events import DecisionEvent, Event, GraphEvent, RegistrationEvent
 from ndfa.core.geometry import transform_points
 from ndfa.run.align import RegistrationMode, SceneAlignment
+from ndfa.run.pose_verdict import WeighedChanges, weigh_changes
 from ndfa.run.stream import change_summary, registration_summary
 
 
@@ -31,6 +32,7 @@ class PairResult:
     registration_event: RegistrationEvent | None = None  # the last accepted: the T_rel of the last decisions
     notes: list[str] = field(default_factory=list)
     score: object | None = None
+    weighed: WeighedChanges | None = None  # after the passes: the changes weighed by the sessions' pose verdicts
 
     @property
     def label(self) -> str:
@@ -43,8 +45,16 @@ class PairResult:
 
     @property
     def reported(self) -> list[DecisionEvent]:
-        """The changes to report, as the detector made them (sessions "source"/"target", its worlds)."""
-        return reported_changes(self.decisions)
+        """The changes to report, as the detector made them (sessions "source"/"target", its worlds),
+        less those the pose verdict withheld (`weigh`)."""
+        return self.weighed.confident if self.weighed is not None else reported_changes(self.decisions)
+
+    def weigh(self, worlds: dict) -> None:
+        """After the passes: the changes weighed by the worse pose verdict of the pair's two sessions
+        (`ndfa.run.pose_verdict`: withheld when unusable, scores lowered when doubtful), with a note."""
+        self.weighed = weigh_changes(reported_changes(self.decisions),
+                                     {"source": worlds[self.source], "target": worlds[self.target]})
+        self.notes.extend(self.weighed.notes)
 
     @property
     def changes(self) -> list[DecisionEvent]:
@@ -106,7 +116,11 @@ class PairResult:
     def as_dict(self) -> dict:
         out = {"pair": self.label, "source": self.source, "target": self.target,
                "changes": [change_summary(c) for c in self.changes], "registration": self.registration,
-               "scene_alignment": None if self.alignment is None else self.alignment.as_dict(), "notes": self.notes}
+               "scene_alignment": None if self.alignment is None else self.alignment.as_dict(), "notes": self.notes,
+               "pose_verdict": "good" if self.weighed is None else self.weighed.verdict,
+               "withheld_changes": [] if self.weighed is None else
+               [change_summary(self.to_first(named(c, self.source if c.session == "source" else self.target)))
+                | {"reason": self.weighed.reason} for c in self.weighed.withheld]}
         if self.score is not None:
             out["score"] = self.score.as_dict()  # type: ignore[attr-defined]
         return out

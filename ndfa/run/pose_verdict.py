@@ -19,7 +19,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ndfa.core.events import CHANGE_SCORE, DecisionEvent
+from ndfa.core.events import CHANGE_SCORE, DecisionEvent, PoseQualityEvent
 from ndfa.run.world import SessionWorld
 from ndfa.trajectory.quality import DOUBTFUL, GOOD, UNUSABLE, VERDICTS
 
@@ -72,3 +72,11 @@ def _lowered(change: DecisionEvent) -> DecisionEvent:
     return replace(change, score=CHANGE_SCORE + (1.0 - DOUBTFUL_SCORE_PULL) * (change.score - CHANGE_SCORE))
 
 
+
+
+def pose_quality_event(world: SessionWorld) -> PoseQualityEvent:
+    """The sinks' event of a session's judged poses."""
+    quality = world.pose_quality
+    assert quality is not None
+    return PoseQualityEvent(session=world.session, verdict=quality.verdict, error_cm=quality.error_cm,
+                            text=quality.describe(), figures=quality.evidence.to_dict())

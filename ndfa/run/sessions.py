@@ -39,6 +39,7 @@ from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
 from ndfa.run.align import SceneAlignment, registration_prior
 from ndfa.run.history import LinkConfig, SessionObjects, compose_placements, link_history
 from ndfa.run.pair import PairResult, named
+from ndfa.run.pose_verdict import pose_quality_event
 from ndfa.run.stream import (
     RunOptions,
     SessionCounts,
@@ -172,6 +173,8 @@ def session_pass(
         worlds[name] = prepare_session(reader, name, up=options.up, poses=options.poses)
         if on_world is not None:
             on_world(worlds[name])
+        if worlds[name].pose_quality is not None:
+            emit(pose_quality_event(worlds[name]), sinks)
     pipeline = pipeline or ChangeDetectionPipeline(config)
     # Without sinks nobody sees the reconstructions: they are decoded only as far as decisions need.
     full = bool(sinks) if full_reconstruction is None else full_reconstruction
@@ -259,6 +262,7 @@ def session_pass(
                              "the sessions after it have no positions in the first session's world")
     for pair in pairs:
         pair.note_registration(registration)
+        pair.weigh(worlds)
     return SessionsResult(names=names, paths=paths, readers=readers, frames=frames, seconds=seconds,
                           stage_totals=stage_totals, worlds=worlds, placements=placements, pairs=pairs, maps=maps,
                           visible=visible, history=history, run_notes=notes)
