@@ -50,15 +50,15 @@ def measure(path: Path, given_is_truth: bool, frame_step: int) -> dict:
 def table(rows: list[dict]) -> None:
     rows = [row for row in rows if "ate_cm" in row]
     rejudged = [judge_row(row) for row in rows]
-    print("| session | frames | true ATE (cm) | estimated error (cm) | verdict | revisit residual (cm) | revisit "
-          "violation | neighbour residual (cm) | unpinned | loops | graph moved (cm) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| session | frames | true ATE (cm) | estimated error (cm) | verdict | revisit pairs | revisit conflict (cm) | "
+          "neighbour conflict (cm) | step conflict max (cm) | jumps |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for row, (error, verdict) in sorted(zip(rows, rejudged, strict=True), key=lambda item: item[0]["ate_cm"]):
         e = row["evidence"]
-        print(f"| {row['session']} | {row['frames']} | {row['ate_cm']:.1f} | {error:.1f} | {verdict} | "
-              f"{_f(e['revisit_residual_cm'])} | {_f(e['revisit_violation'], 3)} | {_f(e['neighbour_residual_cm'])} | "
-              f"{_f(e['unpinned_share'], 2)} | {e['loops']} | {_f(e['graph_moved_cm'])} |")
-    rho = spearmanr([row["ate_cm"] for row in rows], [error for error, _ in rejudged]).statistic
+        print(f"| {row['session']} | {row['frames']} | {row['ate_cm']:.1f} | {error:.1f} | {verdict} | {e['revisit_pairs']} | "
+              f"{_f(e['revisit_conflict_cm'])} | {_f(e['neighbour_conflict_cm'])} | {_f(e['step_conflict_cm'])} | "
+              f"{e['jumps']} |")
+    rho = spearmanr([row["ate_cm"] for row in rows], [error if np.isfinite(error) else np.inf for error, _ in rejudged]).statistic
     print(f"\n{len(rows)} sessions; Spearman rank correlation of the estimated error with the true ATE: {rho:.3f}")
 
 

@@ -31,6 +31,7 @@ import numpy as np
 
 from ndfa.core.conventions import depth_in_range
 from ndfa.core.frame import Frame
+from ndfa.core.geometry import backproject
 
 SKETCH_WIDTH = 160
 
@@ -88,7 +89,7 @@ def make_sketch(depth: np.ndarray, K: np.ndarray) -> DepthSketch:
     depth = np.where(depth_in_range(depth), depth, np.nan).astype(np.float32)
     rows, cols = np.nonzero(np.isfinite(depth))
     z = depth[rows, cols]
-    points = np.stack([(cols - K[0, 2]) / K[0, 0] * z, (rows - K[1, 2]) / K[1, 1] * z, z], axis=1).astype(np.float32)
+    points = backproject(K, rows, cols, z).astype(np.float32)
     return DepthSketch(depth=depth, K=K, points=points)
 
 
