@@ -104,8 +104,9 @@ class ChangeDetector:
                 events += self._test(object_id, self._last_frame, final=True)
         removed = [i for i in sorted(self.observers) if i not in self.matched
                    and self.source.objects[i].n_measurements >= self.config.waiting.min_measurements]
+        move_similarity = self.config.evidence.move_similarity
         moved_from = moves(sorted(self.changed), removed, self.target, self.source,
-                           self.config.association.shape_similarity)
+                           self.config.association.shape_similarity if move_similarity is None else move_similarity)
         for target_id, source_id in moved_from.items():
             before = self.changed[target_id]
             events.append(DecisionEvent(
@@ -229,14 +230,15 @@ def reported_changes(decisions: list[DecisionEvent]) -> list[DecisionEvent]:
 
 def moves(changed_ids: list[int], removed: list[int], target: SessionMap, source: SessionMap,
           shape_similarity: float) -> dict[int, int]:
-    """Changed target object -> the removed source object it moved from: the most shape-similar
-    one above delta_s that no earlier changed object took."""
+    """Changed target object -> the removed source object it moved from, pairs above
+    `shape_similarity` (`EvidenceConfig.move_similarity`) taken most similar first, each object
+    once: a changed object with a poorer match must not take a removed object from its better one."""
+    options = sorted(((float(cosine_similarity(target.objects[t].shape_code, source.objects[s].shape_code)), t, s)
+                      for t in changed_ids for s in removed), key=lambda o: (-o[0], o[1], o[2]))
     moved_from: dict[int, int] = {}
-    for target_id in changed_ids:
-        code = target.objects[target_id].shape_code
-        options = [(float(cosine_similarity(code, source.objects[s].shape_code)), s)
-                   for s in removed if s not in moved_from.values()]
-        options = [o for o in options if o[0] > shape_similarity]
-        if options:
-            moved_from[target_id] = max(options)[1]
-    return moved_from
+    for similarity, target_id, source_id in options:
+        if similarity <= shape_similarity:
+            break
+        if target_id not in moved_from and source_id not in moved_from.values():
+            moved_from[target_id] = source_id
+    return dict(sorted(moved_from.items()))

@@ -12,11 +12,14 @@ are scored at every attempt by the same pairs (`ndfa.change.register.verify_prio
 there are N of them: with few objects (two mugs on a table) RANSAC never gets its N, but a prior
 that two pairs agree with is a T_rel. Each candidate must pass its own bar (RANSAC `RansacConfig.min_inliers`,
 a prior `PriorConfig.min_inliers`, and a RANSAC fit must agree with a prior where there is one); the one
-with most inliers wins, RANSAC's on a tie.
+with most inliers wins, RANSAC's on a tie. A standalone prior (a scene alignment whose own
+evidence is strong, `RegistrationPrior.standalone`) passes with fewer pairs, as "scene (own
+evidence)": the objects are then tested against it, and pairs that confirm it later replace it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Iterable
 
 import numpy as np
@@ -128,7 +131,10 @@ class Registrar:
         for prior in self.priors:
             check = verify_prior(prior, pairs, target_centers, source_centers, self.config.inlier_m,
                                  support_m=self.prior_config.support_m)
-            verified.append((prior, check, len(check.inliers) >= self.prior_config.min_inliers))
+            confirmed = len(check.inliers) >= self.prior_config.min_inliers
+            if not confirmed and prior.standalone:  # too few pairs: it stands on the scene's own evidence
+                check = dataclasses.replace(check, method="scene (own evidence)", evidence=prior.evidence)
+            verified.append((prior, check, confirmed or prior.standalone))
         # A binding prior vetoes RANSAC's fits only while the objects support it: one they do not
         # (a confident but wrong scene alignment) must not stop a registration they do support.
         vetoes = [prior for prior, _, supported in verified if prior.binding and supported]
@@ -158,6 +164,7 @@ class Registrar:
         return RegistrationEvent(
             frame_index=frame_index, accepted=accepted, n_pairs=len(pairs), n_hypotheses=result.n_hypotheses,
             transform=result.transform, inlier_pairs=inlier_pairs, residual_m=result.residual_m, method=result.method,
+            evidence=result.evidence,
             target_centers=np.array([target.objects[t].center_world for t, _ in inlier_pairs]).reshape(-1, 3),
             source_centers=np.array([source.objects[s].center_world for _, s in inlier_pairs]).reshape(-1, 3))
 

@@ -167,6 +167,9 @@ def detect_command(
     if result.score is not None:
         s = result.score
         console.print(f"ground truth: TP {s.tp}  FP {s.fp}  FN {s.fn}  precision {s.precision:.2f}  recall {s.recall:.2f}")
+        if s.kinds:
+            console.print("kinds right (reports on scored mugs): " + ", ".join(
+                f"{kind} {right}/{n}" for kind, (n, right) in sorted(s.kinds.items())), highlight=False)
     for note in result.notes:
         console.print(f"note: {note}")
     if json_out is not None:

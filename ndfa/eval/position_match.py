@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ndfa.core.geometry import invert_pose, kabsch
-from ndfa.eval.scoring import Score, score
+from ndfa.eval.scoring import KindReport, Score, score
 
 # About a mug's footprint radius (handle included): a report counts as an item when its center lies
 # on the item's footprint, with room for the center's error (the mean of the points seen, a few cm
@@ -155,12 +155,18 @@ def match_object(reported: ReportedObject, ground_truth: dict, pose_true_run: np
 
 def score_by_position(reports: Sequence[Sequence[ReportedObject]], ground_truth: dict,
                       pose_true_run: Mapping[str, np.ndarray], alignment_rmse_m: Mapping[str, float] | None = None,
-                      radius_m: float = MATCH_RADIUS_M) -> tuple[PositionScore, list[Match]]:
+                      radius_m: float = MATCH_RADIUS_M, kinds: Sequence[str] = ()) -> tuple[PositionScore, list[Match]]:
     """Score reports (each: the objects it names) by the items at their centers; `pose_true_run`
     maps each session's run world to the true world (`align_worlds`). Mugs are scored by
     `ndfa.eval.scoring.score` with the ground truth's visibility; every distinct clutter item
-    reported and every reported object matched to nothing add one FP."""
-    matches = [match_object(o, ground_truth, pose_true_run[o.session], radius_m) for report in reports for o in report]
+    reported and every reported object matched to nothing add one FP. `kinds`: each report's
+    kind, for the per-kind score (a report whose first object is no mug has none)."""
+    per_report = [[match_object(o, ground_truth, pose_true_run[o.session], radius_m) for o in report]
+                  for report in reports]
+    matches = [m for report in per_report for m in report]
+    said = [KindReport(kind, report[0].instance_id, report[1].instance_id if len(report) > 1 else None)
+            for kind, report in zip(kinds, per_report)
+            if report and report[0].kind == "mug" and report[0].instance_id is not None]
     mug_ids = [m.instance_id for m in matches if m.kind == "mug" and m.instance_id is not None]
     clutter = tuple(sorted({m.instance_id for m in matches if m.kind.startswith("clutter") and m.instance_id is not None}))
     # Object level, as for mugs: an object named by two reports is one FP.
@@ -169,13 +175,14 @@ def score_by_position(reports: Sequence[Sequence[ReportedObject]], ground_truth:
     visible = {s: {int(i) for i in ids} for s, ids in listed.items()} if isinstance(listed, dict) else None
     if visible is not None and not {"source", "target"} <= visible.keys():
         visible = None  # one session's list is no list: scoring the other's mugs as invisible would be wrong
-    mugs = score(mug_ids, ground_truth, visible)
+    mugs = score(mug_ids, ground_truth, visible, kinds=said)
     # Unmatched objects have no id: negative ones of their own, so that each is one FP.
     extra = clutter + tuple(-(k + 1) for k in range(len(unmatched)))
     result = PositionScore(
         mugs.tp, mugs.fp + len(extra), mugs.fn, mugs.true_positive_ids, mugs.false_positive_ids + extra,
         mugs.false_negative_ids, mugs.unscored_ids, clutter_ids=clutter, unmatched=unmatched,
-        alignment_rmse_m=dict(alignment_rmse_m or {}), visibility_known=visible is not None, radius_m=radius_m)
+        kinds=mugs.kinds, alignment_rmse_m=dict(alignment_rmse_m or {}), visibility_known=visible is not None,
+        radius_m=radius_m)
     return result, matches
 
 

@@ -62,6 +62,6 @@ def score_segmented_run(changes: list[DecisionEvent], detector: ChangeDetector,
         listed = (reader.ground_truth or {}).get("visible")
         visible |= listed if isinstance(listed, dict) else {}
     truth["visible"] = visible or None
-    result, _ = score_by_position(reports, truth, pose_true_run, rmse)
+    result, _ = score_by_position(reports, truth, pose_true_run, rmse, kinds=[c.kind for c in changes])
     notes.append(result.describe())
     return result

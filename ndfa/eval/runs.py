@@ -14,7 +14,7 @@ from __future__ import annotations
 from ndfa.core.events import CHANGE_SCORE
 from ndfa.eval.history import score_history
 from ndfa.eval.position_score import score_segmented_run
-from ndfa.eval.scoring import Score, rotated_reports, score
+from ndfa.eval.scoring import Score, kind_reports, rotated_reports, score
 from ndfa.run.detect import DetectionResult
 from ndfa.run.replay import ReplayResult, reported_at
 from ndfa.run.sessions import SessionsResult
@@ -33,7 +33,7 @@ def score_pair(run: SessionsResult, index: int) -> object | None:
     if source.has_instances and target.has_instances:
         visible = {"source": run.visible[pair.source], "target": run.visible[pair.target]}
         pair.score = score([i for c in reported for i in c.reported_instances], truth, visible,
-                           rotated_reports(reported))
+                           rotated_reports(reported), kind_reports(reported))
     else:
         pair.score = score_segmented_run(reported, pair.detector, {"source": source, "target": target},
                                          {"source": run.worlds[pair.source], "target": run.worlds[pair.target]},
@@ -67,5 +67,6 @@ def score_replay(result: ReplayResult, threshold: float = CHANGE_SCORE) -> Score
         return None
     if threshold == CHANGE_SCORE:
         reported = [i for c in result.changes for i in c.reported_instances]
-        return score(reported, result.truth, result.visible, rotated_reports(result.changes))
+        return score(reported, result.truth, result.visible, rotated_reports(result.changes),
+                     kind_reports(result.changes))
     return score(reported_at(result.decisions, threshold), result.truth, result.visible)

@@ -11,7 +11,11 @@ mug in both sessions). A ground-truth change is a mug that was added, removed, m
     FP  unchanged mugs with at least one report (object level: two reports of one mug are one FP)
 
 The kind of a report does not enter TP/FP/FN (a switched mug reported as "added" is found, as in
-the paper). For the rotated mugs the score also says how many were reported as "rotated"
+the paper); it is scored on its own, per kind (`Score.kinds`): a report is of the right kind when
+its mug's true change is one the kind describes (`RIGHT_KIND`: "added" a mug that appeared at the
+place: added, moved or switched; "removed" one that left it; "rotated" one turned in place), and a
+"moved" report also needs the same mug at both ends (its source object's mug is its target
+object's): a removed mug and a different mug added elsewhere are not a move. For the rotated mugs the score also says how many were reported as "rotated"
 (`Score.rotated_found_ids` of `rotated_ids`): a turned mug reported as moved or added is a TP
 but not found as turned; one reported as unchanged (no report) is an FN and not found either.
 
@@ -26,9 +30,28 @@ looked cannot be missed. The others are listed as unscored, not dropped silently
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from ndfa.io.recording.ground_truth import changed_instances
+
+# The true changes a report of each kind describes rightly (a "moved" report also needs one mug at both ends).
+RIGHT_KIND = {"added": ("added", "moved", "switched"), "removed": ("removed", "moved", "switched"),
+              "moved": ("moved", "switched"), "rotated": ("rotated",)}
+
+
+@dataclass(frozen=True)
+class KindReport:
+    """What a report says, for the per-kind score: its kind, its mug, and a move's source-side mug."""
+
+    kind: str
+    instance_id: int
+    partner_id: int | None = None  # "moved": the mug of its source object (None: unknown)
+
+    def right(self, truth: dict[int, str]) -> bool:
+        """Whether the kind is right for the mug's true change (`RIGHT_KIND`)."""
+        if truth.get(self.instance_id, "unchanged") not in RIGHT_KIND.get(self.kind, ()):
+            return False
+        return self.kind != "moved" or self.partner_id == self.instance_id
 
 
 @dataclass(frozen=True)
@@ -42,6 +65,14 @@ class Score:
     unscored_ids: tuple[int, ...] = ()  # mugs not visible in a session they would need to be
     rotated_ids: tuple[int, ...] = ()        # scored mugs the ground truth turned in place
     rotated_found_ids: tuple[int, ...] = ()  # those of them with a "rotated" report
+    # kind -> (reports of it on scored mugs, of the right kind): `KindReport.right`. Not part of a
+    # score's equality: scores of one run at several thresholds (`ndfa.run.replay`) have no kinds.
+    kinds: dict[str, tuple[int, int]] = field(default_factory=dict, compare=False)
+
+    def kind_precision(self, kind: str) -> float:
+        """The share of the reports of `kind` whose kind is right (1.0 when there are none)."""
+        reports, right = self.kinds.get(kind, (0, 0))
+        return right / reports if reports else 1.0
 
     @property
     def precision(self) -> float:
@@ -62,6 +93,9 @@ class Score:
         if self.rotated_ids:  # only for scenes with turned mugs: the others' summaries stay as they were
             out["rotated"] = {"mugs": list(self.rotated_ids), "found_as_rotated": list(self.rotated_found_ids),
                               "recall": self.rotated_recall}
+        if self.kinds:
+            out["kinds"] = {kind: {"reports": n, "right": right, "precision": self.kind_precision(kind)}
+                            for kind, (n, right) in sorted(self.kinds.items())}
         return out
 
 
@@ -78,11 +112,12 @@ def scorable_instances(ground_truth: dict, visible: dict[str, set[int]]) -> set[
 
 
 def score(reported_instances: list[int], ground_truth: dict, visible: dict[str, set[int]] | None = None,
-          rotated_instances: Sequence[int] = ()) -> Score:
+          rotated_instances: Sequence[int] = (), kinds: Sequence[KindReport] = ()) -> Score:
     """Score the instance ids of the reported changes (one per report, repeats allowed).
 
     `visible`: per session, the instances visible in it; None scores every mug of the ground truth.
     `rotated_instances`: the instance ids of the "rotated" reports among them (`rotated_reports`).
+    `kinds`: what each report says (`kind_reports`), for the per-kind score of the scored mugs.
     """
     truth = changed_instances(ground_truth)
     everything = {int(o["instance_id"]) for o in ground_truth.get("objects", [])} | set(reported_instances)
@@ -94,8 +129,19 @@ def score(reported_instances: list[int], ground_truth: dict, visible: dict[str, 
     fn = sorted(truth.keys() - reported)
     turned = sorted(i for i, kind in truth.items() if kind == "rotated")
     found = sorted(set(turned) & set(rotated_instances))
+    per_kind: dict[str, tuple[int, int]] = {}
+    for report in kinds:
+        if report.instance_id in scored:
+            n, right = per_kind.get(report.kind, (0, 0))
+            per_kind[report.kind] = (n + 1, right + int(report.right(truth)))
     return Score(len(tp), len(fp), len(fn), tuple(tp), tuple(fp), tuple(fn), tuple(sorted(everything - scored)),
-                 tuple(turned), tuple(found))
+                 tuple(turned), tuple(found), per_kind)
+
+
+def kind_reports(changes: list) -> list[KindReport]:
+    """What each reported change (`DecisionEvent`) says, by the mask ids of its objects."""
+    return [KindReport(c.kind, c.instance_ids[0], c.partner_instance_ids[0] if c.partner_instance_ids else None)
+            for c in changes if c.instance_ids]
 
 
 def rotated_reports(changes: list) -> list[int]:

@@ -249,7 +249,8 @@ class RerunSink:
                                                                  colors=(255, 255, 0)))
         self.rec.log("registration/log", rr.TextLog(
             f"frame {e.frame_index}: {e.method} {'accepted' if e.accepted else 'rejected'}, {len(e.inlier_pairs)} inliers of "
-            f"{e.n_pairs} shape pairs, residual {e.residual_m * 1e3:.1f} mm", level="INFO" if e.accepted else "DEBUG"))
+            f"{e.n_pairs} shape pairs, residual {e.residual_m * 1e3:.1f} mm" + (f"; {e.evidence}" if e.evidence else ""),
+            level="INFO" if e.accepted else "DEBUG"))
 
     def _GraphEvent(self, e: GraphEvent) -> None:
         entity = f"graphs/{e.target_id}"

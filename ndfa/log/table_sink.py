@@ -117,7 +117,7 @@ class TableSink:
             self.rows["registration"].append({
                 "frame": event.frame_index, "method": event.method, "accepted": event.accepted, "pairs": event.n_pairs,
                 "hypotheses": event.n_hypotheses, "inliers": len(event.inlier_pairs), "residual_m": event.residual_m,
-                "inlier_pairs": [list(p) for p in event.inlier_pairs],
+                "inlier_pairs": [list(p) for p in event.inlier_pairs], "evidence": event.evidence,
                 "transform": _list(event.transform.ravel()) if event.transform is not None else None})
         elif isinstance(event, GraphEvent):
             base = {"frame": event.frame_index, "target_id": event.target_id, "source_id": event.source_id,

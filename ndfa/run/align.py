@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from dataclasses import dataclass
-from typing import Literal
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
@@ -34,8 +34,25 @@ from ndfa.core.geometry import backproject, make_pose, rotation_z
 from ndfa.io.recording import RecordingReader
 from ndfa.run.world import SessionWorld
 
+if TYPE_CHECKING:
+    from ndfa.run.scene_evidence import OwnEvidence
+
 RegistrationMode = Literal["auto", "objects", "shared-world", "scene"]
 REGISTRATION_MODES: tuple[str, ...] = ("auto", "objects", "shared-world", "scene")
+
+
+@dataclass(frozen=True)
+class SceneEvidenceConfig:
+    """The bars a scene alignment passes to be accepted without object pairs (`ndfa.run.scene_evidence`)."""
+
+    min_fitness: float = 0.5      # share of the target's upright points within icp_distance_m of the source's
+    max_rmse_m: float = 0.03      # their RMS distance
+    agree_m: float = 0.05         # each half's own alignment this close to the whole's, at the half's center ...
+    agree_deg: float = 2.0        # ... and turned this little against it about up
+    contradict_margin: float = 0.05  # a half elsewhere that fits this much better than at the whole's contradicts it
+    min_agreeing: int = 2         # halves (of four) that must agree
+    rival_ratio: float = 0.8      # the alignment turned or shifted to a rival must overlap less than this share of it
+    min_half_points: int = 100    # fewer upright points (or points in a half) cannot be judged: weak
 
 
 @dataclass(frozen=True)
@@ -59,6 +76,8 @@ class AlignConfig:
     peak_turn_deg: float = 3.0       # ... and turned this much about z
     seed: int = 0                    # Open3D's RANSAC sampling (attempt k uses seed + k)
     ransac_attempts: int = 3         # RANSAC runs until one aligns (see align_scenes)
+    # A scene alignment is also judged on its own evidence, by these bars (`ndfa.run.scene_evidence`); None: not.
+    evidence: SceneEvidenceConfig | None = field(default_factory=SceneEvidenceConfig)
 
 
 @dataclass
@@ -74,19 +93,24 @@ class SceneAlignment:
     seconds: float
     reason: str                      # one line: why it holds or not
     binding: bool = False            # RANSAC's fits must agree with it (`RegistrationPrior.binding`)
+    evidence: OwnEvidence | None = None  # a scene alignment judged on its own (`ndfa.run.scene_evidence`)
 
     def prior(self) -> RegistrationPrior | None:
         if not self.ok or self.transform is None:
             return None
-        return RegistrationPrior(self.method, self.transform, binding=self.binding)
+        standalone = self.evidence is not None and self.evidence.ok
+        return RegistrationPrior(self.method, self.transform, binding=self.binding or standalone,
+                                 standalone=standalone,
+                                 evidence="" if self.evidence is None else self.evidence.describe())
 
     def describe(self) -> str:
         verdict = "proposed" if self.ok else "not proposed"
         if not np.isfinite(self.fitness):
             return f"{self.method} {verdict}: {self.reason}"
         rmse = f", rmse {self.rmse_m * 100:.1f} cm" if np.isfinite(self.rmse_m) else ""
+        evidence = "" if self.evidence is None else f"; own evidence {self.evidence.describe()}"
         return (f"{self.method} {verdict}: {self.reason}; fitness {self.fitness:.2f}{rmse}, "
-                f"{self.points[0]} / {self.points[1]} points, {self.seconds:.1f} s")
+                f"{self.points[0]} / {self.points[1]} points, {self.seconds:.1f} s{evidence}")
 
     def as_dict(self) -> dict:
         def number(value: float) -> float | None:  # JSON has no NaN
@@ -94,7 +118,8 @@ class SceneAlignment:
 
         return {"method": self.method, "ok": self.ok, "reason": self.reason, "fitness": number(self.fitness),
                 "rmse_m": number(self.rmse_m), "points": list(self.points), "seconds": round(self.seconds, 2),
-                "transform": None if self.transform is None else [round(float(v), 6) for v in self.transform.ravel()]}
+                "transform": None if self.transform is None else [round(float(v), 6) for v in self.transform.ravel()],
+                "own_evidence": None if self.evidence is None else self.evidence.as_dict()}
 
 
 def registration_prior(source: RecordingReader, target: RecordingReader, worlds: dict[str, SessionWorld],
@@ -122,6 +147,12 @@ def registration_prior(source: RecordingReader, target: RecordingReader, worlds:
         mode = "scene"
     result = align_scenes(source_cloud, target_cloud, config) if mode == "scene" else \
         check_shared_world(source_cloud, target_cloud, shared, config)
+    if result.ok and result.transform is not None and mode == "scene" and config.evidence is not None:
+        # Only a scene alignment: a shared world is the poses' claim, which no scene evidence can
+        # stand in for (given poses in different worlds overlap by chance).
+        from ndfa.run.scene_evidence import own_evidence  # it builds on this module's alignment
+
+        result.evidence = own_evidence(source_cloud, target_cloud, result.transform, config)
     result.seconds = time.perf_counter() - started
     return result
 

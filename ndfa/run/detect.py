@@ -123,7 +123,8 @@ class DetectionResult:
             return "registration: none found"
         r = self.registration
         residual = "" if r["residual_m"] is None else f", residual {r['residual_m'] * 100:.1f} cm"
-        return (f"registration: {r['method']}, {r['inliers']} inlier object pairs of {r['pairs']}{residual}, "
+        evidence = f" ({r['evidence']})" if r.get("evidence") else ""
+        return (f"registration: {r['method']}{evidence}, {r['inliers']} inlier object pairs of {r['pairs']}{residual}, "
                 f"from target frame {r['frame']}")
 
 

@@ -112,6 +112,9 @@ class PairResult:
             if alignment.method == "shared world" and mode == "auto":
                 self.notes.append("the sessions' poses are given but do not share one world: --registration scene "
                                   "aligns their scene clouds instead")
+        if alignment is not None and alignment.evidence is not None and not alignment.evidence.ok:
+            self.notes.append("too few object pairs confirmed the scene alignment, and its own evidence is too weak "
+                              f"to stand without them ({alignment.evidence.describe()}): no registration")
 
     def as_dict(self) -> dict:
         out = {"pair": self.label, "source": self.source, "target": self.target,

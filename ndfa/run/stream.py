@@ -107,7 +107,7 @@ def registration_summary(event: RegistrationEvent) -> dict:
     return {"method": event.method, "inliers": len(event.inlier_pairs), "pairs": event.n_pairs,
             "residual_m": round(float(event.residual_m), 4) if np.isfinite(event.residual_m) else None,
             "frame": event.frame_index,
-            "inlier_pairs": [list(p) for p in event.inlier_pairs]}
+            "inlier_pairs": [list(p) for p in event.inlier_pairs]} | ({"evidence": event.evidence} if event.evidence else {})
 
 
 @dataclass

@@ -1,0 +1,79 @@
+"""The right kind: a "moved" report needs the same object at both ends (`DecisionConfig.move_similarity`,
+`ndfa.change.detector.moves`), and the scoring says per kind how many reports were right
+(`ndfa.eval.scoring.KindReport`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ndfa.change.associate import Measurement
+from ndfa.change.config import DetectorConfig
+from ndfa.change.detector import ChangeDetector, reported_changes
+from ndfa.change.register import RegistrationPrior
+from ndfa.core.events import DecisionEvent
+from ndfa.eval.scoring import KindReport, score
+
+
+def _unit(i: int, n: int = 16) -> np.ndarray:
+    code = np.zeros(n)
+    code[i] = 1.0
+    return code
+
+
+def _run(codes_source: dict[int, np.ndarray], centers_source: dict[int, np.ndarray],
+         codes_target: dict[int, np.ndarray], centers_target: dict[int, np.ndarray]) -> list:
+    """Both sessions in one world (a shared-world prior the unchanged mugs confirm); changes reported."""
+    detector = ChangeDetector(DetectorConfig())
+    detector.add_registration_prior(RegistrationPrior("shared world", np.eye(4)))
+    for f in range(10):
+        detector.add_source([Measurement(f, i, codes_source[i], centers_source[i], 0.8) for i in codes_source])
+    events = []
+    for f in range(10):
+        events += detector.add_target([Measurement(f, i, codes_target[i], centers_target[i], 0.8) for i in codes_target])
+    events += detector.finish()
+    decisions = [e for e in events if isinstance(e, DecisionEvent)]
+    return sorted((c.kind, c.session, c.instance_ids[0], c.partner_instance_ids[:1]) for c in reported_changes(decisions))
+
+
+def test_a_removed_mug_and_a_different_mug_added_elsewhere_are_not_a_move():
+    stay = {2: np.array([0.3, 0.1, 0.8]), 3: np.array([-0.2, 0.4, 0.8])}
+    removed = np.array([0.0, 0.0, 0.8])
+    codes = {1: _unit(0), 2: _unit(2), 3: _unit(3)}
+    different = 0.5 * _unit(0) + np.sqrt(0.75) * _unit(1)  # cosine 0.5 with mug 1: above delta_s (0.35)
+    far = np.array([0.9, 0.5, 0.8])
+    reports = _run(codes, {1: removed} | stay, {2: codes[2], 3: codes[3], 4: different}, stay | {4: far})
+    assert reports == [("added", "target", 4, ()), ("removed", "source", 1, ())]
+    # The same mug, there: a move (its codes agree as one mug's do, cosine 0.98).
+    same = 0.98 * _unit(0) + np.sqrt(1 - 0.98**2) * _unit(1)
+    reports = _run(codes, {1: removed} | stay, {2: codes[2], 3: codes[3], 1: same}, stay | {1: far})
+    assert reports == [("moved", "target", 1, (1,))]
+
+
+def test_moves_pair_the_most_similar_first():
+    # Two similar mugs (cosine 0.9) both moved. Mug 4's new code leans towards mug 1's; mug 1's is
+    # its own. Pairing in object order would give mug 1's old place to mug 4 (seen first).
+    stay = {2: np.array([0.3, 0.1, 0.8]), 3: np.array([-0.2, 0.4, 0.8])}
+    code_1, code_4 = _unit(0), 0.9 * _unit(0) + np.sqrt(0.19) * _unit(4)
+    source = {1: code_1, 2: _unit(2), 3: _unit(3), 4: code_4}
+    leaning = 1.2 * code_1 + code_4
+    target = {2: source[2], 3: source[3], 4: leaning / np.linalg.norm(leaning),
+              1: 0.999 * code_1 + np.sqrt(1 - 0.999**2) * _unit(5)}
+    places = stay | {1: np.array([0.0, 0.0, 0.8]), 4: np.array([0.1, 0.5, 0.8])}
+    reports = _run(source, places, target, stay | {4: np.array([0.8, 0.6, 0.8]), 1: np.array([-0.7, 0.3, 0.8])})
+    assert reports == [("moved", "target", 1, (1,)), ("moved", "target", 4, (4,))]
+
+
+def test_kinds_are_scored_per_kind():
+    truth = {"objects": [{"instance_id": 1, "change": "removed"}, {"instance_id": 2, "change": "added"},
+                         {"instance_id": 3, "change": "moved"}, {"instance_id": 4, "change": "switched"},
+                         {"instance_id": 5, "change": "unchanged"}]}
+    kinds = [KindReport("moved", 2, 1),       # a removal and a different mug's addition: wrong kind
+             KindReport("moved", 3, 3),       # the same mug at both ends: right
+             KindReport("added", 4, None),    # a switched mug appeared here: right
+             KindReport("removed", 5, None)]  # nothing changed: wrong (and an FP)
+    result = score([2, 1, 3, 4, 5], truth, kinds=kinds)
+    assert (result.tp, result.fp, result.fn) == (4, 1, 0)
+    assert result.kinds == {"moved": (2, 1), "added": (1, 1), "removed": (1, 0)}
+    assert result.kind_precision("moved") == 0.5 and result.kind_precision("rotated") == 1.0
+    assert result.as_dict()["kinds"]["moved"] == {"reports": 2, "right": 1, "precision": 0.5}
+    assert "kinds" not in score([2], truth).as_dict()  # no kinds given: the summary as it was
