@@ -1,4 +1,4 @@
-"""The right kind: a "moved" report needs the same object at both ends (`DecisionConfig.move_similarity`,
+"""The right kind: a "moved" report needs the same object at both ends (`EvidenceConfig.move_similarity`,
 `ndfa.change.detector.moves`), and the scoring says per kind how many reports were right
 (`ndfa.eval.scoring.KindReport`)."""
 

@@ -14,7 +14,8 @@ from ndfa.change.config import DetectorConfig
 from ndfa.change.detector import ChangeDetector
 from ndfa.change.register import RegistrationPrior, apply, verify_prior, yaw_transform
 from ndfa.core.geometry import make_pose, rotation_z
-from ndfa.run.align import AlignConfig, align_scenes, check_shared_world, voxel_thin
+from ndfa.run.align import align_scenes, check_shared_world
+from ndfa.run.cloud_align import AlignConfig, voxel_thin
 from ndfa.run.stream import RunOptions
 
 

@@ -13,7 +13,8 @@ from ndfa.change.config import DetectorConfig
 from ndfa.change.detector import ChangeDetector
 from ndfa.change.register import RegistrationPrior, apply
 from ndfa.core.geometry import make_pose, rotation_z
-from ndfa.run.align import AlignConfig, align_scenes, voxel_thin
+from ndfa.run.align import align_scenes
+from ndfa.run.cloud_align import AlignConfig, voxel_thin
 from ndfa.run.scene_evidence import own_evidence
 
 SAMPLE = Path(__file__).resolve().parents[1] / "recordings" / "sample"
@@ -50,6 +51,7 @@ def _corridor(rng: np.random.Generator) -> np.ndarray:
     return voxel_thin(np.concatenate(parts), AlignConfig().voxel_m)
 
 
+@pytest.mark.slow
 def test_a_right_alignment_of_an_unambiguous_room_holds_on_its_own_and_a_wrong_one_does_not():
     rng = np.random.default_rng(3)
     source, target_in_source = _room(rng), _room(rng)  # two scans of one room
@@ -68,6 +70,7 @@ def test_a_right_alignment_of_an_unambiguous_room_holds_on_its_own_and_a_wrong_o
     assert not rejected.ok and "overlap" in rejected.reason
 
 
+@pytest.mark.slow
 def test_a_scene_that_aligns_several_ways_is_not_accepted_on_its_own():
     rng = np.random.default_rng(4)
     source = _corridor(rng)

@@ -13,6 +13,10 @@ which the object pairs then verify (`ndfa.change.register.verify_prior`):
   both levelled so z is up): the sessions' fused clouds are aligned globally (FPFH features and
   RANSAC, Open3D), then by ICP that turns about z and shifts only (both are levelled; 4 DoF).
 
+A scene alignment is also judged on its own evidence (`ndfa.run.scene_evidence`): when it is
+strong, the registrar accepts it where too few object pairs can confirm it (a table where most
+objects changed; docs/registration.md).
+
 A fused cloud is the depth of `frames` frames spread over the session, back-projected with the
 poses the detector will use, in the session's levelled world. Why these defaults, and what they
 gave on the kitchen sequence: `docs/detector.md`.
@@ -20,64 +24,23 @@ gave on the kitchen sequence: `docs/detector.md`.
 
 from __future__ import annotations
 
-import dataclasses
 import time
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Literal
+from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
-from ndfa.change.register import RegistrationPrior, yaw_transform
+from ndfa.change.register import RegistrationPrior
 from ndfa.core.conventions import MAX_DEPTH_M, MIN_DEPTH_M
 from ndfa.core.events import RegistrationMethod
 from ndfa.core.geometry import backproject, make_pose, rotation_z
 from ndfa.io.recording import RecordingReader
+from ndfa.run.cloud_align import AlignConfig, apply_transform, global_alignment, overlap, upright, voxel_thin
+from ndfa.run.scene_evidence import OwnEvidence, own_evidence
 from ndfa.run.world import SessionWorld
-
-if TYPE_CHECKING:
-    from ndfa.run.scene_evidence import OwnEvidence
 
 RegistrationMode = Literal["auto", "objects", "shared-world", "scene"]
 REGISTRATION_MODES: tuple[str, ...] = ("auto", "objects", "shared-world", "scene")
-
-
-@dataclass(frozen=True)
-class SceneEvidenceConfig:
-    """The bars a scene alignment passes to be accepted without object pairs (`ndfa.run.scene_evidence`)."""
-
-    min_fitness: float = 0.5      # share of the target's upright points within icp_distance_m of the source's
-    max_rmse_m: float = 0.03      # their RMS distance
-    agree_m: float = 0.05         # each half's own alignment this close to the whole's, at the half's center ...
-    agree_deg: float = 2.0        # ... and turned this little against it about up
-    contradict_margin: float = 0.05  # a half elsewhere that fits this much better than at the whole's contradicts it
-    min_agreeing: int = 2         # halves (of four) that must agree
-    rival_ratio: float = 0.8      # the alignment turned or shifted to a rival must overlap less than this share of it
-    min_half_points: int = 100    # fewer upright points (or points in a half) cannot be judged: weak
-
-
-@dataclass(frozen=True)
-class AlignConfig:
-    """How the sessions' scene clouds are built and aligned."""
-
-    frames: int = 40                 # frames fused per session, spread over it
-    pixel_stride: int = 8            # every 8th pixel along each axis (80 x 60 of a 640 x 480 frame)
-    voxel_m: float = 0.05            # the fused clouds are thinned to one point per voxel
-    normal_radius_m: float = 0.10    # normals for FPFH: 2 voxels
-    feature_radius_m: float = 0.25   # FPFH neighbourhood: 5 voxels
-    ransac_distance_m: float = 0.10  # a feature match supports a RANSAC hypothesis this close: 2 voxels
-    ransac_iterations: int = 100_000
-    icp_distance_m: float = 0.05     # closest points farther than this are not paired (1 voxel)
-    icp_iterations: int = 30
-    min_fitness: float = 0.4         # scene alignment: share of the target cloud within icp_distance_m of the source's
-    binding_fitness: float = 0.6     # ... from which RANSAC's fits must agree with it (RegistrationPrior.binding)
-    upright_max_nz: float = 0.5      # shared world: points whose normal has |z| below this are upright
-    shared_min_fitness: float = 0.2  # shared world: share of the target's upright points near the source's
-    peak_shift_m: float = 0.10       # shared world: the overlap must be less this far off the hypothesis ...
-    peak_turn_deg: float = 3.0       # ... and turned this much about z
-    seed: int = 0                    # Open3D's RANSAC sampling (attempt k uses seed + k)
-    ransac_attempts: int = 3         # RANSAC runs until one aligns (see align_scenes)
-    # A scene alignment is also judged on its own evidence, by these bars (`ndfa.run.scene_evidence`); None: not.
-    evidence: SceneEvidenceConfig | None = field(default_factory=SceneEvidenceConfig)
 
 
 @dataclass
@@ -150,8 +113,6 @@ def registration_prior(source: RecordingReader, target: RecordingReader, worlds:
     if result.ok and result.transform is not None and mode == "scene" and config.evidence is not None:
         # Only a scene alignment: a shared world is the poses' claim, which no scene evidence can
         # stand in for (given poses in different worlds overlap by chance).
-        from ndfa.run.scene_evidence import own_evidence  # it builds on this module's alignment
-
         result.evidence = own_evidence(source_cloud, target_cloud, result.transform, config)
     result.seconds = time.perf_counter() - started
     return result
@@ -179,18 +140,6 @@ def scene_cloud(reader: RecordingReader, world: SessionWorld, config: AlignConfi
         clouds.append(points @ pose[:3, :3].T + pose[:3, 3])
     cloud = np.concatenate(clouds) if clouds else np.zeros((0, 3))
     return voxel_thin(cloud, config.voxel_m)
-
-
-def voxel_thin(points: np.ndarray, voxel_m: float) -> np.ndarray:
-    """One point per occupied voxel: the mean of the points in it."""
-    if len(points) == 0:
-        return points
-    keys = np.floor(points / voxel_m).astype(np.int64)
-    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    sums = np.zeros((len(counts), 3))
-    np.add.at(sums, inverse.ravel(), points)
-    thinned: np.ndarray = sums / counts[:, None]
-    return thinned
 
 
 def check_shared_world(source_cloud: np.ndarray, target_cloud: np.ndarray, hypothesis: np.ndarray,
@@ -223,106 +172,19 @@ def check_shared_world(source_cloud: np.ndarray, target_cloud: np.ndarray, hypot
                           "the upright surfaces overlap under it, and less when it is shifted or turned", binding=True)
 
 
-def upright(cloud: np.ndarray, config: AlignConfig = AlignConfig()) -> np.ndarray:
-    """The points whose surface normal is off the vertical (|n_z| < `upright_max_nz`)."""
-    import open3d as o3d  # lazily: a run registered by its objects alone never loads Open3D (~1 s)
-
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud))
-    pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=config.normal_radius_m, max_nn=30))
-    kept: np.ndarray = cloud[np.abs(np.asarray(pcd.normals)[:, 2]) < config.upright_max_nz]
-    return kept
-
-
-def apply_transform(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
-    moved: np.ndarray = points @ transform[:3, :3].T + transform[:3, 3]
-    return moved
-
-
 def align_scenes(source_cloud: np.ndarray, target_cloud: np.ndarray,
                  config: AlignConfig = AlignConfig()) -> SceneAlignment:
-    """Global registration of the target's cloud onto the source's: FPFH + RANSAC, then 4-DoF ICP."""
-    import open3d as o3d  # lazily: a run registered by its objects alone never loads Open3D (~1 s)
-
+    """Global registration of the target's cloud onto the source's (`global_alignment`)."""
     points = (len(source_cloud), len(target_cloud))
     if min(points) < 3:
         return SceneAlignment("scene alignment", False, None, 0.0, float("nan"), points, 0.0, "a session has no depth")
-    registration = o3d.pipelines.registration
-    clouds, features = [], []
-    for cloud in (target_cloud, source_cloud):
-        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud))
-        pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=config.normal_radius_m, max_nn=30))
-        clouds.append(pcd)
-        features.append(registration.compute_fpfh_feature(
-            pcd, o3d.geometry.KDTreeSearchParamHybrid(radius=config.feature_radius_m, max_nn=100)))
-    # Open3D's RANSAC runs on threads, so one run can land in a wrong basin where another does not
-    # (the kitchen halves: fitness 0.79 in one run, 0.07 in the next). So several runs, plus the
-    # identity (worlds that start at the same place), each refined by the 4-DoF ICP from a coarse
-    # pairing distance down; the best overlap wins.
-    starts = [np.eye(4)]
-    best = (-1.0, float("nan"), np.eye(4))
-    for attempt in range(config.ransac_attempts):
-        o3d.utility.random.seed(config.seed + attempt)
-        coarse = registration.registration_ransac_based_on_feature_matching(
-            clouds[0], clouds[1], features[0], features[1], True, config.ransac_distance_m,
-            registration.TransformationEstimationPointToPoint(False), 3,
-            [registration.CorrespondenceCheckerBasedOnEdgeLength(0.9),
-             registration.CorrespondenceCheckerBasedOnDistance(config.ransac_distance_m)],
-            registration.RANSACConvergenceCriteria(config.ransac_iterations, 0.999))
-        starts.append(_yaw_only(np.asarray(coarse.transformation)))
-        for start in starts:
-            transform = start
-            for distance in (4 * config.icp_distance_m, 2 * config.icp_distance_m, config.icp_distance_m):
-                transform = icp_yaw(source_cloud, target_cloud, transform, dataclasses.replace(config, icp_distance_m=distance))
-            fitness, rmse = overlap(source_cloud, target_cloud, transform, config.icp_distance_m)
-            if fitness > best[0]:
-                best = (fitness, rmse, transform)
-        starts = []
-        if best[0] >= config.min_fitness:
-            break
-    fitness, rmse, transform = best
+    transform, fitness, rmse = global_alignment(source_cloud, target_cloud, config)
     ok = fitness >= config.min_fitness
     reason = "FPFH + RANSAC, then ICP about z" + ("" if ok else f" (fitness below {config.min_fitness})")
     binding = fitness >= config.binding_fitness
     if ok and not binding:
         reason += f" (a weak overlap, below {config.binding_fitness}: RANSAC's fits need not agree with it)"
     return SceneAlignment("scene alignment", ok, transform, fitness, rmse, points, 0.0, reason, binding=binding)
-
-
-def icp_yaw(source_cloud: np.ndarray, target_cloud: np.ndarray, initial: np.ndarray,
-            config: AlignConfig = AlignConfig()) -> np.ndarray:
-    """Point-to-point ICP that turns about z and shifts only, from `initial` (target -> source)."""
-    from scipy.spatial import cKDTree
-
-    tree = cKDTree(source_cloud)
-    transform = initial
-    for _ in range(config.icp_iterations):
-        moved = target_cloud @ transform[:3, :3].T + transform[:3, 3]
-        distance, nearest = tree.query(moved, distance_upper_bound=config.icp_distance_m)
-        paired = np.isfinite(distance)
-        if paired.sum() < 3:
-            break
-        step = yaw_transform(moved[paired], source_cloud[nearest[paired]])
-        transform = step @ transform
-        if np.linalg.norm(step[:3, 3]) < 1e-4 and abs(np.arctan2(step[1, 0], step[0, 0])) < 1e-5:
-            break
-    return transform
-
-
-def overlap(source_cloud: np.ndarray, target_cloud: np.ndarray, transform: np.ndarray,
-            distance_m: float) -> tuple[float, float]:
-    """(share of target points within `distance_m` of a source point under `transform`, their RMS distance)."""
-    from scipy.spatial import cKDTree
-
-    moved = apply_transform(transform, target_cloud)
-    distance, _ = cKDTree(source_cloud).query(moved, distance_upper_bound=distance_m)
-    close = distance[np.isfinite(distance)]
-    return len(close) / max(len(moved), 1), float(np.sqrt(np.mean(close**2))) if len(close) else float("nan")
-
-
-def _yaw_only(transform: np.ndarray) -> np.ndarray:
-    """The turn about z (and the shift) of a transform between two levelled worlds; its tilt is noise."""
-    yaw = np.arctan2(transform[1, 0] - transform[0, 1], transform[0, 0] + transform[1, 1])
-    return make_pose(rotation_z(float(yaw)), transform[:3, 3])
 
 
 def _is_truth(world: SessionWorld) -> bool:

@@ -1,7 +1,7 @@
 """Whether a scene alignment holds on its own evidence, when the object pairs cannot confirm it.
 
 The paper registers two sessions by shape-matched objects that stayed; a scene alignment
-(`ndfa.run.align.align_scenes`) is normally accepted only when two such pairs agree with it. On a
+(`ndfa.run.align`) is normally accepted only when two such pairs agree with it. On a
 table where most objects changed there are not two, and that is the case a change detector exists
 for. The static scene itself (floor, walls, furniture) then registers the sessions, but only when
 its evidence is strong, each figure measured on the clouds:
@@ -37,7 +37,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ndfa.core.geometry import make_pose, rotation_z
-from ndfa.run.align import AlignConfig, SceneEvidenceConfig, align_scenes, apply_transform, icp_yaw, overlap, upright
+from ndfa.run.cloud_align import (
+    AlignConfig,
+    SceneEvidenceConfig,
+    apply_transform,
+    global_alignment,
+    icp_yaw,
+    overlap,
+    upright,
+)
 
 # Rival shifts: rows of identical tables or desks repeat at about a table's pitch.
 RIVAL_SHIFTS_M = (0.6, 1.2)
@@ -153,15 +161,14 @@ def _subset_checks(source_cloud: np.ndarray, target_cloud: np.ndarray, transform
             if len(points) < 3:
                 checks.append(SubsetCheck(name + side, len(points), 0.0, float("inf"), float("inf"), 0.0))
                 continue
-            own = align_scenes(source_cloud, points, align)
-            own_transform = np.eye(4) if own.transform is None else own.transform
+            own_transform, own_fitness, _ = global_alignment(source_cloud, points, align)
             at_whole, _ = overlap(source_cloud, points, icp_yaw(source_cloud, points, transform, align),
                                   align.icp_distance_m)
             center = points.mean(axis=0)
             shift = apply_transform(own_transform, center[None])[0] - apply_transform(transform, center[None])[0]
             difference = own_transform[:3, :3] @ transform[:3, :3].T
             turn = abs(float(np.degrees(np.arctan2(difference[1, 0], difference[0, 0]))))
-            checks.append(SubsetCheck(name + side, len(points), own.fitness, float(np.linalg.norm(shift[:2])), turn,
+            checks.append(SubsetCheck(name + side, len(points), own_fitness, float(np.linalg.norm(shift[:2])), turn,
                                       at_whole))
     return checks
 

@@ -16,7 +16,8 @@ from ndfa.core.frame import Frame
 from ndfa.io.recording import INSTANCES, RecordingReader
 from ndfa.io.recording.prefetch import prefetched
 from ndfa.pipeline import ChangeDetectionPipeline, ObservedFrame
-from ndfa.run.align import AlignConfig, RegistrationMode
+from ndfa.run.align import RegistrationMode
+from ndfa.run.cloud_align import AlignConfig
 from ndfa.run.world import PoseMode, SessionWorld, UpMode
 
 
