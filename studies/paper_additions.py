@@ -26,7 +26,7 @@ import polars as pl
 from ndfa.change.config import ADDITIONS, DetectorConfig
 from ndfa.change.register import RegistrationPrior
 from ndfa.eval.runs import score_replay
-from ndfa.run.align import AlignConfig
+from ndfa.run.cloud_align import AlignConfig
 from ndfa.run.replay import replay
 
 
