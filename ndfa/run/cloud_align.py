@@ -26,7 +26,7 @@ class SceneEvidenceConfig:
     agree_m: float = 0.05         # each half's own alignment this close to the whole's, at the half's center ...
     agree_deg: float = 2.0        # ... and turned this little against it about up
     contradict_margin: float = 0.05  # a half elsewhere that fits this much better than at the whole's contradicts it
-    min_agreeing: int = 2         # halves (of four) that must agree
+    min_agreeing: int = 1         # halves (of four) that must agree (a box room's halves fit themselves turned)
     rival_ratio: float = 0.8      # the alignment turned or shifted to a rival must overlap less than this share of it
     min_half_points: int = 100    # fewer upright points (or points in a half) cannot be judged: weak
 
