@@ -25,6 +25,7 @@ from ndfa.trajectory.rgbd import (
     RgbdOdometry,
     RgbdOdometryConfig,
 )
+from ndfa.trajectory.rgbd_view import prepare_view
 
 K = np.array([[160.0, 0.0, 79.5], [0.0, 160.0, 59.5], [0.0, 0.0, 1.0]])
 SIZE = (120, 160)
@@ -95,11 +96,11 @@ def test_no_colour_uses_the_depth_term_alone():
 
 def test_degeneracy_flags_a_wall_and_a_floor_but_not_a_corner():
     pose = look_at(np.array([0.0, 0.0, 1.2]), np.array([2.0, 1.5, 0.6]))  # facing the corner of x max and y max
-    odometry = RgbdOdometry(RgbdOdometryConfig())
 
     def ratio(planes):
         depth, rgb = render(pose, planes=planes)
-        view = odometry._prepare(Frame(index=0, timestamp=0.0, rgb=rgb, depth=depth, K=K, pose_world_camera=pose))
+        view = prepare_view(Frame(index=0, timestamp=0.0, rgb=rgb, depth=depth, K=K, pose_world_camera=pose),
+                            RgbdOdometryConfig())
         return depth_degeneracy(view.plane_information, view.median_depth_m)
 
     wall_and_floor, corner = ratio((1, 4)), ratio((1, 3, 4))

@@ -30,6 +30,7 @@ from ndfa.trajectory.consistency import (
     revisit_pairs,
     step_pairs,
 )
+from ndfa.trajectory.rgbd_config import NO_TERM, POINT_TO_PLANE
 
 
 @dataclass(frozen=True)
@@ -117,8 +118,6 @@ def _odometry_figures(poses: Sequence[np.ndarray], odometry: object,
                       odometry_positions: Sequence[int]) -> tuple[int, int, float, float, float]:
     """keyframes, loops, graph_moved_cm, loop_residual_cm, unpinned_share from an RgbdOdometry
     (duck-typed: kiss-icp's DepthOdometry has no keyframes, and gives its rejected refinements)."""
-    from ndfa.trajectory.rgbd import NO_TERM, POINT_TO_PLANE
-
     keyframes = getattr(odometry, "keyframes", None)
     fed = max(1, len(odometry_positions))
     if not keyframes:

@@ -49,145 +49,22 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ndfa.core.conventions import MAX_DEPTH_M, MIN_DEPTH_M
-from ndfa.core.errors import TrajectoryError
 from ndfa.core.frame import Frame
 from ndfa.trajectory.checks import GapClock
-from ndfa.trajectory.degeneracy import depth_degeneracy, plane_information, textured_fraction
-from ndfa.trajectory.features import (
-    FeatureConfig,
-    FeatureMotion,
-    Features,
-    detect_features,
-    estimate_motion,
-    no_features,
-)
+from ndfa.trajectory.degeneracy import depth_degeneracy
+from ndfa.trajectory.features import FeatureMotion, estimate_motion
 from ndfa.trajectory.pose_graph import PoseEdge, PoseGraphConfig, optimize_pose_graph
+from ndfa.trajectory.rgbd_config import HYBRID, INTENSITY, NO_TERM, POINT_TO_PLANE, RgbdOdometryConfig
+from ndfa.trajectory.rgbd_view import View, depth_information, prepare_view, register_dense
 
-# The term a frame was registered with, as reported per frame. "none": the first frame, or a frame
-# with too little depth (its pose is the prediction).
-HYBRID, INTENSITY, POINT_TO_PLANE, NO_TERM = "hybrid", "intensity", "point-to-plane", "none"
-
-
-@dataclass(frozen=True)
-class RgbdOdometryConfig:
-    """RGB-D odometry settings (defaults for a 640x480, 60-90 degree camera at walking pace).
-
-    min_depth_m, max_depth_m: depth used (the method's range, ndfa.core.conventions).
-    max_width: images are subsampled by the smallest integer factor that brings them to at most
-        this many pixels wide (640 -> 320): 4x less work, and the coarse-to-fine pyramid starts
-        from there.
-    iterations: Gauss-Newton iterations per pyramid level, finest level first (Open3D's order).
-    depth_outlier_trunc_m: a depth pair farther apart than this is no correspondence.
-    depth_huber_delta_m, intensity_huber_delta: Huber scales of the depth (metres) and intensity
-        (0-1) residuals.
-    degenerate_ratio: the depth term is degenerate when the smallest eigenvalue of its information
-        matrix (rotations as arc length at the median depth) is below this fraction of the largest.
-    gradient_threshold, textured_fraction: the image is textured when at least `textured_fraction`
-        of its valid-depth pixels have an intensity gradient (0-1 per pixel) above the threshold.
-    min_valid_fraction: a frame with less valid depth (of its pixels) is not registered.
-    min_fitness: a registration whose inlier fraction is below this is rejected.
-    max_correction_m: a registration that moves the camera farther than this from the prediction
-        is rejected.
-    cross_check_m: when a registration moves the camera farther than this from the prediction, the
-        other term (hybrid <-> point-to-plane) is tried too and the result nearer the prediction kept.
-    keyframe_translation_m, keyframe_rotation_deg, keyframe_min_fitness: a frame becomes the new
-        keyframe when it has moved this far or turned this much from the keyframe, or its overlap
-        (fitness) with the keyframe falls below this.
-    loop_closure: look for loops among the keyframes and optimise the pose graph in `finish()`.
-    loop_radius_m, loop_angle_deg: a loop candidate's view centre (the point its camera looks at,
-        at its median depth) is at most this far and its optical axis turned at most this much
-        from the new keyframe's, in the current estimate.
-    loop_min_gap, loop_min_travel_m: and it is at least this many keyframes older, and the camera
-        travelled at least this far from it (nearer ones are the odometry's neighbours, not loops).
-    loop_min_inliers: with features, a loop needs this many feature inliers (loop_min_fitness, the
-        dense overlap, without).
-    loop_max_correction_m: and a loop that corrects the estimate by more than this is refused.
-    loop_candidates: at most this many candidates (the nearest) are registered per keyframe.
-    anchor_to_first_pose: start the estimate at the first frame's given pose (see kiss.py).
-    features: sparse feature matching for each frame's first guess (features.py); None: the
-        constant-velocity prediction alone.
-    min_features: when the frame and its keyframe both have at least this many keypoints but do not
-        match, they have too little in common: the previous frame becomes the keyframe (with fewer,
-        the images have too little texture for features, and the prediction is used instead).
-    prediction_agreement_m, prediction_agreement_deg: a feature-led result farther than this from
-        the constant-velocity prediction is checked against the registration from the prediction,
-        which replaces it when its overlap (fitness) is `prediction_overlap_ratio` times as large
-        (a shift by one period of a repeated pattern overlaps far less; a real jerk overlaps about
-        as well or better from the features).
-    feature_agreement_m, feature_agreement_deg: a dense registration that lands farther than this
-        from the feature estimate it started at fell into another minimum: the feature estimate is
-        kept instead.
-    """
-
-    min_depth_m: float = MIN_DEPTH_M
-    max_depth_m: float = MAX_DEPTH_M
-    max_width: int = 320
-    iterations: tuple[int, ...] = (10, 10, 10)
-    depth_outlier_trunc_m: float = 0.07
-    depth_huber_delta_m: float = 0.05
-    intensity_huber_delta: float = 0.1
-    degenerate_ratio: float = 0.003
-    gradient_threshold: float = 0.02
-    textured_fraction: float = 0.003
-    min_valid_fraction: float = 0.05
-    min_fitness: float = 0.1
-    max_correction_m: float = 0.3
-    cross_check_m: float = 0.015
-    keyframe_translation_m: float = 0.3
-    keyframe_rotation_deg: float = 15.0
-    keyframe_min_fitness: float = 0.4
-    loop_closure: bool = True
-    loop_radius_m: float = 1.0
-    loop_angle_deg: float = 45.0
-    loop_min_gap: int = 8
-    loop_min_travel_m: float = 2.0
-    loop_min_fitness: float = 0.3
-    loop_min_inliers: int = 40
-    loop_max_correction_m: float = 1.0
-    loop_candidates: int = 2
-    anchor_to_first_pose: bool = True
-    features: FeatureConfig | None = field(default_factory=FeatureConfig)
-    min_features: int = 100
-    prediction_agreement_m: float = 0.1
-    prediction_agreement_deg: float = 5.0
-    prediction_overlap_ratio: float = 2.0
-    feature_agreement_m: float = 0.05
-    feature_agreement_deg: float = 3.0
-
-    def __post_init__(self) -> None:
-        if not 0.0 <= self.min_depth_m < self.max_depth_m:
-            raise TrajectoryError(f"rgbd odometry needs 0 <= min_depth_m < max_depth_m, got {self.min_depth_m}, {self.max_depth_m}")
-        if self.max_width < 16 or not self.iterations or min(self.iterations) < 1:
-            raise TrajectoryError(f"rgbd odometry needs max_width >= 16 and iterations >= 1, got {self.max_width}, {self.iterations}")
-        for name in ("depth_outlier_trunc_m", "depth_huber_delta_m", "intensity_huber_delta", "max_correction_m",
-                     "keyframe_translation_m", "keyframe_rotation_deg", "loop_radius_m"):
-            if not getattr(self, name) > 0.0:
-                raise TrajectoryError(f"rgbd odometry {name} must be > 0, got {getattr(self, name)}")
-
-    def to_dict(self) -> dict:
-        """Plain values, for provenance in a recording's meta."""
-        return dataclasses.asdict(self)
-
-
-@dataclass
-class _View:
-    """One frame prepared for registration: subsampled images as Open3D tensors."""
-
-    rgbd: object  # open3d.t.geometry.RGBDImage (colour uint8, depth float32 metres, 0 = invalid)
-    features: Features  # ORB keypoints of the full-resolution image (none without colour)
-    K: object  # open3d.core.Tensor (3, 3) float64, of the subsampled image
-    plane_information: np.ndarray  # (6, 6) of the frame's own point-to-plane term (`plane_information`)
-    median_depth_m: float
-    valid_fraction: float
-    textured: bool
+__all__ = ["HYBRID", "INTENSITY", "NO_TERM", "POINT_TO_PLANE", "RgbdOdometry", "RgbdOdometryConfig"]
 
 
 @dataclass
 class _Keyframe:
     frame: int  # index of the frame in the session
     pose: np.ndarray  # (4, 4) odometry pose, in the first camera's frame
-    view: _View
+    view: View
     travelled_m: float  # path length from the first keyframe, metres (odometry)
 
 
@@ -212,7 +89,7 @@ class RgbdOdometry:
         self.starved_frames = 0  # too little valid depth: not registered
         self._clock = GapClock()
         self.rejected_frames = 0  # registration rejected: the prediction kept
-        self._previous: tuple[_View, np.ndarray] | None = None  # last frame if not a keyframe: view, T_keyframe_frame
+        self._previous: tuple[View, np.ndarray] | None = None  # last frame if not a keyframe: view, T_keyframe_frame
         self.promoted_frames = 0  # previous frames made keyframes when the keyframe had too little in common
         self.feature_frames = 0  # frames whose first guess came from feature matches
         self.prediction_wins = 0  # feature-led result far from the prediction, and the prediction's overlapped better
@@ -242,7 +119,7 @@ class RgbdOdometry:
         started = time.perf_counter()
         if self._anchor is None:
             self._anchor = frame.pose_world_camera.copy() if self.config.anchor_to_first_pose else np.eye(4)
-        view = self._prepare(frame)
+        view = prepare_view(frame, self.config)
         pose, term, degenerate = self._track(view, after_gap=self._clock.after_gap(frame.timestamp))
         self._poses.append(pose)
         self.terms.append(term)
@@ -270,7 +147,7 @@ class RgbdOdometry:
 
     # -- one frame --------------------------------------------------------------------------------
 
-    def _track(self, view: _View, after_gap: bool = False) -> tuple[np.ndarray, str, bool]:
+    def _track(self, view: View, after_gap: bool = False) -> tuple[np.ndarray, str, bool]:
         """The odometry pose of the frame, the term used, and whether depth was degenerate."""
         config = self.config
         if not self._poses:
@@ -307,7 +184,7 @@ class RgbdOdometry:
                 # Far from where the camera was heading: a real jerk, or features fooled by a
                 # repeated pattern (floor tiles, planks) with the dense terms agreeing on the same
                 # wrong shift. The registration from the prediction too; a much better overlap wins.
-                candidate, candidate_fitness = self._register(view, keyframe.view, predicted, term)
+                candidate, candidate_fitness = register_dense(view, keyframe.view, predicted, term, self.config)
                 if candidate is not None and candidate_fitness > config.prediction_overlap_ratio * fitness:
                     keyframe_from_frame, fitness = candidate, candidate_fitness
                     self.prediction_wins += 1
@@ -323,7 +200,7 @@ class RgbdOdometry:
         turned = _angle_deg(keyframe_from_frame[:3, :3])
         if (moved > config.keyframe_translation_m or turned > config.keyframe_rotation_deg
                 or fitness < config.keyframe_min_fitness):
-            information = self._information(view, keyframe.view, keyframe_from_frame)
+            information = depth_information(view, keyframe.view, keyframe_from_frame, self.config)
             self._add_keyframe(view, pose, PoseEdge(len(self.keyframes), len(self.keyframes) - 1,
                                                     keyframe_from_frame, information))
             self._previous = None
@@ -334,7 +211,7 @@ class RgbdOdometry:
         assert self._previous is not None
         view, keyframe_from_previous = self._previous
         keyframe = self.keyframes[-1]
-        information = self._information(view, keyframe.view, keyframe_from_previous)
+        information = depth_information(view, keyframe.view, keyframe_from_previous, self.config)
         self._add_keyframe(view, self._poses[-1], PoseEdge(len(self.keyframes), len(self.keyframes) - 1,
                                                            keyframe_from_previous, information), frame=len(self._poses) - 1)
         self._keyframe_of[-1] = len(self.keyframes) - 1
@@ -342,7 +219,7 @@ class RgbdOdometry:
         self.promoted_frames += 1
         return self.keyframes[-1]
 
-    def _from_features(self, view: _View, keyframe: _View, term: str) -> tuple[np.ndarray | None, float, FeatureMotion | None]:
+    def _from_features(self, view: View, keyframe: View, term: str) -> tuple[np.ndarray | None, float, FeatureMotion | None]:
         """T_keyframe_frame by dense registration from the feature estimate (None when there is no
         estimate, or the dense result lands far from it), its fitness, and the feature estimate.
 
@@ -354,23 +231,23 @@ class RgbdOdometry:
         motion = estimate_motion(view.features, keyframe.features, config.features)
         if motion is None:
             return None, 0.0, None
-        result, fitness = self._register(view, keyframe, motion.target_from_source, term)
+        result, fitness = register_dense(view, keyframe, motion.target_from_source, term, self.config)
         if result is None or not _near(result, motion.target_from_source, config.feature_agreement_m,
                                        config.feature_agreement_deg):
             return None, fitness, motion
         return result, fitness, motion
 
-    def _from_prediction(self, view: _View, keyframe: _View, predicted: np.ndarray, term: str) -> tuple[np.ndarray, float, str]:
+    def _from_prediction(self, view: View, keyframe: View, predicted: np.ndarray, term: str) -> tuple[np.ndarray, float, str]:
         """T_keyframe_frame by dense registration from the constant-velocity prediction (no feature
         estimate: too few matches), its fitness and term."""
         config = self.config
-        result, fitness = self._register(view, keyframe, predicted, term)
+        result, fitness = register_dense(view, keyframe, predicted, term, self.config)
         if term != INTENSITY and _jump(result, predicted) > config.cross_check_m:
             # Dense odometry on a few planes has false minima a few centimetres off; the camera
             # moves smoothly, so of the two terms' results the one nearer the prediction wins.
             other = POINT_TO_PLANE if term == HYBRID else HYBRID
             if other == POINT_TO_PLANE or view.textured:
-                candidate, candidate_fitness = self._register(view, keyframe, predicted, other)
+                candidate, candidate_fitness = register_dense(view, keyframe, predicted, other, self.config)
                 if _jump(candidate, predicted) < _jump(result, predicted):
                     result, fitness, term = candidate, candidate_fitness, other
         if result is None or fitness < config.min_fitness or _jump(result, predicted) > config.max_correction_m:
@@ -378,7 +255,7 @@ class RgbdOdometry:
             return predicted, fitness, term
         return result, fitness, term
 
-    def _add_keyframe(self, view: _View, pose: np.ndarray, edge: PoseEdge | None, frame: int | None = None) -> None:
+    def _add_keyframe(self, view: View, pose: np.ndarray, edge: PoseEdge | None, frame: int | None = None) -> None:
         """Append a keyframe (by default the frame being tracked), its edge to the last keyframe,
         and look for loops from it."""
         travelled = 0.0
@@ -414,10 +291,10 @@ class RgbdOdometry:
             measured = self._register_loop(new.view, old.view, initial)
             if measured is None or np.linalg.norm(measured[:3, 3] - initial[:3, 3]) > config.loop_max_correction_m:
                 continue
-            information = self._information(new.view, old.view, measured)
+            information = depth_information(new.view, old.view, measured, self.config)
             self.edges.append(PoseEdge(new_index, index, measured, information, loop=True))
 
-    def _register_loop(self, new: _View, old: _View, estimate: np.ndarray) -> np.ndarray | None:
+    def _register_loop(self, new: View, old: View, estimate: np.ndarray) -> np.ndarray | None:
         """T_old_new for a loop edge, or None when the two views do not verifiably overlap. With
         features: their motion (stricter than the odometry's: a wrong loop bends the whole
         trajectory), refined densely and kept when the refinement stays near it; it needs no
@@ -430,92 +307,14 @@ class RgbdOdometry:
             if motion is None:
                 return None
             term = HYBRID if new.textured and old.textured else POINT_TO_PLANE
-            measured, _ = self._register(new, old, motion.target_from_source, term)
+            measured, _ = register_dense(new, old, motion.target_from_source, term, self.config)
             near = measured is not None and _near(measured, motion.target_from_source, config.feature_agreement_m,
                                                    config.feature_agreement_deg)
             return measured if near else None
         term = HYBRID if new.textured and old.textured else POINT_TO_PLANE
-        measured, fitness = self._register(new, old, estimate, term)
+        measured, fitness = register_dense(new, old, estimate, term, self.config)
         return measured if measured is not None and fitness >= config.loop_min_fitness else None
 
-    # -- Open3D ------------------------------------------------------------------------------------
-
-    def _prepare(self, frame: Frame) -> _View:
-        """Subsample the frame to at most `max_width` pixels wide, drop depth out of range, and
-        wrap the images as Open3D tensors."""
-        import open3d as o3d
-
-        config = self.config
-        height, width = frame.image_size
-        step = max(1, math.ceil(width / config.max_width))
-        depth = frame.depth[::step, ::step].copy()
-        depth[~(np.isfinite(depth) & (depth >= config.min_depth_m) & (depth <= config.max_depth_m))] = np.nan
-        rows, cols = depth.shape
-        if frame.rgb is not None:
-            # Blurred, then every step-th pixel: intensity residuals need an image without aliasing,
-            # and centred on the depth samples (a block mean is centred half a pixel off them, and
-            # the intensity term then pulls every frame's rotation the same way).
-            rgb = frame.rgb if step == 1 else _smooth(frame.rgb, step)
-            rgb = rgb[::step, ::step][:rows, :cols]
-        else:
-            rgb = np.zeros((rows, cols, 3), np.uint8)
-        valid = np.isfinite(depth)
-        features = no_features(frame.K)
-        if frame.rgb is not None and config.features is not None:
-            full_depth = np.where(frame.depth >= config.min_depth_m, frame.depth, np.nan)
-            gray = frame.rgb.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
-            features = detect_features(gray.astype(np.uint8), full_depth, frame.K, config.features)
-        K = frame.K.copy()
-        K[:2] /= step  # pixel (step*i) becomes pixel i: centres at integer coordinates stay so
-        rgbd = o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(np.ascontiguousarray(rgb)),
-                                        o3d.t.geometry.Image(np.ascontiguousarray(depth[..., None])))
-        return _View(rgbd=rgbd, features=features, K=o3d.core.Tensor(K), plane_information=plane_information(depth, K),
-                     median_depth_m=float(np.median(depth[valid])) if valid.any() else 1.0,
-                     valid_fraction=float(valid.mean()),
-                     textured=frame.rgb is not None and textured_fraction(rgb, valid, config.gradient_threshold) >= config.textured_fraction)
-
-    def _register(self, source: _View, target: _View, initial: np.ndarray, term: str) -> tuple[np.ndarray | None, float]:
-        """T_target_source by RGB-D odometry from `initial`, and its fitness (None, 0 when it failed)."""
-        import open3d as o3d
-
-        odometry = o3d.t.pipelines.odometry
-        config = self.config
-        method = {HYBRID: odometry.Method.Hybrid, INTENSITY: odometry.Method.Intensity,
-                  POINT_TO_PLANE: odometry.Method.PointToPlane}[term]
-        criteria = [odometry.OdometryConvergenceCriteria(iterations) for iterations in config.iterations]
-        params = odometry.OdometryLossParams(config.depth_outlier_trunc_m, config.depth_huber_delta_m,
-                                             config.intensity_huber_delta)
-        try:
-            result = odometry.rgbd_odometry_multi_scale(
-                source.rgbd, target.rgbd, source.K, o3d.core.Tensor(initial), 1.0, config.max_depth_m,
-                criteria, method, params)
-        except RuntimeError:  # Open3D raises when a pyramid level has no correspondences
-            return None, 0.0
-        transform = result.transformation.numpy()
-        if not np.all(np.isfinite(transform)):
-            return None, 0.0
-        return transform, float(result.fitness)
-
-    def _information(self, source: _View, target: _View, target_from_source: np.ndarray) -> np.ndarray:
-        """The depth term's 6x6 information matrix of T_target_source (Open3D's (rotation,
-        translation) order); zeros when there are no correspondences."""
-        import open3d as o3d
-
-        try:
-            information = o3d.t.pipelines.odometry.compute_odometry_information_matrix(
-                source.rgbd.depth, target.rgbd.depth, source.K, o3d.core.Tensor(target_from_source),
-                self.config.depth_outlier_trunc_m, 1.0, self.config.max_depth_m).numpy()
-        except RuntimeError:
-            return np.zeros((6, 6))
-        return information if np.all(np.isfinite(information)) else np.zeros((6, 6))
-
-
-
-def _smooth(image: np.ndarray, step: int) -> np.ndarray:
-    """A Gaussian blur wide enough to subsample `image` by `step` without aliasing."""
-    import cv2
-
-    return cv2.GaussianBlur(image, (0, 0), sigmaX=0.5 * step)
 
 
 def _view_centre(keyframe: _Keyframe) -> np.ndarray:

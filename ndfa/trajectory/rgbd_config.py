@@ -1,0 +1,115 @@
+"""Settings of the RGB-D odometry (rgbd.py) and the names of the terms a frame is registered with."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+from ndfa.core.conventions import MAX_DEPTH_M, MIN_DEPTH_M
+from ndfa.core.errors import TrajectoryError
+from ndfa.trajectory.features import FeatureConfig
+
+# The term a frame was registered with, as reported per frame. "none": the first frame, or a frame
+# with too little depth (its pose is the prediction).
+HYBRID, INTENSITY, POINT_TO_PLANE, NO_TERM = "hybrid", "intensity", "point-to-plane", "none"
+
+
+@dataclass(frozen=True)
+class RgbdOdometryConfig:
+    """RGB-D odometry settings (defaults for a 640x480, 60-90 degree camera at walking pace).
+
+    min_depth_m, max_depth_m: depth used (the method's range, ndfa.core.conventions).
+    max_width: images are subsampled by the smallest integer factor that brings them to at most
+        this many pixels wide (640 -> 320): 4x less work, and the coarse-to-fine pyramid starts
+        from there.
+    iterations: Gauss-Newton iterations per pyramid level, finest level first (Open3D's order).
+    depth_outlier_trunc_m: a depth pair farther apart than this is no correspondence.
+    depth_huber_delta_m, intensity_huber_delta: Huber scales of the depth (metres) and intensity
+        (0-1) residuals.
+    degenerate_ratio: the depth term is degenerate when the smallest eigenvalue of its information
+        matrix (rotations as arc length at the median depth) is below this fraction of the largest.
+    gradient_threshold, textured_fraction: the image is textured when at least `textured_fraction`
+        of its valid-depth pixels have an intensity gradient (0-1 per pixel) above the threshold.
+    min_valid_fraction: a frame with less valid depth (of its pixels) is not registered.
+    min_fitness: a registration whose inlier fraction is below this is rejected.
+    max_correction_m: a registration that moves the camera farther than this from the prediction
+        is rejected.
+    cross_check_m: when a registration moves the camera farther than this from the prediction, the
+        other term (hybrid <-> point-to-plane) is tried too and the result nearer the prediction kept.
+    keyframe_translation_m, keyframe_rotation_deg, keyframe_min_fitness: a frame becomes the new
+        keyframe when it has moved this far or turned this much from the keyframe, or its overlap
+        (fitness) with the keyframe falls below this.
+    loop_closure: look for loops among the keyframes and optimise the pose graph in `finish()`.
+    loop_radius_m, loop_angle_deg: a loop candidate's view centre (the point its camera looks at,
+        at its median depth) is at most this far and its optical axis turned at most this much
+        from the new keyframe's, in the current estimate.
+    loop_min_gap, loop_min_travel_m: and it is at least this many keyframes older, and the camera
+        travelled at least this far from it (nearer ones are the odometry's neighbours, not loops).
+    loop_min_inliers: with features, a loop needs this many feature inliers (loop_min_fitness, the
+        dense overlap, without).
+    loop_max_correction_m: and a loop that corrects the estimate by more than this is refused.
+    loop_candidates: at most this many candidates (the nearest) are registered per keyframe.
+    anchor_to_first_pose: start the estimate at the first frame's given pose (see kiss.py).
+    features: sparse feature matching for each frame's first guess (features.py); None: the
+        constant-velocity prediction alone.
+    min_features: when the frame and its keyframe both have at least this many keypoints but do not
+        match, they have too little in common: the previous frame becomes the keyframe (with fewer,
+        the images have too little texture for features, and the prediction is used instead).
+    prediction_agreement_m, prediction_agreement_deg: a feature-led result farther than this from
+        the constant-velocity prediction is checked against the registration from the prediction,
+        which replaces it when its overlap (fitness) is `prediction_overlap_ratio` times as large
+        (a shift by one period of a repeated pattern overlaps far less; a real jerk overlaps about
+        as well or better from the features).
+    feature_agreement_m, feature_agreement_deg: a dense registration that lands farther than this
+        from the feature estimate it started at fell into another minimum: the feature estimate is
+        kept instead.
+    """
+
+    min_depth_m: float = MIN_DEPTH_M
+    max_depth_m: float = MAX_DEPTH_M
+    max_width: int = 320
+    iterations: tuple[int, ...] = (10, 10, 10)
+    depth_outlier_trunc_m: float = 0.07
+    depth_huber_delta_m: float = 0.05
+    intensity_huber_delta: float = 0.1
+    degenerate_ratio: float = 0.003
+    gradient_threshold: float = 0.02
+    textured_fraction: float = 0.003
+    min_valid_fraction: float = 0.05
+    min_fitness: float = 0.1
+    max_correction_m: float = 0.3
+    cross_check_m: float = 0.015
+    keyframe_translation_m: float = 0.3
+    keyframe_rotation_deg: float = 15.0
+    keyframe_min_fitness: float = 0.4
+    loop_closure: bool = True
+    loop_radius_m: float = 1.0
+    loop_angle_deg: float = 45.0
+    loop_min_gap: int = 8
+    loop_min_travel_m: float = 2.0
+    loop_min_fitness: float = 0.3
+    loop_min_inliers: int = 40
+    loop_max_correction_m: float = 1.0
+    loop_candidates: int = 2
+    anchor_to_first_pose: bool = True
+    features: FeatureConfig | None = field(default_factory=FeatureConfig)
+    min_features: int = 100
+    prediction_agreement_m: float = 0.1
+    prediction_agreement_deg: float = 5.0
+    prediction_overlap_ratio: float = 2.0
+    feature_agreement_m: float = 0.05
+    feature_agreement_deg: float = 3.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.min_depth_m < self.max_depth_m:
+            raise TrajectoryError(f"rgbd odometry needs 0 <= min_depth_m < max_depth_m, got {self.min_depth_m}, {self.max_depth_m}")
+        if self.max_width < 16 or not self.iterations or min(self.iterations) < 1:
+            raise TrajectoryError(f"rgbd odometry needs max_width >= 16 and iterations >= 1, got {self.max_width}, {self.iterations}")
+        for name in ("depth_outlier_trunc_m", "depth_huber_delta_m", "intensity_huber_delta", "max_correction_m",
+                     "keyframe_translation_m", "keyframe_rotation_deg", "loop_radius_m"):
+            if not getattr(self, name) > 0.0:
+                raise TrajectoryError(f"rgbd odometry {name} must be > 0, got {getattr(self, name)}")
+
+    def to_dict(self) -> dict:
+        """Plain values, for provenance in a recording's meta."""
+        return dataclasses.asdict(self)

@@ -1,0 +1,105 @@
+"""One frame prepared for RGB-D registration, and Open3D's dense terms on a pair of them (rgbd.py's
+odometry and loop closure use both)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ndfa.core.frame import Frame
+from ndfa.trajectory.degeneracy import plane_information, textured_fraction
+from ndfa.trajectory.features import Features, detect_features, no_features
+from ndfa.trajectory.rgbd_config import HYBRID, INTENSITY, POINT_TO_PLANE, RgbdOdometryConfig
+
+
+@dataclass
+class View:
+    """One frame prepared for registration: subsampled images as Open3D tensors."""
+
+    rgbd: object  # open3d.t.geometry.RGBDImage (colour uint8, depth float32 metres, 0 = invalid)
+    features: Features  # ORB keypoints of the full-resolution image (none without colour)
+    K: object  # open3d.core.Tensor (3, 3) float64, of the subsampled image
+    plane_information: np.ndarray  # (6, 6) of the frame's own point-to-plane term (`plane_information`)
+    median_depth_m: float
+    valid_fraction: float
+    textured: bool
+
+
+
+def prepare_view(frame: Frame, config: RgbdOdometryConfig) -> View:
+    """Subsample the frame to at most `max_width` pixels wide, drop depth out of range, and
+    wrap the images as Open3D tensors."""
+    import open3d as o3d
+
+    height, width = frame.image_size
+    step = max(1, math.ceil(width / config.max_width))
+    depth = frame.depth[::step, ::step].copy()
+    depth[~(np.isfinite(depth) & (depth >= config.min_depth_m) & (depth <= config.max_depth_m))] = np.nan
+    rows, cols = depth.shape
+    if frame.rgb is not None:
+        # Blurred, then every step-th pixel: intensity residuals need an image without aliasing,
+        # and centred on the depth samples (a block mean is centred half a pixel off them, and
+        # the intensity term then pulls every frame's rotation the same way).
+        rgb = frame.rgb if step == 1 else _smooth(frame.rgb, step)
+        rgb = rgb[::step, ::step][:rows, :cols]
+    else:
+        rgb = np.zeros((rows, cols, 3), np.uint8)
+    valid = np.isfinite(depth)
+    features = no_features(frame.K)
+    if frame.rgb is not None and config.features is not None:
+        full_depth = np.where(frame.depth >= config.min_depth_m, frame.depth, np.nan)
+        gray = frame.rgb.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
+        features = detect_features(gray.astype(np.uint8), full_depth, frame.K, config.features)
+    K = frame.K.copy()
+    K[:2] /= step  # pixel (step*i) becomes pixel i: centres at integer coordinates stay so
+    rgbd = o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(np.ascontiguousarray(rgb)),
+                                    o3d.t.geometry.Image(np.ascontiguousarray(depth[..., None])))
+    return View(rgbd=rgbd, features=features, K=o3d.core.Tensor(K), plane_information=plane_information(depth, K),
+                 median_depth_m=float(np.median(depth[valid])) if valid.any() else 1.0,
+                 valid_fraction=float(valid.mean()),
+                 textured=frame.rgb is not None and textured_fraction(rgb, valid, config.gradient_threshold) >= config.textured_fraction)
+
+def register_dense(source: View, target: View, initial: np.ndarray, term: str,
+               config: RgbdOdometryConfig) -> tuple[np.ndarray | None, float]:
+    """T_target_source by RGB-D odometry from `initial`, and its fitness (None, 0 when it failed)."""
+    import open3d as o3d
+
+    odometry = o3d.t.pipelines.odometry
+    method = {HYBRID: odometry.Method.Hybrid, INTENSITY: odometry.Method.Intensity,
+              POINT_TO_PLANE: odometry.Method.PointToPlane}[term]
+    criteria = [odometry.OdometryConvergenceCriteria(iterations) for iterations in config.iterations]
+    params = odometry.OdometryLossParams(config.depth_outlier_trunc_m, config.depth_huber_delta_m,
+                                         config.intensity_huber_delta)
+    try:
+        result = odometry.rgbd_odometry_multi_scale(
+            source.rgbd, target.rgbd, source.K, o3d.core.Tensor(initial), 1.0, config.max_depth_m,
+            criteria, method, params)
+    except RuntimeError:  # Open3D raises when a pyramid level has no correspondences
+        return None, 0.0
+    transform = result.transformation.numpy()
+    if not np.all(np.isfinite(transform)):
+        return None, 0.0
+    return transform, float(result.fitness)
+
+def depth_information(source: View, target: View, target_from_source: np.ndarray,
+                  config: RgbdOdometryConfig) -> np.ndarray:
+    """The depth term's 6x6 information matrix of T_target_source (Open3D's (rotation,
+    translation) order); zeros when there are no correspondences."""
+    import open3d as o3d
+
+    try:
+        information = o3d.t.pipelines.odometry.compute_odometry_information_matrix(
+            source.rgbd.depth, target.rgbd.depth, source.K, o3d.core.Tensor(target_from_source),
+            config.depth_outlier_trunc_m, 1.0, config.max_depth_m).numpy()
+    except RuntimeError:
+        return np.zeros((6, 6))
+    return information if np.all(np.isfinite(information)) else np.zeros((6, 6))
+
+
+def _smooth(image: np.ndarray, step: int) -> np.ndarray:
+    """A Gaussian blur wide enough to subsample `image` by `step` without aliasing."""
+    import cv2
+
+    return cv2.GaussianBlur(image, (0, 0), sigmaX=0.5 * step)
