@@ -9,9 +9,10 @@ import pytest
 from ndfa.core.events import CHANGE_SCORE, DecisionEvent
 from ndfa.core.geometry import axis_angle_to_matrix, make_pose
 from ndfa.run.pose_verdict import DOUBTFUL_SCORE_PULL, weigh_changes
-from ndfa.run.world import SessionWorld
+from ndfa.run.world import SessionWorld, up_under_poses
 from ndfa.trajectory.consistency import make_sketch
 from ndfa.trajectory.quality import DOUBTFUL, GOOD, UNUSABLE, PoseEvidence, PoseQuality, gather_evidence, judge
+from ndfa.trajectory.up import UpEstimate
 
 ROOM = (np.array([-2.0, -1.5, 0.0]), np.array([2.0, 1.5, 2.5]))  # an empty box room, metres
 K = np.array([[60.0, 0.0, 40.0], [0.0, 60.0, 30.0], [0.0, 0.0, 1.0]])  # 80 x 60 pixels
@@ -129,3 +130,15 @@ def test_the_json_summary_carries_the_verdict_and_the_withheld_changes():
     world = worlds["target"].as_dict()
     assert world["pose_quality"]["verdict"] == UNUSABLE
     assert set(world["pose_quality"]["figures"]) >= {"revisit_conflict_cm", "revisit_violation", "jumps"}
+
+
+def test_up_read_under_poses_that_are_not_good_is_never_high_confidence():
+    truth = _circling()
+    step = make_pose(axis_angle_to_matrix(np.radians([0.0, 0.0, 1.0])), np.array([0.02, 0.0, 0.0]))
+    broken = judge(_evidence(truth, [np.linalg.matrix_power(step, k) @ pose for k, pose in enumerate(truth)]))
+    good = judge(_evidence(truth, truth))
+    up = UpEstimate(True, "planes", np.array([0.0, 0.0, 1.0]), "planes", 48, 48, 40, 0.8, 1.0, confidence="high")
+    assert up_under_poses(up, good) is up and up_under_poses(up, None) is up
+    doubted = up_under_poses(up, broken)
+    assert doubted.confidence == "low" and "unusable" in doubted.warning
+    assert np.array_equal(doubted.up_world, up.up_world)  # the estimate itself is kept, only its trust falls

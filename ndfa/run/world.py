@@ -161,6 +161,7 @@ def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
                                "wrong? the IMU's is used")
     else:
         world.up, world.up_source = planes, "estimated"
+    world.up = up_under_poses(world.up, world.pose_quality)
     if world.up.ok and world.up.confidence == "low":
         world.notes.append(f"world up is doubtful: {world.up.warning}")
     if not world.up.ok:
@@ -169,6 +170,15 @@ def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
     if world.up.tilt_deg > LEVEL_ABOVE_DEG:
         world.levelling = world.up.levelling()
     return world
+
+
+def up_under_poses(up: UpEstimate, pose_quality: PoseQuality | None) -> UpEstimate:
+    """`up`, its confidence "low" when it was read under estimated poses that are not good: planes
+    are seen through the poses, so under broken ones a floor seen twice is two planes and up can be
+    confidently wrong (docs/world_up.md: an office session at 1.5 m ATE gave 39 deg off, "high")."""
+    if not up.ok or pose_quality is None or pose_quality.good or up.confidence != "high":
+        return up
+    return replace(up, confidence="low", warning=f"read under {pose_quality.verdict} poses ({pose_quality.describe()})")
 
 
 def _up_from_imu(reader: RecordingReader, world: SessionWorld, step: int) -> UpEstimate | None:
