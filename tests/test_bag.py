@@ -334,3 +334,16 @@ def test_a_ros1_message_of_an_unknown_connection_is_one_line(tmp_path):
                                           r"\(KeyError: 256\)"):
         ingest_bag(corpus, tmp_path / "out.mcap")
     assert not (tmp_path / "out.mcap").exists()
+
+
+def test_a_camera_info_with_zero_focal_lengths_skips_its_frame(tmp_path):
+    """A CameraInfo with K all zero once imported fine and left a recording its reader refuses
+    (found by the long fuzz pass): the frame is skipped and counted like NaN intrinsics."""
+    from tests.fuzz.bag_inputs import write_broken_bag
+
+    bag = write_broken_bag(tmp_path / "broken", {"version": (2, "sqlite3"), "frames": 3, "value": 0,
+                                                 "breaks": [("info zero K", 1)]})
+    summary = ingest_bag(bag, tmp_path / "out.mcap")
+    assert summary.frames == 2
+    assert summary.skipped == {"invalid frame (K must have focal lengths fx, fy > 0, got fx 0, fy 0)": 1}
+    assert len(list(RecordingReader(tmp_path / "out.mcap").frames())) == 2

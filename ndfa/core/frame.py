@@ -81,6 +81,9 @@ class Frame:
 
         if self.K.shape != (3, 3) or not np.all(np.isfinite(self.K)):
             raise ValueError(f"K must be a finite (3, 3) matrix, got shape {self.K.shape}")
+        if not (self.K[0, 0] > 0 and self.K[1, 1] > 0):
+            # A zero focal length back-projects every pixel to infinity; the recording reader refuses it too.
+            raise ValueError(f"K must have focal lengths fx, fy > 0, got fx {self.K[0, 0]:g}, fy {self.K[1, 1]:g}")
         _check_pose("pose_world_camera", self.pose_world_camera)
         if self.pose_world_camera_true is not None:
             _check_pose("pose_world_camera_true", self.pose_world_camera_true)
