@@ -61,7 +61,7 @@ class ObservedFrame:
     segmented: bool
     observations: list[Observation]
     skipped: list[SkippedObservation]
-    stage_ms: dict[str, float]         # segmentation (when segmented), perception, encoding
+    stage_ms: dict[str, float]         # reading (when staged), segmentation (when segmented), perception, encoding
     codes: list[ObjectCode] | None = None
 
 
@@ -121,13 +121,14 @@ class ChangeDetectionPipeline:
         repeat the association this frame's events show)."""
         if session not in SESSIONS:
             raise ValueError(f"session must be one of {SESSIONS}, got {session!r}")
-        started = time.perf_counter()
+        started, registering = time.perf_counter(), detector.registrar.seconds
         events, measurements = self.measure(session, observed)
         events += (detector.add_source if session == "source" else detector.add_target)(measurements)
         if also_source_of is not None:
             also_source_of.add_source(measurements)
+        registration_ms = (detector.registrar.seconds - registering) * 1e3  # T_rel's estimation, within the step
         events.append(TimingEvent(session=session, frame_index=observed.frame.index, stage_ms=observed.stage_ms | {
-            "detection": (time.perf_counter() - started) * 1e3}))
+            "detection": (time.perf_counter() - started) * 1e3 - registration_ms, "registration": registration_ms}))
         return events
 
     def measure(self, session: Session, observed: ObservedFrame) -> tuple[list[Event], list[Measurement]]:

@@ -39,7 +39,7 @@ def test_summary_scores_the_sample_against_its_ground_truth(run):
     assert SUMMARY_KEYS <= summary.keys()
     assert summary["tp"] + summary["fn"] == 5  # the sample scene has five changed mugs
     assert summary["objects_source"] >= 10 and summary["objects_target"] >= 10
-    assert set(summary["stage_ms"]) == {"perception", "encoding", "detection"}
+    assert set(summary["stage_ms"]) == {"reading", "perception", "encoding", "detection", "registration"}
     assert summary["ndf_runtime"] == "onnxruntime"  # the default where it is installed (docs/speed.md)
     # the added mug (instance 14) stands where the source had nothing: it must be found
     assert any(14 in change["instance_ids"] for change in summary["changes"])

@@ -20,6 +20,7 @@ evidence)": the objects are then tested against it, and pairs that confirm it la
 from __future__ import annotations
 
 import dataclasses
+import time
 from collections.abc import Iterable
 
 import numpy as np
@@ -77,9 +78,17 @@ class Registrar:
         self.priors: list[RegistrationPrior] = []
         self.centers = RegisteredCenters()
         self._last_try_frame = -(10**9)  # the last attempt before T_rel exists
+        self.seconds = 0.0  # spent estimating T_rel (`_estimate`), for the stage timings
 
     def after_target_frame(self, frame_index: int, associations: list[Association]) -> list[RegistrationEvent]:
         """Note what a target frame's association changed; estimate T_rel if it is time to."""
+        started = time.perf_counter()
+        try:
+            return self._after_target_frame(frame_index, associations)
+        finally:
+            self.seconds += time.perf_counter() - started
+
+    def _after_target_frame(self, frame_index: int, associations: list[Association]) -> list[RegistrationEvent]:
         self.centers.stale(a.object_id for a in associations if a.created or a.replaced)
         created = any(a.created for a in associations)
         if self.registration is None:

@@ -14,8 +14,9 @@ from ndfa.cli.checks import at_least_one, checkpoint, thread_count
 
 @app.command("bench")
 def bench_command(
-    what: str = typer.Argument("sim", help="What to time: sim (render, noise, write, read), ndf (encoding) "
-                                            "or detect (the target pass, and the detection step's growth)."),
+    what: str = typer.Argument("sim", help="What to time: sim (render, noise, write, read), ndf (encoding), "
+                                            "detect (the target pass, and the detection step's growth) or raw "
+                                            "(the whole pass over raw recordings, both sessions, per stage)."),
     frames: int = typer.Option(60, help="sim: frames to time.", callback=at_least_one),
     weights: Optional[Path] = typer.Option(None, help="ndf, detect: checkpoint to time (default: the shipped weights).",
                                            callback=checkpoint),
@@ -27,14 +28,16 @@ def bench_command(
                                 callback=thread_count),
     compare: bool = typer.Option(False, "--compare", help="detect: first the before (--before-runtime, --before-weights, "
                                                           "every reconstruction decoded, the stages one after the "
-                                                          "other), then now, back to back."),
-    load: bool = typer.Option(False, "--load", help="detect: once more beside one busy process (while True: pass)."),
+                                                          "other), then now, back to back. raw: the raw pass "
+                                                          "before this afternoon's levers, alternating with now."),
+    load: bool = typer.Option(False, "--load", help="detect, raw: now once more beside one busy process (while True: pass)."),
     runtime: str = typer.Option("auto", help="detect: the NDF's runtime now: auto, onnxruntime or torch."),
     before_runtime: str = typer.Option("torch", help="detect --compare: the NDF's runtime before."),
     before_weights: Optional[Path] = typer.Option(None, help="detect --compare: the NDF's weights before (default: the shipped ones).",
                                                   callback=checkpoint),
     frame_step: int = typer.Option(1, help="detect: use every N-th frame.", callback=at_least_one),
-    repeat: int = typer.Option(1, help="detect: run now this many times; its column is the run of median frames/s.",
+    repeat: int = typer.Option(1, help="detect, raw: run now (raw: and before) this many times; a column is the "
+                                       "run of median frames/s.",
                                callback=at_least_one),
     overlap: bool = typer.Option(True, "--overlap/--no-overlap",
                                  help="detect: now, the stages run at the same time in threads (else one after the other)."),
@@ -54,6 +57,9 @@ def bench_command(
                       f"recovered {r.recovered}/{r.observations} = {r.recall:.1%} of the ground-truth instances with "
                       f">= 200 pixels of depth (IoU >= 0.5); {r.segments} segments, {r.spurious} matching no instance; "
                       f"{r.ms_per_frame:.1f} ms/frame ({r.cpu_ms_per_frame:.1f} ms CPU)")
+        return
+    if what == "raw":
+        _bench_raw(source, target, compare=compare, load=load, repeat=repeat, threads=threads, frame_step=frame_step)
         return
     if what == "detect":
         for option, value in (("--runtime", runtime), ("--before-runtime", before_runtime)):
@@ -112,9 +118,42 @@ def bench_command(
                 for label, key in (("one observation", "one_ms"), ("batch of 8", "batch8_ms"),
                                    ("per observation in a batch of 8", "batch8_ms_per_observation"))]
     else:
-        raise typer.BadParameter(f"unknown benchmark {what!r}; expected sim, ndf, detect or segment")
+        raise typer.BadParameter(f"unknown benchmark {what!r}; expected sim, ndf, detect, raw or segment")
     table.add_column("stage")
     table.add_column("median ms", justify="right")
     for label, key in rows:
         table.add_row(label, f"{result[key]:.1f}")
     console.print(table)
+
+
+def _bench_raw(source: Path, target: Path, compare: bool, load: bool, repeat: int, threads: int, frame_step: int) -> None:
+    """`ndfa bench raw`: the table of `ndfa.eval.bench_raw.raw_pass_runs`."""
+    from ndfa.eval.bench_raw import RAW_STAGES, before_levers, raw_pass_runs
+
+    rows = raw_pass_runs(source, target, before=before_levers() if compare else None, compare=compare, load=load,
+                         repeat=repeat, threads=threads, frame_step=frame_step)
+    first = rows[0]
+    table = Table(title=f"ndfa bench raw: {source.name} + {target.name} ({source.parent}), no sinks",
+                  caption=f"{first['frames']} frames (both sessions), {threads} thread(s), stages {first['stages']}; "
+                          f"poses {', '.join(first['poses'])}; {first['machine']}")
+    table.add_column("ms / frame (both sessions)")
+    for row in rows:
+        table.add_column(row["label"], justify="right")
+    for stage in RAW_STAGES:
+        table.add_row(stage, *(f"{row['stage_ms'][stage]:.1f}" for row in rows))
+    table.add_row("wall s", *(f"{row['wall_s']:.1f}" for row in rows))
+    table.add_row("frames/s (frames / wall)", *(f"{row['fps']:.1f}" for row in rows))
+    table.add_row("CPU s", *(f"{row['cpu_s']:.1f}" for row in rows))
+    table.add_row("TP / FP / FN", *("-" if row["score"] is None else "/".join(map(str, row["score"])) for row in rows))
+    console.print(table)
+    for row in rows:
+        runs = row.get("fps_runs", [])
+        if len(runs) > 1:
+            console.print(f"{row['label']}, {len(runs)} runs: frames/s {', '.join(f'{f:.1f}' for f in runs)}")
+    now = next(row for row in rows if row["label"] == "now")
+    if compare:
+        before = rows[0]
+        console.print(f"now over before: {now['fps'] / before['fps']:.2f}x the frames/s, "
+                      f"{before['cpu_s'] / now['cpu_s']:.2f}x less CPU")
+    if load:
+        console.print(f"beside one busy process: {now['fps'] / rows[-1]['fps']:.2f}x slower")

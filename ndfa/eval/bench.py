@@ -63,15 +63,17 @@ def bench_sim(frames: int = 60, preset: str = "paper", seed: int = 0) -> dict[st
     result = {f"{stage}_ms": float(np.median(values) * 1e3) for stage, values in timings.items()}
     result.update(world_ms=world_ms, frames=len(poses), triangles=renderer.triangle_count,
                   width=config.camera.width, height=config.camera.height,
-                  machine=f"{platform.processor() or platform.machine()}, {_cpu_count()} cores")
+                  machine=machine())
     result["total_ms_per_frame"] = sum(result[f"{s}_ms"] for s in ("render", "noise", "write"))
     return result
 
 
-def _cpu_count() -> int:
+def machine() -> str:
+    """The processor and the cores this process may use, as the benchmarks' tables name the machine."""
     import os
 
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    return f"{platform.processor() or platform.machine()}, {cores} cores"
 
 
 def bench_ndf(weights: Path | None = None, repeats: int = 30, points: int = 1000, threads: int = 2) -> dict[str, float]:
@@ -113,7 +115,7 @@ def bench_ndf(weights: Path | None = None, repeats: int = 30, points: int = 1000
     for prefix in ("head_", "", "grid12_"):
         result[f"{prefix}batch8_ms_per_observation"] = result[f"{prefix}batch8_ms"] / 8
     result.update(points=points, threads=threads, grid=encoders[""].config.grid_resolution,
-                  machine=f"{platform.processor() or platform.machine()}, {_cpu_count()} cores")
+                  machine=machine())
     return result
 
 
@@ -123,8 +125,8 @@ def bench_detect(source: Path, target: Path, threads: int = 1, frame_step: int =
     `threads`: torch's and ONNX Runtime's; `runtime`: the NDF's (`ndfa.ndf.runtime`); `weights`:
     the NDF's (default: the shipped ones); `full_reconstruction`: decode every reconstruction, as a
     run with sinks does; `overlap`: the stages run at the same time (`ndfa.run.detect.staged`): a
-    stage's ms are then its own thread's time, and the frame's wall time is less than their sum;
-    without, reading is the pass's wall time minus the stages."""
+    stage's ms are then its own thread's time, and the frame's wall time is less than their sum
+    (reading is timed in the perception thread)."""
     import torch
 
     # torch, with the NDF: here and not at the top, so that `ndfa bench sim` and `scaling` run without it
@@ -141,8 +143,6 @@ def bench_detect(source: Path, target: Path, threads: int = 1, frame_step: int =
                                            pipeline=pipeline, full_reconstruction=full_reconstruction, overlap=overlap))
     per_frame_ms = result.seconds["target"] / result.frames["target"] * 1e3
     stages = dict(result.stage_ms)
-    if not overlap:
-        stages["reading"] = max(per_frame_ms - sum(stages.values()), 0.0)
     return {"fps": result.target_fps, "frames": result.frames["target"], "total_ms": per_frame_ms,
             "stage_ms": stages, "threads": threads, "runtime": pipeline.encoder.runtime.name,
             "weights": "shipped" if weights is None else str(weights),
@@ -150,7 +150,7 @@ def bench_detect(source: Path, target: Path, threads: int = 1, frame_step: int =
             "stages": "at the same time" if overlap else "one after the other",
             "cpu_s": time.process_time() - cpu_started,  # both passes, this process's CPU time
             "score": None if result.score is None else (result.score.tp, result.score.fp, result.score.fn),
-            "machine": f"{platform.processor() or platform.machine()}, {_cpu_count()} cores"}
+            "machine": machine()}
 
 
 def bench_detect_runs(source: Path, target: Path, threads: int = 1, compare: bool = False, load: bool = False,

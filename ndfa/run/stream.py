@@ -3,8 +3,9 @@ recordings, the frames staged ahead of the detector, and what a session saw."""
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Protocol
 
@@ -90,8 +91,21 @@ def staged(pipeline: ChangeDetectionPipeline, frames: Iterator[Frame], world: Se
     runtime and much of numpy's work release the GIL, so on two cores the stages run at the same
     time (docs/speed.md)."""
     depth = 4 if overlap else 0
-    perceived = prefetched((pipeline.perceive(world.apply(frame)) for frame in frames), depth)
+    perceived = prefetched(_perceived(pipeline, frames, world), depth)
     return prefetched((pipeline.encode(observed, full_reconstruction) for observed in perceived), depth)
+
+
+def _perceived(pipeline: ChangeDetectionPipeline, frames: Iterator[Frame], world: SessionWorld) -> Iterator[ObservedFrame]:
+    """Each frame perceived, its stage timings led by "reading" (the reader's work for it:
+    decompressing, decoding)."""
+    while True:
+        started = time.perf_counter()
+        frame = next(frames, None)
+        if frame is None:
+            return
+        reading_ms = (time.perf_counter() - started) * 1e3
+        observed = pipeline.perceive(world.apply(frame))
+        yield replace(observed, stage_ms={"reading": reading_ms} | observed.stage_ms)
 
 
 def change_summary(c: DecisionEvent) -> dict:

@@ -24,6 +24,7 @@ The core works on frames with camera poses in a z-up world (`ndfa.core.conventio
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field, replace
 from typing import Literal
 
@@ -71,6 +72,8 @@ class SessionWorld:
     # The estimated poses against the recording's true ones (a simulator's ground-truth channel), when
     # it has them: {"ate_rmse_m", "ate_max_m", "rpe_translation_m", "rpe_rotation_deg", "frames"}.
     pose_error: dict | None = None
+    # Wall seconds of what was estimated: "odometry" (reading its frames included), "up".
+    seconds: dict[str, float] = field(default_factory=dict)
 
     def apply(self, frame: Frame) -> Frame:
         """`frame` with the estimated pose (if any), levelled (if needed)."""
@@ -132,7 +135,9 @@ def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
     if poses == "truth":
         world.poses, world.pose_source = _true_poses(reader), "true (the ground-truth channel)"
     elif poses == "estimate" or (poses == "auto" and not reader.has_poses):
+        started = time.perf_counter()
         world.poses, world.pose_source, input_notes, truth, world.pose_quality = _estimate_poses(reader)
+        world.seconds["odometry"] = time.perf_counter() - started
         world.notes.extend(input_notes)
         world.pose_error = _pose_error(world.poses, truth)
     elif not reader.has_poses:
@@ -146,6 +151,7 @@ def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
     if up == "auto" and _known_z_up(reader.meta) and not estimated:
         world.up_source = "z (a synthetic recording's world is z-up)"
         return world
+    started = time.perf_counter()
     step = max(1, len(reader) // UP_FRAMES)
     imu = _up_from_imu(reader, world, step)
     planes = estimate_up((world.apply(f) for f in reader.frames(step=step)),
@@ -162,6 +168,7 @@ def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
     else:
         world.up, world.up_source = planes, "estimated"
     world.up = up_under_poses(world.up, world.pose_quality)
+    world.seconds["up"] = time.perf_counter() - started
     if world.up.ok and world.up.confidence == "low":
         world.notes.append(f"world up is doubtful: {world.up.warning}")
     if not world.up.ok:

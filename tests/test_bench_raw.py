@@ -1,0 +1,64 @@
+"""`ndfa bench raw`: the whole raw pass, per stage, before / now / beside a busy process in one run
+(the speed figures live in docs/speed.md; here only that every stage is timed, and sanely)."""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+
+import pytest
+from conftest import one_line
+from typer.testing import CliRunner
+
+from ndfa.cli import app
+from ndfa.eval.bench_raw import RAW_STAGES
+from ndfa.io.ingest.synthetic import ingest_sim
+from ndfa.sim.camera import PinholeCamera
+from ndfa.sim.noise import DepthNoise
+from ndfa.sim.presets import make_config
+
+
+@pytest.fixture(scope="module")
+def raw_recordings(tmp_path_factory):
+    """A small raw pair (no masks, no poses), 160 x 120, about 100 frames in all: odometry, up
+    from the planes and the scene alignment all run on it."""
+    config = make_config("sample", 3, depth_noise=DepthNoise.off(), camera=PinholeCamera().scaled(0.25))
+    config = dataclasses.replace(config, trajectory=dataclasses.replace(config.trajectory, step_m=0.3),
+                                 raw=True, textures=True)
+    out = tmp_path_factory.mktemp("raw")
+    ingest_sim(config, out)
+    return out
+
+
+@pytest.mark.slow
+def test_bench_raw_times_every_stage_of_both_sessions_before_now_and_under_load(raw_recordings):
+    result = CliRunner(env={"COLUMNS": "200"}).invoke(app, [
+        "bench", "raw", "--source", str(raw_recordings / "source.mcap"),
+        "--target", str(raw_recordings / "target.mcap"), "--compare", "--load"])
+    assert result.exit_code == 0, result.output
+    columns = 3  # before, now, now beside one busy process
+    rows = {}
+    for line in result.output.splitlines():
+        cells = [cell.strip() for cell in re.split(r"[│┃]", line)[1:-1]]
+        if len(cells) == columns + 1:
+            rows[cells[0]] = cells[1:]
+    assert rows["ms / frame (both sessions)"] == ["before", "now", "now, beside one busy process"]
+    for stage in RAW_STAGES:
+        assert all(float(ms) >= 0.0 for ms in rows[stage]), (stage, rows[stage])
+    # Both sessions' poses were estimated and their up read from the planes: those stages took time,
+    # as did every frame's segmentation.
+    for stage in ("odometry", "up", "segmentation", "reading", "scene alignment"):
+        assert all(float(ms) > 0.0 for ms in rows[stage]), (stage, rows[stage])
+    frames = int(re.search(r"(\d+) frames \(both sessions\)", result.output).group(1))
+    assert frames > 50
+    for wall, fps in zip(rows["wall s"], rows["frames/s (frames / wall)"]):
+        assert float(fps) == pytest.approx(frames / float(wall), rel=0.05, abs=0.05)
+        # Stages that run one after the other, before the frames' pass, fit in the wall time.
+    for column, wall in enumerate(rows["wall s"]):
+        before_pass = sum(float(rows[stage][column]) for stage in ("odometry", "up", "scene alignment"))
+        assert before_pass * frames / 1e3 <= float(wall) * 1.01
+    assert "now over before:" in result.output and "beside one busy process:" in result.output
+
+
+def test_bench_raw_refuses_a_missing_recording(ndfa, tmp_path):
+    one_line(ndfa("bench", "raw", "--source", tmp_path / "none.mcap", "--target", tmp_path / "none.mcap"), "none.mcap")
