@@ -120,6 +120,12 @@ def test_eval_prints_table_one_and_writes_it_with_precision_recall_curves(tmp_pa
     assert (table["tp"] + table["fn"]).to_list() == [5, 5, 5]  # the sample has five changed mugs
     assert {"precision", "recall", "seconds"} <= set(table.columns)
     assert (tmp_path / "table.md").read_text().startswith("| method |")
+    # ndfa's kinds, right / reports per kind (the baselines say "changed", not which change)
+    kinds = dict(zip(table["method"].to_list(), table["kinds"].to_list()))
+    assert kinds["NN"] == kinds["PMT"] == []
+    assert {k["kind"] for k in kinds["ndfa"]} >= {"added", "moved"}
+    assert all(0 <= k["right"] <= k["reports"] for k in kinds["ndfa"])
+    assert "kinds right" in result.output and "kinds right" in (tmp_path / "table.md").read_text()
     # --pr-curve: each method's threshold swept; at its default threshold each curve is its table row
     curves = pl.read_parquet(tmp_path / "pr_curve.parquet")
     assert curves.columns == ["method", "threshold", "default", "tp", "fp", "fn", "precision", "recall"]

@@ -35,6 +35,7 @@ def test_huge_integers_are_refused_in_one_line(tmp_path, ndfa, args, fragments):
     (["--step", "100"], ["0 frames"]),
     (["--mugs-per-table", "1-1000"], ["--mugs-per-table", "<= 30"]),
     (["--offset", "1e300"], ["--offset", "a room"]),
+    (["--furniture", "1000"], ["--furniture", "<= 40", "walls are full"]),
 ])
 def test_sizes_that_would_hang_the_simulator_are_refused_at_once(tmp_path, ndfa, args, fragments):
     started = time.monotonic()

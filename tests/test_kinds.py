@@ -77,3 +77,28 @@ def test_kinds_are_scored_per_kind():
     assert result.kind_precision("moved") == 0.5 and result.kind_precision("rotated") == 1.0
     assert result.as_dict()["kinds"]["moved"] == {"reports": 2, "right": 1, "precision": 0.5}
     assert "kinds" not in score([2], truth).as_dict()  # no kinds given: the summary as it was
+
+
+def test_the_decisions_table_says_whether_each_change_is_of_the_right_kind(tmp_path):
+    import polars as pl
+
+    from ndfa.log.table_sink import TableSink
+
+    truth = {1: "removed", 2: "added", 3: "moved"}  # mug 4: unchanged
+    sink = TableSink(tmp_path, truth)
+    here = np.zeros(3)
+    for kind, session, ids, partner in (("added", "target", (2,), ()),     # first found changed; at the end ...
+                                        ("moved", "target", (2,), (1,)),   # ... a removal and another mug's addition
+                                        ("moved", "target", (3,), (3,)),   # one mug at both ends
+                                        ("removed", "source", (1,), ()),
+                                        ("added", "target", (4,), ()),     # nothing changed there
+                                        ("unchanged", "target", (4,), ())):
+        sink.log(DecisionEvent(frame_index=0, session=session, object_id=ids[0], kind=kind, reason="", center_world=here,
+                               center_source=here, instance_ids=ids, partner_instance_ids=partner, score=0.7))
+    sink.close()
+    decisions = pl.read_parquet(tmp_path / "decisions.parquet")
+    assert decisions["kind_right"].to_list() == [True, False, True, True, False, None]
+    assert decisions["reported"].to_list() == [False, True, True, True, True, False]  # the "added" became a move
+    per_kind = decisions.filter("reported").group_by("kind").agg(pl.len(), pl.col("kind_right").sum()).sort("kind")
+    assert per_kind.rows() == [("added", 1, 0), ("moved", 2, 1), ("removed", 1, 1)]
+    assert decisions["partner_instance_ids"].to_list()[1:3] == [[1], [3]]

@@ -97,11 +97,11 @@ def eval_command(
         observations = sinks[0].tables()["observations"] if sinks else None
 
     table = Table(title=f"change detection, {source.name} -> {target.name} (object level)")
-    for column in ("method", "poses", "TP", "FP", "FN", "precision", "recall", "seconds"):
-        table.add_column(column, justify="left" if column in ("method", "poses") else "right")
+    for column in ("method", "poses", "TP", "FP", "FN", "precision", "recall", "kinds right", "seconds"):
+        table.add_column(column, justify="left" if column in ("method", "poses", "kinds right") else "right")
     for r in result.rows:
         table.add_row(r.method, r.poses, str(r.tp), str(r.fp), str(r.fn), f"{r.precision:.1%}", f"{r.recall:.1%}",
-                      f"{r.seconds:.1f}")
+                      r.describe_kinds(), f"{r.seconds:.1f}")
     console.print(table)
     for r in result.rows:
         console.print(f"{r.method}: false positives {', '.join(map(str, r.false_positive_ids)) or '-'}; "

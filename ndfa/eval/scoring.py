@@ -12,10 +12,11 @@ mug in both sessions). A ground-truth change is a mug that was added, removed, m
 
 The kind of a report does not enter TP/FP/FN (a switched mug reported as "added" is found, as in
 the paper); it is scored on its own, per kind (`Score.kinds`): a report is of the right kind when
-its mug's true change is one the kind describes (`RIGHT_KIND`: "added" a mug that appeared at the
-place: added, moved or switched; "removed" one that left it; "rotated" one turned in place), and a
-"moved" report also needs the same mug at both ends (its source object's mug is its target
-object's): a removed mug and a different mug added elsewhere are not a move. For the rotated mugs the score also says how many were reported as "rotated"
+its mug's true change is one the kind describes (`ndfa.io.recording.ground_truth.RIGHT_KIND`:
+"added" a mug that appeared at the place: added, moved or switched; "removed" one that left it;
+"rotated" one turned in place), and a "moved" report also needs the same mug at both ends (its
+source object's mug is its target object's): a removed mug and a different mug added elsewhere
+are not a move. For the rotated mugs the score also says how many were reported as "rotated"
 (`Score.rotated_found_ids` of `rotated_ids`): a turned mug reported as moved or added is a TP
 but not found as turned; one reported as unchanged (no report) is an FN and not found either.
 
@@ -32,11 +33,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from ndfa.io.recording.ground_truth import changed_instances
-
-# The true changes a report of each kind describes rightly (a "moved" report also needs one mug at both ends).
-RIGHT_KIND = {"added": ("added", "moved", "switched"), "removed": ("removed", "moved", "switched"),
-              "moved": ("moved", "switched"), "rotated": ("rotated",)}
+from ndfa.io.recording.ground_truth import changed_instances, kind_is_right
 
 
 @dataclass(frozen=True)
@@ -48,10 +45,8 @@ class KindReport:
     partner_id: int | None = None  # "moved": the mug of its source object (None: unknown)
 
     def right(self, truth: dict[int, str]) -> bool:
-        """Whether the kind is right for the mug's true change (`RIGHT_KIND`)."""
-        if truth.get(self.instance_id, "unchanged") not in RIGHT_KIND.get(self.kind, ()):
-            return False
-        return self.kind != "moved" or self.partner_id == self.instance_id
+        """Whether the kind is right for the mug's true change (`ground_truth.RIGHT_KIND`)."""
+        return kind_is_right(self.kind, self.instance_id, self.partner_id, truth)
 
 
 @dataclass(frozen=True)

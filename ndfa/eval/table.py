@@ -24,7 +24,7 @@ from ndfa.eval.baselines.common import BaselineError, run_baseline
 from ndfa.eval.baselines.nn import NNBaseline, NNConfig
 from ndfa.eval.baselines.tsdf import TSDFBaseline, TSDFConfig
 from ndfa.eval.runs import score_detection
-from ndfa.eval.scoring import rotated_reports, score
+from ndfa.eval.scoring import kind_reports, rotated_reports, score
 from ndfa.io.atomic import atomic_path, write_parquet
 from ndfa.io.recording import Frame, RecordingReader
 from ndfa.perception.observations import ObservationConfig
@@ -47,6 +47,13 @@ class MethodRow:
     false_positive_ids: tuple[int, ...]
     false_negative_ids: tuple[int, ...]
     reported_ids: tuple[int, ...]
+    # kind -> (reports of it on scored mugs, of the right kind) (`Score.kinds`); ndfa's only: the
+    # baselines say "changed", not which change
+    kinds: dict[str, tuple[int, int]] = field(default_factory=dict)
+
+    def describe_kinds(self) -> str:
+        """"added 3/3, moved 4/5": right / reports per kind; "-" for a method without kinds."""
+        return ", ".join(f"{kind} {right}/{n}" for kind, (n, right) in sorted(self.kinds.items())) or "-"
 
 
 @dataclass
@@ -64,17 +71,20 @@ class EvalResult:
             "method": r.method, "poses": r.poses, "tp": r.tp, "fp": r.fp, "fn": r.fn,
             "precision": r.precision, "recall": r.recall, "seconds": r.seconds,
             "false_positive_ids": list(r.false_positive_ids), "false_negative_ids": list(r.false_negative_ids),
-            "reported_ids": list(r.reported_ids)} for r in self.rows],
+            "reported_ids": list(r.reported_ids),
+            "kinds": [{"kind": kind, "reports": n, "right": right} for kind, (n, right) in sorted(r.kinds.items())]}
+            for r in self.rows],
             schema_overrides={"false_positive_ids": pl.List(pl.Int64), "false_negative_ids": pl.List(pl.Int64),
-                              "reported_ids": pl.List(pl.Int64)})
+                              "reported_ids": pl.List(pl.Int64), "kinds": pl.List(pl.Struct(
+                                  {"kind": pl.String, "reports": pl.Int64, "right": pl.Int64}))})
 
     def markdown(self) -> str:
-        lines = ["| method | poses | TP | FP | FN | precision | recall | seconds | false positives | missed |",
-                 "|---|---|---|---|---|---|---|---|---|---|"]
+        lines = ["| method | poses | TP | FP | FN | precision | recall | kinds right | seconds | false positives | missed |",
+                 "|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in self.rows:
             ids = lambda values: ", ".join(map(str, values)) or "—"  # noqa: E731
             lines.append(f"| {r.method} | {r.poses} | {r.tp} | {r.fp} | {r.fn} | {r.precision:.1%} | {r.recall:.1%} "
-                         f"| {r.seconds:.1f} | {ids(r.false_positive_ids)} | {ids(r.false_negative_ids)} |")
+                         f"| {r.describe_kinds()} | {r.seconds:.1f} | {ids(r.false_positive_ids)} | {ids(r.false_negative_ids)} |")
         return "\n".join(lines) + "\n"
 
 
@@ -133,10 +143,11 @@ def evaluate_methods(source: Path, target: Path, nn: NNConfig = NNConfig(), tsdf
 
     rows, notes, unscored = [], [], ()
     for method, poses in (("NN", "true"), ("PMT", "true"), ("ndfa", "given")):
-        s = score(reported[method], truth, visible)
+        s = score(reported[method], truth, visible, kinds=kind_reports(detection.changes) if method == "ndfa" else ())
         unscored = s.unscored_ids
         rows.append(MethodRow(method, poses, s.tp, s.fp, s.fn, s.precision, s.recall, seconds[method],
-                              s.false_positive_ids, s.false_negative_ids, tuple(sorted(set(reported[method])))))
+                              s.false_positive_ids, s.false_negative_ids, tuple(sorted(set(reported[method]))),
+                              s.kinds))
     turned = score(reported["ndfa"], truth, visible, rotated_reports(detection.changes))
     if turned.rotated_ids:
         notes.append(f"ndfa reported {len(turned.rotated_found_ids)} of the {len(turned.rotated_ids)} mugs turned in "

@@ -10,7 +10,10 @@
                            row without an edge for a fallback comparison)
     decisions.parquet      every change test and the final removals/moves, with its score (>= 0.5:
                            a change; docs/scores.md) and the ground-truth change of the object's
-                           mask when the recordings carry it; a rotation's turn in `angle_deg`
+                           mask when the recordings carry it, and whether a change's kind is right
+                           for it (`kind_right`; a move from another mask is not); `reported`: the
+                           changes the run reports (an "added" later found "moved" is reported as
+                           the move); a rotation's turn in `angle_deg`
     timings.parquet        ms per stage per frame
     pose_quality.parquet   one row per session whose poses were estimated: the verdict (good /
                            doubtful / unusable), the estimated error and the figures behind it
@@ -47,6 +50,7 @@ from ndfa.core.events import (
 )
 from ndfa.core.sessions import HistoryEvent, HistoryRow, PairEvent
 from ndfa.io.atomic import write_parquet
+from ndfa.io.recording.ground_truth import kind_is_right
 
 TABLES = ("observations", "associations", "objects", "tree_nodes", "registration", "graphs", "decisions", "timings",
           "pose_quality")
@@ -134,8 +138,10 @@ class TableSink:
             self.rows["decisions"].append({
                 "frame": event.frame_index, "session": event.session, "object_id": event.object_id, "kind": event.kind,
                 "reason": event.reason, **_xyz("position", position), "partner_id": event.partner_id,
-                "instance_ids": list(event.instance_ids), "score": event.score, "angle_deg": event.angle_deg,
-                "truth": self._truth(event.instance_ids[0]) if event.instance_ids else None})
+                "instance_ids": list(event.instance_ids), "partner_instance_ids": list(event.partner_instance_ids),
+                "score": event.score, "angle_deg": event.angle_deg,
+                "truth": self._truth(event.instance_ids[0]) if event.instance_ids else None,
+                "kind_right": self._kind_right(event)})
         elif isinstance(event, PoseQualityEvent):
             self.rows["pose_quality"].append({"session": event.session, "verdict": event.verdict,
                                               "estimated_error_cm": event.error_cm} | event.figures)
@@ -144,6 +150,9 @@ class TableSink:
 
     def tables(self) -> dict[str, pl.DataFrame]:
         tables = {name: pl.DataFrame(rows, infer_schema_length=None) for name, rows in self.rows.items()}
+        if self.rows["decisions"]:
+            tables["decisions"] = tables["decisions"].with_columns(
+                reported=pl.Series(_reported(self.rows["decisions"]), dtype=pl.Boolean))
         tables["objects"] = pl.DataFrame(list(self._objects.values()), infer_schema_length=None)
         nodes = []
         for session, tree in self._trees.items():
@@ -164,10 +173,28 @@ class TableSink:
     def close(self) -> None:
         self.flush()
 
+    def _kind_right(self, event: DecisionEvent) -> bool | None:
+        """Whether a reported change's kind is right for its mask's true change (`kind_is_right`);
+        None for "unchanged" decisions and where the truth or the mask is unknown."""
+        if self.truth is None or event.kind == "unchanged" or not event.instance_ids:
+            return None
+        partner = event.partner_instance_ids[0] if event.partner_instance_ids else None
+        return kind_is_right(event.kind, event.instance_ids[0], partner, self.truth)
+
     def _truth(self, instance_id: int) -> str | None:
         if self.truth is None:
             return None
         return self.truth.get(int(instance_id), "unchanged")
+
+
+def _reported(decisions: list[dict]) -> list[bool]:
+    """Which decision rows are reported changes (`ndfa.change.detector.reported_changes`): not
+    "unchanged", and a target object's "added" only when it was not later found "moved"."""
+    def key(row: dict) -> tuple:
+        return row.get("pair"), row["session"], row["object_id"]
+
+    moved = {key(row) for row in decisions if row["kind"] == "moved"}
+    return [row["kind"] != "unchanged" and (row["kind"] == "moved" or key(row) not in moved) for row in decisions]
 
 
 HISTORY_SCHEMA = {

@@ -64,6 +64,9 @@ class SimConfig:
     monitors_per_table: int = 0     # monitors at each desk's outer edge; screens with no or wrong depth
     ceiling: bool = False           # a ceiling with strip lights on the walls
     aligned_depth: bool = False     # depth aligned to colour as a RealSense writes it (occlusion bands)
+    # Pieces of furniture along the walls (`ndfa.sim.furniture`): static, part of the room; they
+    # break the box room's symmetry. 0 leaves the seed's scene as it was.
+    furniture: int = 0
 
     def __post_init__(self) -> None:
         lo, hi = self.mugs_per_table
@@ -80,6 +83,8 @@ class SimConfig:
             raise SimError(f"world tilt must be in [0, 90] degrees, got {self.world_tilt_deg}")
         if self.monitors_per_table < 0:
             raise SimError(f"monitors per table must be >= 0, got {self.monitors_per_table}")
+        if self.furniture < 0:
+            raise SimError(f"furniture pieces must be >= 0, got {self.furniture}")
         if self.rotated < 0:
             raise SimError(f"rotated mugs must be >= 0, got {self.rotated}")
         lo_deg, hi_deg = self.rotated_deg

@@ -25,6 +25,7 @@ from ndfa.sim.clutter import (
     make_clutter_mesh,
 )
 from ndfa.sim.clutter import footprint_radius as mesh_footprint_radius
+from ndfa.sim.furniture import FurniturePiece, wall_furniture
 from ndfa.sim.mug import Mug
 from ndfa.sim.presets import SimConfig
 from ndfa.sim.scene import Room, Table, room_around, table_grid
@@ -70,6 +71,7 @@ class World:
     changes: list[Change]
     colors: dict[int, tuple[float, float, float]] = field(default_factory=dict)
     clutter: list[ClutterItem] = field(default_factory=list)
+    furniture: list[FurniturePiece] = field(default_factory=list)  # along the walls: part of the room
 
     def layout(self, session: str) -> dict[int, Placement]:
         if session not in SESSIONS:
@@ -118,7 +120,9 @@ def build_world(config: SimConfig, models: list[Mug]) -> World:
     # Clutter last, from a stream of its own: adding it moves no mug of the same seed's scene.
     clutter = place_clutter(tables, mugs, [source, target], config.clutter_per_table,
                             np.random.default_rng([config.seed, 4])) if config.clutter_per_table else []
-    return World(tables, room_around(tables), mugs, source, target, changes, colors, clutter)
+    room = room_around(tables)
+    furniture = wall_furniture(room, config.furniture, np.random.default_rng([config.seed, 6])) if config.furniture else []
+    return World(tables, room, mugs, source, target, changes, colors, clutter, furniture)
 
 
 def _mugs_per_table(n_tables: int, per_table: tuple[int, int], total: tuple[int, int] | None,

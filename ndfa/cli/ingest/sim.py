@@ -12,6 +12,7 @@ from rich.table import Table
 from ndfa.cli.app import bar_per_label, console, err_console, progress_bar
 from ndfa.cli.checks import in_range, input_dir, output_dir, positive, seed_range
 from ndfa.cli.ingest import ingest_app
+from ndfa.sim.furniture import MAX_FURNITURE
 from ndfa.sim.handheld import MOTIONS
 from ndfa.sim.mesh_io import load_mug_dir
 from ndfa.sim.noise import DepthNoise
@@ -71,6 +72,8 @@ def ingest_sim_command(
                                            callback=in_range(ge=0, le=100, why="a room, not a city")),
     offset_yaw: Optional[float] = typer.Option(None, help="Target pose offset: max yaw, degrees.",
                                                callback=in_range(ge=0, le=180, why="a half turn either way")),
+    offset_tilt: Optional[float] = typer.Option(None, help="Target pose offset: max roll and pitch, degrees.",
+                                                callback=in_range(ge=0, le=90)),
     drift: Optional[float] = typer.Option(None, help="Target drift: random-walk translation step std, metres/frame.",
                                           callback=in_range(ge=0, le=1, why="metres per frame")),
     drift_yaw: Optional[float] = typer.Option(None, help="Target drift: random-walk yaw step std, degrees/frame.",
@@ -82,6 +85,10 @@ def ingest_sim_command(
                                                      "office: 3).",
                                           callback=in_range(ge=0, le=MAX_CLUTTER, why="a table is full long before: "
                                                             "pieces that find no free spot are left out")),
+    furniture: int = typer.Option(0, help="Pieces of furniture along the walls (cabinets, shelves, sideboards); "
+                                          "static, part of the room: a room that does not fit itself turned or "
+                                          "shifted (docs/registration.md).",
+                                  callback=in_range(ge=0, le=MAX_FURNITURE, why="the walls are full long before")),
     motion: Optional[str] = typer.Option(None, help="Camera motion: smooth | handheld (sweeps up to 90 deg/s, pitch "
                                                     "towards the desks, shake, at --fps; default: the preset's, office: "
                                                     "handheld)."),
@@ -139,11 +146,12 @@ def ingest_sim_command(
         overrides["depth_noise"] = DepthNoise().scaled(1.0 if noise_scale is None else noise_scale)
         if noise is False:
             overrides["depth_noise"] = DepthNoise.off()
-    error = {k: v for k, v in dict(offset_translation_m=offset, offset_yaw_deg=offset_yaw,
+    error = {k: v for k, v in dict(offset_translation_m=offset, offset_yaw_deg=offset_yaw, offset_tilt_deg=offset_tilt,
                                    drift_translation_m=drift, drift_yaw_deg=drift_yaw).items() if v is not None}
     if error:
         overrides["target_pose_error"] = dataclasses.replace(config.target_pose_error, **error)
-    overrides.update(raw=raw, world_tilt_deg=world_tilt, rotated=rotated, rotated_deg=tuple(rotated_deg))
+    overrides.update(raw=raw, world_tilt_deg=world_tilt, rotated=rotated, rotated_deg=tuple(rotated_deg),
+                     furniture=furniture)
     if textures is not None:
         overrides["textures"] = textures
     if clutter is not None:

@@ -241,7 +241,7 @@ def visible_pixels(instance: np.ndarray, depth: np.ndarray) -> dict[int, int]:
 
 def render_objects(world: World, session: str, textures: RoomTextures | None = None,
                    fixtures: OfficeFixtures | None = None) -> list[RenderObject]:
-    """Room, tables, the session's mugs, the clutter and an office's fixtures as renderable objects
+    """Room, tables, furniture, the session's mugs, the clutter and an office's fixtures as renderable objects
     (level world frame); mugs, clutter and screens carry their instance ids, room and tables the
     `textures` if given."""
     gray, wood = (0.75, 0.75, 0.72), (0.55, 0.40, 0.28)
@@ -249,6 +249,7 @@ def render_objects(world: World, session: str, textures: RoomTextures | None = N
     table_textures = textures.tables if textures is not None else [None] * len(world.tables)
     objects = [RenderObject(mesh, 0, gray, texture) for mesh, texture in zip(world.room.meshes(), room_textures_)]
     objects += [RenderObject(table.mesh(), 0, wood, texture) for table, texture in zip(world.tables, table_textures)]
+    objects += [RenderObject(piece.mesh, 0, piece.color) for piece in world.furniture]
     for instance_id, placement in world.layout(session).items():
         mesh = world.mugs[placement.model_id].mesh.transformed(world.object_pose(placement))
         objects.append(RenderObject(mesh, instance_id, world.colors[instance_id]))
@@ -308,6 +309,8 @@ def world_ground_truth(world: World, config: SimConfig) -> dict:
             "table_id": item.table_id,
             "pose_world_object": (pose_world_level @ world.clutter_pose(item)).tolist(),
         } for item in world.clutter]
+    if world.furniture:  # part of the room, in the level world
+        truth["furniture"] = [piece.as_dict() for piece in world.furniture]
     fixtures = office(config, world)
     if fixtures is not None:  # fixed in every session; not objects
         truth["office"] = {"ceiling": fixtures.ceiling, "monitors": [

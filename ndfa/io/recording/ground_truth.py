@@ -18,6 +18,20 @@ def changed_instances(ground_truth: dict[str, Any]) -> dict[int, str]:
             if o.get("change") not in (None, "unchanged")}
 
 
+# The true changes a report of each kind describes rightly (a "moved" report also needs one mug at
+# both ends: a removed mug and a different mug added elsewhere are not a move).
+RIGHT_KIND = {"added": ("added", "moved", "switched"), "removed": ("removed", "moved", "switched"),
+              "moved": ("moved", "switched"), "rotated": ("rotated",)}
+
+
+def kind_is_right(kind: str, instance_id: int, partner_id: int | None, truth: dict[int, str]) -> bool:
+    """Whether a report of `kind` on the mug `instance_id` (a move: from the mug `partner_id`, its
+    source object's; None: unknown) is right for the true changes `truth` (`changed_instances`)."""
+    if truth.get(instance_id, "unchanged") not in RIGHT_KIND.get(kind, ()):
+        return False
+    return kind != "moved" or partner_id == instance_id
+
+
 def ground_truth_problem(truth: dict[str, Any]) -> str | None:
     """What is wrong with a ground-truth message, or None when the parts ndfa reads are well formed."""
     for key, kind in (("objects", list), ("clutter", list), ("tables", list), ("changes", dict)):
