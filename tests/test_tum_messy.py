@@ -2,6 +2,7 @@
 milliseconds or nanoseconds, a byte order mark, a list that is a folder; and the recording's limits
 on stamps and on the camera's focal length."""
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +13,7 @@ from test_tum import frame_ids, make_folder, pose_at
 from ndfa.core.errors import IngestError, RecordingError
 from ndfa.core.frame import Frame
 from ndfa.io.ingest.tum import TumWarning, ingest_tum
+from ndfa.io.ingest.tum_lists import read_list
 from ndfa.io.recording import RecordingReader, RecordingWriter
 
 
@@ -70,6 +72,51 @@ def test_stamps_in_another_unit_are_read_as_seconds_with_a_warning(tmp_path, fac
     assert [f.timestamp - epoch for f in frames] == pytest.approx([0.0, 0.1, 0.2, 0.3, 0.4], abs=1e-5)
     for frame in frames:
         assert np.abs(frame.pose_world_camera - pose_at(frame.timestamp - epoch)).max() < 1e-4
+
+
+@pytest.mark.parametrize("factor, unit", [(1e3, "milliseconds"), (1e6, "microseconds"), (1e9, "nanoseconds")])
+@pytest.mark.parametrize("start", [0.0, 1234.5])
+def test_stamps_since_the_start_in_another_unit_are_told_by_their_interval(tmp_path, factor, unit, start):
+    """Stamps counted from the recording's start (0, 33, 67, ... ms) are too small for their size to
+    tell the unit: a 30 Hz recording read as seconds looked like 0.03 Hz, with poses placed at the
+    wrong times."""
+    stamps = tuple(k / 30 for k in range(5))
+    folder = make_folder(tmp_path / "tum", stamps=stamps, groundtruth=(-0.05, 0.2))
+    for name in ("depth.txt", "rgb.txt", "groundtruth.txt"):
+        scaled_stamps(folder / name, factor, start)
+    with pytest.warns(TumWarning) as warned:
+        summary = ingest_tum(folder, tmp_path / "out.mcap")
+    messages = [str(w.message) for w in warned]
+    for name in ("depth.txt", "rgb.txt", "groundtruth.txt"):
+        assert sum(f"{name}: timestamps" in m and f"look like {unit}, not seconds" in m for m in messages) == 1, messages
+    assert any("depth.txt" in m and "(30 lines per second, where seconds would give" in m for m in messages), messages
+    assert summary.written == 5
+    frames = list(RecordingReader(tmp_path / "out.mcap").frames())
+    assert [f.timestamp - start for f in frames] == pytest.approx(stamps, abs=1e-5)
+    for frame in frames:
+        assert np.abs(frame.pose_world_camera - pose_at(frame.timestamp - start)).max() < 1e-4
+
+
+@pytest.mark.parametrize("stamps", [(0.0, 1.0, 2.0, 3.0, 4.0), (0.0, 0.004, 0.008, 0.012, 0.016), (7.0, 12.0)])
+def test_stamps_in_seconds_at_any_plausible_rate_stay_seconds(tmp_path, stamps):
+    """A list thinned to 1 frame per second, a 250 Hz camera, one frame per 5 s: seconds, no warning."""
+    folder = make_folder(tmp_path / "tum", stamps=stamps, groundtruth=(stamps[0] - 0.05, stamps[-1] + 0.05))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        summary = ingest_tum(folder, tmp_path / "out.mcap")
+    assert summary.written == len(stamps)
+    frames = list(RecordingReader(tmp_path / "out.mcap").frames())
+    assert [f.timestamp for f in frames] == pytest.approx(stamps)
+
+
+def test_poses_at_a_rate_either_unit_fits_take_the_depth_lists_unit(tmp_path):
+    """Motion capture at 1 kHz in milliseconds (1 ms apart) fits seconds too (1 Hz): the depth
+    list's milliseconds decide."""
+    (tmp_path / "groundtruth.txt").write_text("".join(f"{k}.0 0 0 0 0 0 0 1\n" for k in range(10)))
+    assert read_list(tmp_path, "groundtruth.txt", required=True).per_second == 1.0
+    in_ms = read_list(tmp_path, "groundtruth.txt", required=True, likely_per_second=1e3)
+    assert in_ms.per_second == 1e3 and in_ms.stamps[-1] == pytest.approx(0.009)
+    assert "look like milliseconds" in in_ms.warnings[0]
 
 
 def test_stamps_no_unit_makes_seconds_are_refused_with_the_hint(tmp_path):

@@ -13,6 +13,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
+from ndfa.io.recording import RecordingReader
 from tests.fuzz.mcap_inputs import read_messages, rewritten_recording
 from tests.fuzz.property import CHECKED, Outcome, check_cli, kept_on_failure, run_cli
 from tests.fuzz.seeds import SEED
@@ -105,6 +106,44 @@ def test_tum_stamps_in_other_units(fuzz_settings):
             if existing_output:
                 out.write_bytes(b"an earlier recording")
             check_ingest_tum(folder, out)
+
+    run()
+
+
+def test_tum_stamps_since_the_start_in_other_units(fuzz_settings):
+    """Every list in one unit (seconds, ms, µs, ns), counted from a drawn start (0 or later, not
+    since 1970: too small for their size to tell the unit), a camera at 1 to 150 Hz with jitter: the
+    import must give the frames their times in seconds and warn exactly when the unit was not seconds."""
+    seed_stamps = [float(line.split()[0]) for line in (TUM / "depth.txt").read_text().splitlines()
+                   if line.strip() and not line.startswith("#")]
+
+    @fuzz_settings
+    @given(st.sampled_from([(1.0, "seconds"), (1e3, "milliseconds"), (1e6, "microseconds"), (1e9, "nanoseconds")]),
+           st.one_of(st.just(0.0), st.floats(0.0, 1e5)), st.floats(1.0, 150.0),
+           st.lists(st.floats(0.0, 0.2), min_size=len(seed_stamps), max_size=len(seed_stamps)))
+    def run(unit: tuple[float, str], start: float, rate_hz: float, jitter: list[float]) -> None:
+        per_second, name = unit
+        seconds = [start + (k + jitter[k]) / rate_hz for k in range(len(seed_stamps))]
+        new_stamp = {stamp: seconds[k] * per_second for k, stamp in enumerate(seed_stamps)}
+        with tempfile.TemporaryDirectory() as scratch:
+            folder = apply_edits(TUM, Path(scratch) / "tum", [])
+            for list_name in ("rgb.txt", "depth.txt", "groundtruth.txt"):
+                lines = (folder / list_name).read_text().splitlines(keepends=True)
+                (folder / list_name).write_text("".join(
+                    line if line.startswith("#") else f"{new_stamp[float(line.split(' ', 1)[0])]!r} {line.split(' ', 1)[1]}"
+                    for line in lines))
+            out = Path(scratch) / "rec.mcap"
+
+            def right_times(outcome: Outcome) -> None:
+                times = [frame.timestamp for frame in RecordingReader(out).frames()]
+                assert times == pytest.approx(seconds, rel=1e-9, abs=1e-6), outcome.describe()
+                warned = f"look like {name}, not seconds" in outcome.stdout + outcome.stderr  # rich prints warnings on stdout
+                assert warned == (per_second != 1.0), outcome.describe()
+
+            with kept_on_failure(folder):
+                outcome = check_cli(["ingest", "tum", str(folder), "--out", str(out)], [str(folder)], output=out,
+                                    check_result=right_times)
+            assert outcome.code == 0, outcome.describe()
 
     run()
 

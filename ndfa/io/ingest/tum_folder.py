@@ -167,8 +167,8 @@ class TumFolder:
 
     def _index(self) -> list[TumEntry]:
         depth_list = read_list(self.folder, DEPTH_LIST, required=True)
-        rgb_list = read_list(self.folder, RGB_LIST, required=False)
-        groundtruth = read_list(self.folder, GROUNDTRUTH, required=False)
+        rgb_list = read_list(self.folder, RGB_LIST, required=False, likely_per_second=depth_list.per_second)
+        groundtruth = read_list(self.folder, GROUNDTRUTH, required=False, likely_per_second=depth_list.per_second)
         self.has_groundtruth = groundtruth is not None
         # Lines out of time order are sorted by stamp when the stamps allow it for depth and rgb
         # alike; otherwise both stay in file order, to be paired line by line.
@@ -204,7 +204,7 @@ class TumFolder:
         if groundtruth is not None:
             entries = self._place_poses(entries, groundtruth, depth_list, in_time_order, "pose")
             self.info["poses"] = f"given ({GROUNDTRUTH})"
-            true_poses = read_list(self.folder, TRUE_POSES, required=False)
+            true_poses = read_list(self.folder, TRUE_POSES, required=False, likely_per_second=depth_list.per_second)
             if true_poses is not None:
                 true_poses = self._warned(true_poses.in_time_order(negative_ok=True) if in_time_order else true_poses)
             if true_poses is not None:

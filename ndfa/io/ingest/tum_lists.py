@@ -3,11 +3,15 @@
 rgb.txt and depth.txt hold lines "timestamp relative/path.png", groundtruth.txt (and ndfa's
 ndfa_true_poses.txt) lines "timestamp tx ty tz qx qy qz qw"; '#' starts a comment line.
 
-Timestamps are seconds. A list whose stamps are too large for seconds (beyond 1.8e10 s, the latest
-time an MCAP recording holds) holds them in milliseconds, microseconds or nanoseconds since 1970,
-told apart by their size (from 1e11, 1e14, 1e17: a realistic unit mistake of a converter): they
-are read as seconds, with a warning; stamps that no unit makes such seconds are refused. A list whose lines are out of time
-order is sorted by stamp, with a warning (`StampedList.in_time_order`).
+Timestamps are seconds. A converter may have written them in milliseconds, microseconds or
+nanoseconds instead (a realistic unit mistake), since 1970 or since the recording's start. The unit
+is told first by the lines' median interval, which puts a camera at 0.2 to 300 frames per second
+and a pose source (motion capture, keyframes) at 0.2 to 2000 poses per second in one unit only
+(seconds where that fits, then the unit the depth list turned out to have); failing that, by the
+stamps' size (beyond 1.8e10 s, the latest time an MCAP recording holds: from 1e11, 1e14, 1e17).
+Stamps not in seconds are read as seconds, with a warning; stamps that no unit makes such seconds
+are refused. A list whose lines are out of time order is sorted by stamp, with a warning
+(`StampedList.in_time_order`).
 """
 
 from __future__ import annotations
@@ -29,6 +33,12 @@ MAX_POSE_GAP_S = 0.1
 SAME_STAMP_S = 1e-6
 # Stamps this large are no seconds since 1970: (threshold, units per second, unit), largest first.
 OTHER_UNITS = ((1e17, 1e9, "nanoseconds"), (1e14, 1e6, "microseconds"), (1e11, 1e3, "milliseconds"))
+# The units a list may hold, seconds first, and the plausible time between two of its lines in
+# seconds (from the frame rates above): each range spans more than 1000 times, so the ranges of
+# neighbouring units overlap only at their ends.
+UNITS = ((1.0, "seconds"), (1e3, "milliseconds"), (1e6, "microseconds"), (1e9, "nanoseconds"))
+CAMERA_INTERVAL_S = (1 / 300, 5.0)
+POSE_INTERVAL_S = (1 / 2000, 5.0)
 
 
 @dataclass
@@ -40,6 +50,7 @@ class StampedList:
     fields: list[list[str]]
     line_numbers: list[int]  # 1-based line numbers in the file, for messages
     warnings: list[str] = field(default_factory=list)  # what reading it worked around
+    per_second: float = 1.0  # the file's stamps per second of `stamps`: its unit
 
     @property
     def increasing(self) -> bool:
@@ -72,9 +83,10 @@ class StampedList:
                                  f"sorted by timestamp ({moved} of {len(order)} lines moved)"])
 
 
-def read_list(folder: Path, name: str, required: bool) -> StampedList | None:
+def read_list(folder: Path, name: str, required: bool, likely_per_second: float = 1.0) -> StampedList | None:
     """Parse the list file `name` of `folder`: '#' comments and blank lines skipped, a number first
-    on every other line (then 7 more for the pose files). None when it is missing and not required."""
+    on every other line (then 7 more for the pose files). None when it is missing and not required.
+    `likely_per_second`: the unit to prefer where the interval fits more than one (the depth list's)."""
     path = folder / name
     if path.exists() and not path.is_file():
         raise IngestError(f"{path}: is {'a directory' if path.is_dir() else 'not a regular file'}, not a list file "
@@ -109,19 +121,35 @@ def read_list(folder: Path, name: str, required: bool) -> StampedList | None:
         stamps.append(stamp)
         rows.append(parts[1:columns])
         numbers.append(number)
-    seconds, warnings = _in_seconds(path, np.array(stamps, dtype=np.float64))
-    return StampedList(path, seconds, rows, numbers, warnings)
+    interval = POSE_INTERVAL_S if columns == 8 else CAMERA_INTERVAL_S
+    raw = np.array(stamps, dtype=np.float64)
+    per_second, warnings = _unit(path, raw, interval, likely_per_second)
+    return StampedList(path, raw / per_second, rows, numbers, warnings, per_second)
 
 
-def _in_seconds(path: Path, stamps: np.ndarray) -> tuple[np.ndarray, list[str]]:
-    """The stamps in seconds (see the module docstring), and the warning when they were not."""
+def _unit(path: Path, stamps: np.ndarray, interval_s: tuple[float, float], likely_per_second: float
+          ) -> tuple[float, list[str]]:
+    """The stamps' units per second (see the module docstring), and the warning when they are not seconds."""
     top = float(np.max(np.abs(stamps))) if len(stamps) else 0.0
+    steps = np.diff(np.unique(stamps))
+    if len(steps):
+        step = float(np.median(steps))
+        fitting = [(per_second, unit) for per_second, unit in UNITS
+                   if top / per_second < MAX_TIMESTAMP_S and interval_s[0] <= step / per_second <= interval_s[1]]
+        if fitting:
+            per_second, unit = next((f for f in fitting if f[0] == likely_per_second), fitting[0])
+            if per_second == 1.0:
+                return 1.0, []
+            return per_second, [
+                f"{path}: timestamps {float(stamps.min()):.6g} to {float(stamps.max()):.6g}, {step:.6g} apart (median), look like {unit}, "
+                f"not seconds ({per_second / step:.3g} lines per second, where seconds would give {1 / step:.3g}); "
+                f"read as seconds ({unit} / {per_second:g})"]
     if top < MAX_TIMESTAMP_S:
-        return stamps, []
+        return 1.0, []
     for threshold, per_second, unit in OTHER_UNITS:
         if top >= threshold and top / per_second < MAX_TIMESTAMP_S:
-            return stamps / per_second, [f"{path}: timestamps up to {top:.6g} look like {unit}, not seconds; read "
-                                         f"as seconds ({unit} / {per_second:g})"]
+            return per_second, [f"{path}: timestamps up to {top:.6g} look like {unit}, not seconds; read "
+                                f"as seconds ({unit} / {per_second:g})"]
     raise IngestError(f"{path}: timestamps up to {top:.6g} are no time in seconds (nor in milliseconds, microseconds "
                       f"or nanoseconds): TUM lists hold seconds, up to {MAX_TIMESTAMP_S:.4g} (what MCAP can hold)")
 
