@@ -17,7 +17,10 @@ the encoder is written for inference rather than training:
   Their Gram matrix has four distinct entries, |p|^2, p.n, |n|^2 and |p x n|^2 = |p|^2 |n|^2 -
   (p.n)^2 (p x n is orthogonal to both), and sums of coef * (p x n) over the neighbours are
   p x (sum of coef * n). `VNEdgeConv` computes the full 3 x 3 Gram matrix per edge with batched
-  3 x 3 matmuls (the encoder's slowest op in torch and in ONNX Runtime).
+  3 x 3 matmuls (the encoder's slowest op in torch and in ONNX Runtime). Per edge and channel only
+  k's coefficient is computed (two matmuls of the invariants, a ReLU, a division: the edge tensors
+  `[B, N, K, C]` are the layer's memory traffic); the sums over the neighbours of coef and coef * n
+  are one small matmul per point, and everything else is per point (docs/speed.md, 2026-12-03).
 - The decoder's residual MLP runs on `[B * Q, width]`, where ONNX Runtime fuses each linear
   layer with its bias and ReLU.
 
@@ -47,25 +50,28 @@ OCCUPANCY_OUTPUTS = ("occupancy",)
 
 
 def _vn_relu(act: VNLeakyReLU, q: torch.Tensor) -> torch.Tensor:
-    """`VNLeakyReLU` with the vector axis at 1 (`[B, 3, ..., C]`)."""
+    """`VNLeakyReLU` with the vector axis at 1 (`[B, 3, ..., C]`); the slope's factor (negative)
+    goes inside a ReLU instead of a clamp and a product: (slope - 1) min(q.k, 0) = relu((slope - 1) q.k)."""
     k = act.direction(q)
     dot = (q * k).sum(1, keepdim=True)
     k_norm_sq = (k * k).sum(1, keepdim=True)
-    out: torch.Tensor = q + act.k_coefficient(dot, k_norm_sq) * k
+    out: torch.Tensor = q + torch.relu(dot * (act.negative_slope - 1.0)) / (k_norm_sq + EPS) * k
     return out
 
 
 def _vn_block(block: VNResnetBlock, x: torch.Tensor) -> torch.Tensor:
     """`VNResnetBlock` on `[B, 3, N, C]`; its norm is per point (over the vector axis and C)."""
-    inverse_rms = torch.rsqrt(3.0 * x.pow(2).mean((1, 3), keepdim=True) + EPS)
+    inverse_rms = torch.rsqrt(x.pow(2).sum((1, 3), keepdim=True) / x.shape[-1] + EPS)  # 3 * mean = sum / C
     h = block.linear_0(_vn_relu(block.act_0, x * (block.norm.gain * inverse_rms)))
     out: torch.Tensor = block.shortcut(x) + block.linear_1(_vn_relu(block.act_1, h))
     return out
 
 
-def _cross(a: tuple[torch.Tensor, ...], b: tuple[torch.Tensor, ...]) -> tuple[torch.Tensor, ...]:
-    """a x b for vectors given as their three components (broadcasting)."""
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+def _cross_along_2(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """a x b for vectors along axis 2 (`[B, N, 3, ...]`, broadcasting), from the components rolled by one and by two."""
+    roll_1, roll_2 = [1, 2, 0], [2, 0, 1]
+    out: torch.Tensor = a[:, :, roll_1] * b[:, :, roll_2] - a[:, :, roll_2] * b[:, :, roll_1]
+    return out
 
 
 class InferenceEncode(nn.Module):
@@ -94,41 +100,48 @@ class InferenceEncode(nn.Module):
         return z, model.shape_code(z), model.center_offset(z)
 
     def _local(self, points: torch.Tensor) -> torch.Tensor:
-        """`VNEdgeConv(knn_edge_features(points))` as `[B, 3, N, h]`, from the edges' four invariants."""
+        """`VNEdgeConv(knn_edge_features(points))` as `[B, 3, N, h]`, from the edges' four invariants
+        (module doc): per edge only the coefficient of k; its sums over the neighbours come from one
+        small matmul per point, and the cross products from those sums."""
         conv = self.model.encoder.local
-        k = min(self.model.encoder.knn, points.shape[1])
-        norm_sq = (points * points).sum(-1).unsqueeze(-2)  # as `knn_edge_features`: the same neighbours
-        ranking = torch.baddbmm(norm_sq, points, points.transpose(-1, -2), alpha=-2.0)
-        neighbour_index = ranking.topk(k, largest=False, sorted=False).indices  # [B, N, K]
-        batch_index = torch.arange(points.shape[0])[:, None, None]
-        offsets = points[batch_index, neighbour_index] - points.unsqueeze(2)  # n = p_j - p_i, [B, N, K, 3]
-        p = points.unsqueeze(2)  # [B, N, 1, 3]
-        pp = (p * p).sum(-1)  # [B, N, 1]
-        pn = (offsets * p).sum(-1)  # [B, N, K]
-        nn_ = (offsets * offsets).sum(-1)
+        batch, count = points.shape[0], points.shape[1]
+        k = min(self.model.encoder.knn, count)
+        norm_sq = (points * points).sum(-1)  # [B, N]; as `knn_edge_features`: the same neighbours
+        ranking = torch.baddbmm(norm_sq.unsqueeze(-2), points, points.transpose(-1, -2), alpha=-2.0)
+        neighbour_index = ranking.topk(k, largest=False, sorted=False).indices  # [B, N, K], in any order
+        # The neighbours' coordinates component by component, [3, B, N, K]: the per-edge arithmetic
+        # then runs on contiguous [B, N, K] slabs (ONNX Runtime broadcasts a trailing 3 slowly).
+        coordinates = points.reshape(-1, 3).transpose(0, 1)  # [3, B * N]
+        p = points.permute(2, 0, 1).unsqueeze(-1)  # [3, B, N, 1]
+        offsets = coordinates[:, neighbour_index + (torch.arange(batch) * count)[:, None, None]] - p  # n = p_j - p_i
+        pp = norm_sq.unsqueeze(-1)  # [B, N, 1]
+        pn = (offsets * p).sum(0)  # [B, N, K]
+        nn_ = (offsets * offsets).sum(0)
         xx = pp * nn_ - pn * pn  # |p x n|^2
-        invariants = torch.stack([pp.expand_as(pn), pn, nn_, xx], dim=-1)  # [B, N, K, 4]
+        ones = torch.ones_like(pn)
+        invariants = torch.stack([pp.expand_as(pn), pn, nn_, xx, ones], dim=-1)  # [B, N, K, 5]
         w = conv.linear.linear.weight  # [h, 3]: q_c = sum_a w[c, a] e_a, e = (p, n, p x n)
         v = conv.act.direction.weight @ w  # [h, 3]: k_c = sum_a v[c, a] e_a
-        # q.k = w0 v0 |p|^2 + (w0 v1 + w1 v0) p.n + w1 v1 |n|^2 + w2 v2 |p x n|^2, and |k|^2 alike
+        # q.k = w0 v0 |p|^2 + (w0 v1 + w1 v0) p.n + w1 v1 |n|^2 + w2 v2 |p x n|^2, and |k|^2 alike; the
+        # last row multiplies the ones: |k|^2 + EPS in the same matmul
         dot_weights = torch.stack([w[:, 0] * v[:, 0], w[:, 0] * v[:, 1] + w[:, 1] * v[:, 0], w[:, 1] * v[:, 1],
-                                   w[:, 2] * v[:, 2]])  # [4, h]
-        norm_weights = torch.stack([v[:, 0] * v[:, 0], 2.0 * v[:, 0] * v[:, 1], v[:, 1] * v[:, 1], v[:, 2] * v[:, 2]])
-        dot, k_norm_sq = invariants @ dot_weights, invariants @ norm_weights  # [B, N, K, h] each
-        coef = conv.act.k_coefficient(dot, k_norm_sq)
-        count = offsets.shape[2]
-        coef_sum = coef.sum(2)  # [B, N, h]
-        coef_n = (coef.transpose(-1, -2) @ offsets) / count  # [B, N, h, 3]: mean of coef_c * n
-        p_c = tuple(points[..., d].unsqueeze(-1) for d in range(3))  # [B, N, 1] each
-        mean_n = offsets.mean(2)
-        mean_n_c = tuple(mean_n[..., d].unsqueeze(-1) for d in range(3))
-        coef_n_c = tuple(coef_n[..., d] for d in range(3))  # [B, N, h] each
-        p_x_mean_n, p_x_coef_n = _cross(p_c, mean_n_c), _cross(p_c, coef_n_c)
-        # out_c = W mean(e) + V mean(coef_c e), per component
-        out = [w[:, 0] * p_c[d] + w[:, 1] * mean_n_c[d] + w[:, 2] * p_x_mean_n[d]
-               + v[:, 0] * p_c[d] * coef_sum / count + v[:, 1] * coef_n_c[d] + v[:, 2] * p_x_coef_n[d]
-               for d in range(3)]
-        return torch.stack(out, dim=1)
+                                   w[:, 2] * v[:, 2], torch.zeros_like(w[:, 0])])  # [5, h]
+        norm_weights = torch.stack([v[:, 0] * v[:, 0], 2.0 * v[:, 0] * v[:, 1], v[:, 1] * v[:, 1], v[:, 2] * v[:, 2],
+                                    torch.full_like(w[:, 0], EPS)])
+        # `k_coefficient`, its negative factor inside the ReLU (as `_vn_relu`): [B, N, K, h]
+        coef = torch.relu(invariants @ (dot_weights * (conv.act.negative_slope - 1.0))) / (invariants @ norm_weights)
+        # Per point, the means over the neighbours of coef_c and of coef_c n: [1, n] as rows times coef
+        rows = torch.cat([ones.unsqueeze(0), offsets]).permute(1, 2, 0, 3)  # [B, N, 4, K]
+        moments = (rows @ coef) / k  # [B, N, 4, h]
+        coef_mean, coef_n = moments[:, :, :1], moments[:, :, 1:]  # [B, N, 1, h], [B, N, 3, h]
+        p_vector = points.unsqueeze(-1)  # [B, N, 3, 1]
+        mean_n = offsets.mean(-1).permute(1, 2, 0).unsqueeze(-1)  # [B, N, 3, 1]
+        # out_c = W mean(e) + V mean(coef_c e): p, mean n and p x mean n mix by W's columns (a matmul),
+        # and mean(coef_c p x n) = p x mean(coef_c n)
+        basis = torch.cat([p_vector, mean_n, _cross_along_2(p_vector, mean_n)], dim=-1)  # [B, N, 3, 3]
+        out = (basis @ w.T + p_vector * (coef_mean * v[:, 0]) + coef_n * v[:, 1]
+               + _cross_along_2(p_vector, coef_n) * v[:, 2])  # [B, N, 3, h]
+        return out.transpose(1, 2)
 
 
 class InferenceOccupancy(nn.Module):
