@@ -120,7 +120,7 @@ def test_the_json_summary_carries_the_verdict_and_the_withheld_changes():
     from ndfa.run.pair import PairResult
 
     worlds = {"source": _world("source", GOOD), "target": _world("target", UNUSABLE)}
-    pair = PairResult(0, "source", "target", detector=None, decisions=[_change("added", 0.9)])  # type: ignore[arg-type]
+    pair = PairResult(0, "source", "target", detector=None, changes_decided=[_change("added", 0.9)])  # type: ignore[arg-type]
     assert [c.kind for c in pair.changes] == ["added"]   # before the verdict: as the detector decided
     pair.weigh(worlds)
     summary = pair.as_dict()

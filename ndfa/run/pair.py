@@ -28,7 +28,11 @@ class PairResult:
     detector: ChangeDetector
     alignment: SceneAlignment | None = None           # the scene-level hypothesis offered to the detector
     placement: np.ndarray | None = None               # the source session's T_{0<-k}
-    decisions: list[DecisionEvent] = field(default_factory=list)  # every decision, sessions "source"/"target"
+    # The decisions, sessions "source"/"target" (`decisions`): every change, in order, and each
+    # object's latest "unchanged" (an object is re-tested at every view: keeping each of those would
+    # grow with the recording's length, and nothing reads the earlier ones)
+    changes_decided: list[DecisionEvent] = field(default_factory=list)
+    last_unchanged: dict[tuple[str, int], DecisionEvent] = field(default_factory=dict)
     registration_event: RegistrationEvent | None = None  # the last accepted: the T_rel of the last decisions
     notes: list[str] = field(default_factory=list)
     score: object | None = None
@@ -42,6 +46,12 @@ class PairResult:
     def registration(self) -> dict | None:
         """The accepted T_rel (target -> source session) as the summaries give it, or None."""
         return None if self.registration_event is None else registration_summary(self.registration_event)
+
+    @property
+    def decisions(self) -> list[DecisionEvent]:
+        """Each object's latest "unchanged", then every other decision in order: what
+        `ndfa.run.history.PairOutcome` and `reported_changes` read of all the decisions."""
+        return list(self.last_unchanged.values()) + self.changes_decided
 
     @property
     def reported(self) -> list[DecisionEvent]:
@@ -73,8 +83,10 @@ class PairResult:
     def relabel(self, event: Event) -> Event:
         """The event as the sinks get it: sessions named, source-world positions in the first session's
         world. Keeps the pair's decisions and registration on the way."""
-        if isinstance(event, DecisionEvent):
-            self.decisions.append(event)
+        if isinstance(event, DecisionEvent) and event.kind == "unchanged":
+            self.last_unchanged[(event.session, event.object_id)] = event
+        elif isinstance(event, DecisionEvent):
+            self.changes_decided.append(event)
         if isinstance(event, RegistrationEvent) and event.accepted:
             self.registration_event = event
         return self.to_first(named(event, self.source if getattr(event, "session", "target") == "source"
