@@ -8,7 +8,7 @@ from PIL import Image
 from typer.testing import CliRunner
 
 from ndfa.cli import app
-from ndfa.core.errors import ExportError, IngestError
+from ndfa.core.errors import ExportError, IngestError, NdfaError
 from ndfa.core.geometry import make_pose, quaternion_xyzw_from_matrix, rotation_z
 from ndfa.io.export.tum import export_tum
 from ndfa.io.ingest.tum import TumWarning, ingest_tum
@@ -272,6 +272,30 @@ def test_cli_imports_and_exports(tmp_path):
     result = runner.invoke(app, ["export", "tum", str(tmp_path / "a.mcap"), "--out", str(tmp_path / "again")])
     assert result.exit_code == 0, result.output
     assert (tmp_path / "again" / "calibration.txt").read_text().splitlines()[-1] == "500.0 501.0 3.5 2.5"
+
+
+def test_frames_splits_one_walk_into_two_sessions(tmp_path):
+    """`--frames 0:2` and `--frames 2:` import the first two and the remaining three paired frames, renumbered."""
+    folder = make_folder(tmp_path / "tum")
+    runner = CliRunner()
+    for text, out in (("0:2", "first.mcap"), ("2:", "last.mcap")):
+        result = runner.invoke(app, ["ingest", "tum", str(folder), "--out", str(tmp_path / out), "--frames", text])
+        assert result.exit_code == 0, result.output
+    first, last = RecordingReader(tmp_path / "first.mcap"), RecordingReader(tmp_path / "last.mcap")
+    assert [f.index for f in first.frames()] == [0, 1] and [f.index for f in last.frames()] == [0, 1, 2]
+    depth_mm = [round(float(f.depth[0, 0]) * 1000) for r in (first, last) for f in r.frames()]
+    assert depth_mm == [1000, 1001, 1002, 1003, 1004]  # frame i has depth 1 m + i mm: nothing lost, no overlap
+    assert np.allclose(next(last.frames()).pose_world_camera, pose_at(0.2), atol=1e-6)
+    assert last.meta["frames_selected"] == {"start": 2, "stop": 5, "of": 5}
+
+
+@pytest.mark.parametrize("text, problem", [("5:", "selects no frame: the folder has 5"), ("3:1", "not a range"),
+                                           ("two", "must be START:STOP")])
+def test_frames_that_select_nothing_are_refused(tmp_path, text, problem):
+    folder = make_folder(tmp_path / "tum")
+    result = CliRunner().invoke(app, ["ingest", "tum", str(folder), "--out", str(tmp_path / "a.mcap"), "--frames", text])
+    assert isinstance(result.exception, NdfaError) and problem in str(result.exception)  # the entry point: exit 2
+    assert not (tmp_path / "a.mcap").exists()
 
 
 # -- bad input found by the fuzz suite (issue 18) -------------------------------------------------------

@@ -14,12 +14,25 @@ from ndfa.cli.app import console, progress_bar
 from ndfa.cli.checks import input_dir, non_empty, output_file, positive
 from ndfa.cli.ingest import ingest_app
 from ndfa.cli.ingest.estimated_poses import estimate_session_poses, input_warnings, pose_estimator
-from ndfa.core.errors import NdfaError
+from ndfa.core.errors import NdfaError, OptionError
 from ndfa.io.ingest import MAX_DT_S
 from ndfa.io.ingest.tum_layout import DEFAULT_INTRINSICS, DEPTH_SCALE, INTRINSICS_PRESETS
 
 _PRESETS = " | ".join(INTRINSICS_PRESETS)
 MAX_PIXELS = 1e5  # no camera's focal length or principal point, in pixels, comes near
+
+
+def _parse_frames(text: Optional[str]) -> tuple[int, int | None] | None:
+    """'START:STOP', 'START:' or ':STOP' (paired frames, from 0; stop excluded) -> (start, stop)."""
+    if text is None:
+        return None
+    start, colon, stop = text.partition(":")
+    try:
+        if not colon:
+            raise ValueError
+        return int(start or 0), int(stop) if stop else None
+    except ValueError:
+        raise OptionError(f"--frames must be START:STOP (e.g. 0:250, 250: or :250), got {text!r}") from None
 
 
 def _parse_intrinsics(text: Optional[str]) -> object:
@@ -55,12 +68,15 @@ def ingest_tum_command(
                                             "`ndfa detect` estimates them) | estimate | rgbd | kiss-icp (estimated "
                                             "now; groundtruth.txt, if any, is kept as the true poses)."),
     session: Optional[str] = typer.Option(None, help="Session name (default: the folder's name).", callback=non_empty),
+    frames: Optional[str] = typer.Option(None, help="START:STOP: import only these paired frames (from 0, STOP "
+                                                    "excluded; e.g. 0:250 and 250: make two sessions of one walk)."),
 ) -> None:
     """Import a TUM RGB-D folder into one recording, and say what was dropped and why."""
     from ndfa.io.ingest.tum import TumWarning, ingest_tum  # lazy: PIL (a twentieth of a second)
 
     estimator, monitor = pose_estimator(poses)
     camera = _parse_intrinsics(intrinsics)
+    frame_range = _parse_frames(frames)
     out.parent.mkdir(parents=True, exist_ok=True)  # as `detect --log`; removed again if the import fails
 
     with warnings.catch_warnings():
@@ -69,6 +85,7 @@ def ingest_tum_command(
             task = progress.add_task(f"writing {out.name}", total=None)
             summary = ingest_tum(folder, out, intrinsics=camera, depth_scale=depth_scale,
                                  masks=masks, max_dt=max_dt, session=session, estimate_poses=estimator,
+                                 frames=frame_range,
                                  on_progress=lambda done, total: progress.update(task, completed=done, total=total))
     warnings_of_input = input_warnings(monitor, poses, folder, out)
 
@@ -77,6 +94,8 @@ def ingest_tum_command(
     table.add_column("value", justify="right")
     table.add_row("session", summary.session)
     table.add_row("depth frames in depth.txt", str(summary.indexed))
+    if summary.selected:
+        table.add_row("frames selected (--frames)", summary.selected)
     table.add_row("frames written", str(summary.written))
     for reason, count in summary.dropped.items():
         table.add_row(f"dropped: {reason}", str(count))

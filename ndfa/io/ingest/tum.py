@@ -53,6 +53,7 @@ class TumSummary:
     has_ground_truth: bool
     warnings: list[str] = field(default_factory=list)
     notes: list[str] = field(default_factory=list)
+    selected: str = ""  # "start:stop of N paired frames" when only part of the folder was imported
 
 
 def ingest_tum(
@@ -65,6 +66,7 @@ def ingest_tum(
     max_dt: float = MAX_DT_S,
     session: str | None = None,
     estimate_poses: PoseEstimator | None = None,
+    frames: tuple[int, int | None] | None = None,
     on_progress: Progress | None = None,  # (frames written, frames to write)
 ) -> TumSummary:
     """Write the TUM RGB-D folder `folder` into the recording `out` (.mcap).
@@ -78,6 +80,8 @@ def ingest_tum(
         KISS-ICP) and groundtruth.txt's, if any, are kept as the true poses (/ndfa/ground_truth/pose).
         Without it, a folder without groundtruth.txt (a sensor's recording) is kept without poses
         (meta "poses": "none", as a sensor records): `ndfa detect` estimates them (ndfa.run.world).
+    frames: (start, stop) of the paired frames to write, as a Python slice (stop None: to the end), e.g.
+        the first and the last part of one walk as two sessions. Poses are estimated on these frames only.
     Problems the reader works around are warned about (TumWarning) and listed in the summary.
     """
     tum = TumFolder(Path(folder), intrinsics=intrinsics, depth_scale=depth_scale,
@@ -85,6 +89,8 @@ def ingest_tum(
     out = Path(out)
     session = session or tum.folder.resolve().name
     indexed = len(tum.entries) + sum(tum.dropped.values())
+    if frames is not None:
+        tum.keep_frames(*frames)
     poses = tum.info.get("poses", "")
     if not tum.entries:  # "empty results are errors": a recording of no frames would only fail later
         raise IngestError(_nothing_to_import(tum.folder, indexed, tum.dropped))
@@ -134,7 +140,12 @@ def ingest_tum(
         depth_without_rgb=tum.info["depth_without_rgb"], poses=poses, intrinsics=tum.info["intrinsics"]["source"],
         timestamps=tum.info["timestamps"], has_instances=has_instances, has_ground_truth=ground_truth is not None,
         warnings=list(tum.warnings), notes=[meta["poses_note"]] if "poses_note" in meta else [],
+        selected=_selected(tum.info.get("frames_selected")),
     )
+
+
+def _selected(frames: dict | None) -> str:
+    return "" if frames is None else f"{frames['start']}:{frames['stop']} of {frames['of']} paired frames"
 
 
 def _nothing_to_import(folder: Path, indexed: int, dropped: dict[str, int]) -> str:

@@ -151,6 +151,18 @@ class TumFolder:
         for index, entry in enumerate(self.entries):
             yield self._load(entry, index, images)
 
+    def keep_frames(self, start: int, stop: int | None) -> None:
+        """Keep only the paired frames [start, stop) (stop None: to the end), renumbered from 0."""
+        paired = len(self.entries)
+        if start < 0 or (stop is not None and stop <= start):
+            raise IngestError(f"{self.folder}: frames {start}:{'' if stop is None else stop} is not a range of frames "
+                              "(start >= 0, stop > start)")
+        if start >= paired:
+            raise IngestError(f"{self.folder}: frames {start}:{'' if stop is None else stop} selects no frame: the "
+                              f"folder has {paired} paired frames")
+        self.entries = self.entries[start:stop]
+        self.info["frames_selected"] = {"start": start, "stop": start + len(self.entries), "of": paired}
+
     def set_poses(self, poses: list[np.ndarray]) -> None:
         """Give the frames that `frames(images=False)` yields their poses (one per frame, in order);
         poses from groundtruth.txt, if any, become the true poses."""
