@@ -29,7 +29,7 @@ def fuzz_settings(request) -> settings:
         max_examples=examples or SHORT_EXAMPLES,
         derandomize=examples is None,
         database=None if examples is None else settings.default.database,
-        deadline=None,  # the property enforces its own deadline per input (SIGALRM)
+        deadline=None,  # the property enforces its own deadline per input (CPU and wall time)
         suppress_health_check=list(HealthCheck),
         print_blob=True,
     )
