@@ -22,9 +22,10 @@ def _arc(center: tuple[float, float], radii: tuple[float, float], start: float, 
     return np.c_[center[0] + radii[0] * np.cos(angles), center[1] + radii[1] * np.sin(angles)]
 
 
-def body_profile(params: MugParams) -> np.ndarray:
+def body_profile(params: MugParams, wall_points: int = 12) -> np.ndarray:
     """Closed (r, z) profile of the body, (P, 2), from the bottom pole to the top pole, counter-
-    clockwise around the material (outward normal on the right), every r > 0 except the poles."""
+    clockwise around the material (outward normal on the right), every r > 0 except the poles.
+    `wall_points` per wall (outer, inner): a mug's walls are nearly straight; a bowl's curve wants more."""
     p = params
     radius_at = lambda z: float(outer_radius(p, np.array([z]))[0])  # noqa: E731 - local shorthand
     pieces: list[np.ndarray] = [np.array([[0.0, p.recess_depth]])]  # bottom pole
@@ -46,12 +47,12 @@ def body_profile(params: MugParams) -> np.ndarray:
 
     # Outer wall up to where the rim cap starts, the cap, then down the inner wall.
     rim_z = p.height - rim_cap_height(p)
-    z_out = np.linspace(wall_start, rim_z, 13)[1:]
+    z_out = np.linspace(wall_start, rim_z, wall_points + 1)[1:]
     pieces.append(np.c_[outer_radius(p, z_out), z_out])
     rim_center = radius_at(rim_z) - p.wall_thickness / 2
     pieces.append(_arc((rim_center, rim_z), (p.wall_thickness / 2, rim_cap_height(p)), 0.0, np.pi, 6))
     corner_z = p.base_thickness + p.inner_fillet
-    z_in = np.linspace(rim_z, corner_z, 13)[1:]
+    z_in = np.linspace(rim_z, corner_z, wall_points + 1)[1:]
     pieces.append(np.c_[inner_radius(p, z_in), z_in])
 
     # Rounded corner into the cavity floor, then across the floor to the top pole.

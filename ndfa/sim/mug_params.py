@@ -24,7 +24,7 @@ class MugParams:
     #     rim_radius * (bottom_radius_ratio + (1 - bottom_radius_ratio) * t**flare_exponent
     #                   + belly * sin(pi * t**q) + lip_flare * smoothstep(lip))
     #     with t = z / height and q chosen so the belly is widest at t = belly_height.
-    profile: str = "straight"  # sub-type tag: one of PROFILES (the numbers below make the shape)
+    profile: str = "straight"  # sub-type tag: a mug's one of PROFILES (cups, bowls: ndfa.sim.vessels)
     height: float = 0.095  # top of the rim above the base
     rim_radius: float = 0.04  # outer wall radius at the rim, before the lip flare
     bottom_radius_ratio: float = 1.0  # fraction: wall radius at z = 0 over rim_radius (< 1: narrower at the bottom)
