@@ -76,7 +76,11 @@ def test_kinds_are_scored_per_kind():
     assert result.kinds == {"moved": (2, 1), "added": (1, 1), "removed": (1, 0)}
     assert result.kind_precision("moved") == 0.5 and result.kind_precision("rotated") == 1.0
     assert result.as_dict()["kinds"]["moved"] == {"reports": 2, "right": 1, "precision": 0.5}
-    assert "kinds" not in score([2], truth).as_dict()  # no kinds given: the summary as it was
+    # per true change: mugs named by a report of a right kind (mug 1, removed, only as another's move: not)
+    assert result.kinds_found == {"removed": (1, 0), "added": (1, 0), "moved": (1, 1), "switched": (1, 1)}
+    assert result.kind_recall("added") == 0.0 and result.kind_recall("rotated") == 1.0
+    assert result.as_dict()["kinds_found"]["moved"] == {"mugs": 1, "found": 1, "recall": 1.0}
+    assert not {"kinds", "kinds_found"} & score([2], truth).as_dict().keys()  # no kinds given: the summary as it was
 
 
 def test_the_decisions_table_says_whether_each_change_is_of_the_right_kind(tmp_path):

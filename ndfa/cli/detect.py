@@ -170,6 +170,9 @@ def detect_command(
         if s.kinds:
             console.print("kinds right (reports on scored mugs): " + ", ".join(
                 f"{kind} {right}/{n}" for kind, (n, right) in sorted(s.kinds.items())), highlight=False)
+        if s.kinds_found:
+            console.print("true changes found with a right kind: " + ", ".join(
+                f"{change} {found}/{n}" for change, (n, found) in sorted(s.kinds_found.items())), highlight=False)
     for note in result.notes:
         console.print(f"note: {note}")
     if json_out is not None:

@@ -63,6 +63,15 @@ class Score:
     # kind -> (reports of it on scored mugs, of the right kind): `KindReport.right`. Not part of a
     # score's equality: scores of one run at several thresholds (`ndfa.run.replay`) have no kinds.
     kinds: dict[str, tuple[int, int]] = field(default_factory=dict, compare=False)
+    # true change -> (scored mugs with it, those named by a report of a right kind): the recall of
+    # the kinds. A moved mug counts when a "moved" report has it at both ends, or an "added" or
+    # "removed" report names it (each describes a move rightly); with `kinds` only.
+    kinds_found: dict[str, tuple[int, int]] = field(default_factory=dict, compare=False)
+
+    def kind_recall(self, change: str) -> float:
+        """The share of the mugs with the true `change` named by a report of a right kind (1.0 when none)."""
+        mugs, found = self.kinds_found.get(change, (0, 0))
+        return found / mugs if mugs else 1.0
 
     def kind_precision(self, kind: str) -> float:
         """The share of the reports of `kind` whose kind is right (1.0 when there are none)."""
@@ -91,6 +100,9 @@ class Score:
         if self.kinds:
             out["kinds"] = {kind: {"reports": n, "right": right, "precision": self.kind_precision(kind)}
                             for kind, (n, right) in sorted(self.kinds.items())}
+        if self.kinds_found:
+            out["kinds_found"] = {change: {"mugs": n, "found": found, "recall": self.kind_recall(change)}
+                                  for change, (n, found) in sorted(self.kinds_found.items())}
         return out
 
 
@@ -129,8 +141,13 @@ def score(reported_instances: list[int], ground_truth: dict, visible: dict[str, 
         if report.instance_id in scored:
             n, right = per_kind.get(report.kind, (0, 0))
             per_kind[report.kind] = (n + 1, right + int(report.right(truth)))
+    found_rightly = {report.instance_id for report in kinds if report.right(truth)}
+    per_change: dict[str, tuple[int, int]] = {}
+    for instance_id, change in truth.items() if kinds else ():
+        n, right = per_change.get(change, (0, 0))
+        per_change[change] = (n + 1, right + int(instance_id in found_rightly))
     return Score(len(tp), len(fp), len(fn), tuple(tp), tuple(fp), tuple(fn), tuple(sorted(everything - scored)),
-                 tuple(turned), tuple(found), per_kind)
+                 tuple(turned), tuple(found), per_kind, per_change)
 
 
 def kind_reports(changes: list) -> list[KindReport]:
