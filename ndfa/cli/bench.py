@@ -28,8 +28,10 @@ def bench_command(
                                 callback=thread_count),
     compare: bool = typer.Option(False, "--compare", help="detect: first the before (--before-runtime, --before-weights, "
                                                           "every reconstruction decoded, the stages one after the "
-                                                          "other), then now, back to back. raw: the raw pass "
-                                                          "before this afternoon's levers, alternating with now."),
+                                                          "other), then now, back to back. raw: the pass as git "
+                                                          "revision --before-ref ran it, alternating with now."),
+    before_ref: str = typer.Option("9004931", help="raw --compare: the git revision of this checkout whose raw pass is "
+                                                   "the before (default: main on the morning of 2026-12-03)."),
     load: bool = typer.Option(False, "--load", help="detect, raw: now once more beside one busy process (while True: pass)."),
     runtime: str = typer.Option("auto", help="detect: the NDF's runtime now: auto, onnxruntime or torch."),
     before_runtime: str = typer.Option("torch", help="detect --compare: the NDF's runtime before."),
@@ -59,7 +61,8 @@ def bench_command(
                       f"{r.ms_per_frame:.1f} ms/frame ({r.cpu_ms_per_frame:.1f} ms CPU)")
         return
     if what == "raw":
-        _bench_raw(source, target, compare=compare, load=load, repeat=repeat, threads=threads, frame_step=frame_step)
+        _bench_raw(source, target, before_ref if compare else None, load=load, repeat=repeat, threads=threads,
+                   frame_step=frame_step)
         return
     if what == "detect":
         for option, value in (("--runtime", runtime), ("--before-runtime", before_runtime)):
@@ -126,21 +129,22 @@ def bench_command(
     console.print(table)
 
 
-def _bench_raw(source: Path, target: Path, compare: bool, load: bool, repeat: int, threads: int, frame_step: int) -> None:
+def _bench_raw(source: Path, target: Path, before_ref: str | None, load: bool, repeat: int, threads: int,
+               frame_step: int) -> None:
     """`ndfa bench raw`: the table of `ndfa.eval.bench_raw.raw_pass_runs`."""
-    from ndfa.eval.bench_raw import RAW_STAGES, before_levers, raw_pass_runs
+    from ndfa.eval.bench_raw import RAW_STAGES, raw_pass_runs
 
-    rows = raw_pass_runs(source, target, before=before_levers() if compare else None, compare=compare, load=load,
-                         repeat=repeat, threads=threads, frame_step=frame_step)
-    first = rows[0]
+    rows = raw_pass_runs(source, target, before_ref=before_ref, load=load, repeat=repeat, threads=threads,
+                         frame_step=frame_step)
+    now = next(row for row in rows if row["label"] == "now")
     table = Table(title=f"ndfa bench raw: {source.name} + {target.name} ({source.parent}), no sinks",
-                  caption=f"{first['frames']} frames (both sessions), {threads} thread(s), stages {first['stages']}; "
-                          f"poses {', '.join(first['poses'])}; {first['machine']}")
+                  caption=f"{now['frames']} frames (both sessions), {threads} thread(s), stages {now['stages']}; "
+                          f"poses {', '.join(now['poses'])}; {now['machine']}")
     table.add_column("ms / frame (both sessions)")
     for row in rows:
         table.add_column(row["label"], justify="right")
     for stage in RAW_STAGES:
-        table.add_row(stage, *(f"{row['stage_ms'][stage]:.1f}" for row in rows))
+        table.add_row(stage, *(f"{row['stage_ms'][stage]:.1f}" if stage in row["stage_ms"] else "-" for row in rows))
     table.add_row("wall s", *(f"{row['wall_s']:.1f}" for row in rows))
     table.add_row("frames/s (frames / wall)", *(f"{row['fps']:.1f}" for row in rows))
     table.add_row("CPU s", *(f"{row['cpu_s']:.1f}" for row in rows))
@@ -150,9 +154,10 @@ def _bench_raw(source: Path, target: Path, compare: bool, load: bool, repeat: in
         runs = row.get("fps_runs", [])
         if len(runs) > 1:
             console.print(f"{row['label']}, {len(runs)} runs: frames/s {', '.join(f'{f:.1f}' for f in runs)}")
-    now = next(row for row in rows if row["label"] == "now")
-    if compare:
+    if before_ref is not None:
         before = rows[0]
+        console.print(f"before ({before_ref}, ndfa detect in a child process, its start included): its target pass "
+                      + ", ".join(f"{k} {v:.1f}" for k, v in before["stage_ms_target"].items()) + " ms per target frame")
         console.print(f"now over before: {now['fps'] / before['fps']:.2f}x the frames/s, "
                       f"{before['cpu_s'] / now['cpu_s']:.2f}x less CPU")
     if load:
