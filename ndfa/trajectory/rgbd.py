@@ -51,7 +51,7 @@ import numpy as np
 
 from ndfa.core.frame import Frame
 from ndfa.trajectory.checks import GapClock
-from ndfa.trajectory.degeneracy import depth_degeneracy
+from ndfa.trajectory.degeneracy import depth_degeneracy, keep_prediction_where_unseen
 from ndfa.trajectory.features import FeatureMotion, estimate_motion
 from ndfa.trajectory.pose_graph import PoseEdge, PoseGraphConfig, optimize_pose_graph
 from ndfa.trajectory.rgbd_config import HYBRID, INTENSITY, NO_TERM, POINT_TO_PLANE, RgbdOdometryConfig
@@ -95,6 +95,13 @@ class RgbdOdometry:
         self.prediction_wins = 0  # feature-led result far from the prediction, and the prediction's overlapped better
         self.feature_fallbacks = 0  # dense result left the feature estimate, even after promoting: the latter kept
         self.seconds = 0.0
+        # The motion of the last frame that pinned all six degrees of freedom (by features, or by
+        # depth that saw every direction): the constant-velocity model's velocity. A frame facing
+        # a bare wall takes its slide from it and does not feed its own back (rgbd_config:
+        # unseen_from_prediction).
+        self._velocity = np.eye(4)
+        self._unseen = False
+        self.unseen_frames = 0  # frames whose registration kept the prediction along some direction
 
     @property
     def frames(self) -> int:
@@ -154,9 +161,9 @@ class RgbdOdometry:
             self._add_keyframe(view, np.eye(4), edge=None)
             return np.eye(4), NO_TERM, False
         last = self._poses[-1]
-        before = self._poses[-2] if len(self._poses) > 1 else last
         # Constant velocity; across a time gap the motion is unknown, so no motion is the guess.
-        prediction = last if after_gap else last @ np.linalg.inv(before) @ last
+        prediction = last if after_gap else _predict(last, self._velocity, self.config.velocity_in_world)
+        self._unseen = False
         if view.valid_fraction < config.min_valid_fraction or not self.keyframes:
             self.starved_frames += 1
             self._previous = None  # not registered: no keyframe material
@@ -195,6 +202,8 @@ class RgbdOdometry:
             keyframe_from_frame, fitness, term = self._from_prediction(view, keyframe.view, predicted, term)
         pose = keyframe.pose @ keyframe_from_frame
         self._previous = (view, keyframe_from_frame)
+        if not self._unseen:  # a frame whose depth left some motion unseen keeps the last velocity
+            self._velocity = _motion(last, pose, self.config.velocity_in_world)
 
         moved = np.linalg.norm(keyframe_from_frame[:3, 3])
         turned = _angle_deg(keyframe_from_frame[:3, :3])
@@ -241,19 +250,32 @@ class RgbdOdometry:
         """T_keyframe_frame by dense registration from the constant-velocity prediction (no feature
         estimate: too few matches), its fitness and term."""
         config = self.config
-        result, fitness = register_dense(view, keyframe, predicted, term, self.config)
+        result, fitness = self._register_predicted(view, keyframe, predicted, term)
         if term != INTENSITY and _jump(result, predicted) > config.cross_check_m:
             # Dense odometry on a few planes has false minima a few centimetres off; the camera
             # moves smoothly, so of the two terms' results the one nearer the prediction wins.
             other = POINT_TO_PLANE if term == HYBRID else HYBRID
             if other == POINT_TO_PLANE or view.textured:
-                candidate, candidate_fitness = register_dense(view, keyframe, predicted, other, self.config)
+                candidate, candidate_fitness = self._register_predicted(view, keyframe, predicted, other)
                 if _jump(candidate, predicted) < _jump(result, predicted):
                     result, fitness, term = candidate, candidate_fitness, other
         if result is None or fitness < config.min_fitness or _jump(result, predicted) > config.max_correction_m:
             self.rejected_frames += 1
             return predicted, fitness, term
         return result, fitness, term
+
+    def _register_predicted(self, view: View, keyframe: View, predicted: np.ndarray, term: str) -> tuple[np.ndarray | None, float]:
+        """Dense registration from the prediction, which is kept along the directions the frame's
+        depth cannot see when the term leans on depth (`keep_prediction_where_unseen`)."""
+        result, fitness = register_dense(view, keyframe, predicted, term, self.config)
+        if result is not None and term in self.config.unseen_from_prediction:
+            remapped = keep_prediction_where_unseen(result, predicted, view.smooth_plane_information, view.median_depth_m,
+                                                    self.config.unseen_ratio)
+            if remapped is not result and not self._unseen:
+                self._unseen = True
+                self.unseen_frames += 1
+            result = remapped
+        return result, fitness
 
     def _add_keyframe(self, view: View, pose: np.ndarray, edge: PoseEdge | None, frame: int | None = None) -> None:
         """Append a keyframe (by default the frame being tracked), its edge to the last keyframe,
@@ -315,6 +337,27 @@ class RgbdOdometry:
         measured, fitness = register_dense(new, old, estimate, term, self.config)
         return measured if measured is not None and fitness >= config.loop_min_fitness else None
 
+
+
+def _motion(before: np.ndarray, after: np.ndarray, in_world: bool) -> np.ndarray:
+    """The motion from pose `before` to `after`: the turn in the camera's frame, and the shift in
+    the world's (`in_world`) or the camera's frame; `_predict` applies it again."""
+    if not in_world:
+        return np.linalg.inv(before) @ after
+    motion = np.eye(4)
+    motion[:3, :3] = before[:3, :3].T @ after[:3, :3]
+    motion[:3, 3] = after[:3, 3] - before[:3, 3]
+    return motion
+
+
+def _predict(last: np.ndarray, motion: np.ndarray, in_world: bool) -> np.ndarray:
+    """The pose after `last` by the same `motion` (`_motion`) again."""
+    if not in_world:
+        return last @ motion
+    pose = np.eye(4)
+    pose[:3, :3] = last[:3, :3] @ motion[:3, :3]
+    pose[:3, 3] = last[:3, 3] + motion[:3, 3]
+    return pose
 
 
 def _view_centre(keyframe: _Keyframe) -> np.ndarray:

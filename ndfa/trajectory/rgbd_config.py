@@ -63,6 +63,14 @@ class RgbdOdometryConfig:
     feature_agreement_m, feature_agreement_deg: a dense registration that lands farther than this
         from the feature estimate it started at fell into another minimum: the feature estimate is
         kept instead.
+    unseen_from_prediction, unseen_ratio: a registration from the prediction with one of these
+        terms keeps the prediction along the directions the frame's depth cannot see (eigenvalues
+        of its plane term, normals over a wider baseline, below `unseen_ratio` times the largest:
+        a bare wall's slide and roll), and such a frame does not update the velocity;
+        () turns this off (`degeneracy.keep_prediction_where_unseen`).
+    velocity_in_world: the constant-velocity model repeats the last shift in the world's frame
+        (a person walking straight while panning the camera) instead of the camera's (a vehicle
+        that turns with its heading); the turn is repeated in the camera's frame either way.
     """
 
     min_depth_m: float = MIN_DEPTH_M
@@ -99,6 +107,9 @@ class RgbdOdometryConfig:
     prediction_overlap_ratio: float = 2.0
     feature_agreement_m: float = 0.05
     feature_agreement_deg: float = 3.0
+    unseen_from_prediction: tuple[str, ...] = ()
+    unseen_ratio: float = 0.005
+    velocity_in_world: bool = False
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_depth_m < self.max_depth_m:

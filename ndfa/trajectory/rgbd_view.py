@@ -22,6 +22,7 @@ class View:
     features: Features  # ORB keypoints of the full-resolution image (none without colour)
     K: object  # open3d.core.Tensor (3, 3) float64, of the subsampled image
     plane_information: np.ndarray  # (6, 6) of the frame's own point-to-plane term (`plane_information`)
+    smooth_plane_information: np.ndarray  # the same from normals over a wider baseline: what depth cannot see
     median_depth_m: float
     valid_fraction: float
     textured: bool
@@ -57,6 +58,7 @@ def prepare_view(frame: Frame, config: RgbdOdometryConfig) -> View:
     rgbd = o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(np.ascontiguousarray(rgb)),
                                     o3d.t.geometry.Image(np.ascontiguousarray(depth[..., None])))
     return View(rgbd=rgbd, features=features, K=o3d.core.Tensor(K), plane_information=plane_information(depth, K),
+                smooth_plane_information=plane_information(depth, K, step=4, baseline=4),
                  median_depth_m=float(np.median(depth[valid])) if valid.any() else 1.0,
                  valid_fraction=float(valid.mean()),
                  textured=frame.rgb is not None and textured_fraction(rgb, valid, config.gradient_threshold) >= config.textured_fraction)
@@ -103,3 +105,4 @@ def _smooth(image: np.ndarray, step: int) -> np.ndarray:
     import cv2
 
     return cv2.GaussianBlur(image, (0, 0), sigmaX=0.5 * step)
+

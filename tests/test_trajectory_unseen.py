@@ -1,0 +1,71 @@
+"""What depth cannot see: the plane term's unseen directions on a noisy wall, the prediction kept
+along them, and the constant-velocity model of a camera that walks straight while it pans."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ndfa.core.geometry import axis_angle_to_matrix, make_pose
+from ndfa.trajectory.degeneracy import depth_degeneracy, keep_prediction_where_unseen, plane_information
+from ndfa.trajectory.rgbd import _motion, _predict
+
+K = np.array([[290.0, 0.0, 160.0], [0.0, 290.0, 120.0], [0.0, 0.0, 1.0]])
+
+
+def wall(distance_m: float = 1.2, noise_m: float = 0.0, seed: int = 0) -> np.ndarray:
+    """A 320x240 depth image of a wall facing the camera, with Gaussian noise."""
+    rng = np.random.default_rng(seed)
+    return (distance_m + noise_m * rng.standard_normal((240, 320))).astype(np.float32)
+
+
+def corner() -> np.ndarray:
+    """Depth of three planes meeting (floor, two walls) seen from inside the corner."""
+    rows, cols = np.mgrid[0:240, 0:320].astype(float)
+    rays = np.stack([(cols - K[0, 2]) / K[0, 0], (rows - K[1, 2]) / K[1, 1], np.ones_like(cols)], axis=-1)
+    depth = np.full(rows.shape, np.inf)
+    for normal, offset in (((0.0, -1.0, 0.0), -0.8), ((-0.7, 0.0, -0.7), -2.0), ((0.7, 0.0, -0.7), -2.0)):
+        along = rays @ np.array(normal)
+        with np.errstate(divide="ignore"):
+            t = offset / along
+        depth = np.where((t > 0) & (t < depth), t, depth)
+    return depth.astype(np.float32)
+
+
+def twist_pose(rotation: tuple[float, float, float], translation: tuple[float, float, float]) -> np.ndarray:
+    return make_pose(axis_angle_to_matrix(np.array(rotation)), np.array(translation))
+
+
+def test_a_noisy_wall_shows_its_unseen_directions_only_with_normals_over_a_wider_baseline():
+    noisy = wall(noise_m=0.004)
+    adjacent = depth_degeneracy(plane_information(noisy, K), 1.2)
+    wide = depth_degeneracy(plane_information(noisy, K, step=4, baseline=4), 1.2)
+    assert adjacent > 0.01  # the noise's scattered normals look like a constraint on the slide
+    assert wide < 0.002
+
+
+def test_on_a_wall_the_prediction_is_kept_along_the_slide_and_the_roll_and_the_rest_is_measured():
+    information = plane_information(wall(), K, step=4, baseline=4)
+    prediction = twist_pose((0.0, 0.05, 0.0), (0.08, 0.0, 0.02))
+    measured = prediction @ twist_pose((0.01, 0.02, 0.03), (0.2, -0.1, 0.05))  # slid 22 cm, rolled
+    kept = np.linalg.inv(prediction) @ keep_prediction_where_unseen(measured, prediction, information, 1.2, 0.005)
+    np.testing.assert_allclose(kept[:3, 3], [0.0, 0.0, 0.05], atol=1e-3)  # the distance to the wall measured
+    rotation = kept[:3, :3]
+    np.testing.assert_allclose(rotation, axis_angle_to_matrix(np.array([0.01, 0.02, 0.0])), atol=1e-3)  # tilts, no roll
+
+
+def test_where_depth_sees_every_direction_the_registration_stands():
+    depth = corner()
+    information = plane_information(depth, K, step=4, baseline=4)
+    assert depth_degeneracy(information, float(np.median(depth[np.isfinite(depth)]))) > 0.005
+    prediction = twist_pose((0.0, 0.0, 0.0), (0.08, 0.0, 0.0))
+    measured = prediction @ twist_pose((0.01, 0.02, 0.03), (0.02, -0.01, 0.01))
+    kept = keep_prediction_where_unseen(measured, prediction, information, 1.5, 0.005)
+    assert kept is measured
+
+
+def test_a_camera_that_walks_straight_while_it_pans_is_predicted_by_its_velocity_in_the_world():
+    poses = [twist_pose((0.0, np.radians(3.0) * k, 0.0), (0.08 * k, 0.0, 0.0)) for k in range(3)]
+    world = _predict(poses[1], _motion(poses[0], poses[1], in_world=True), in_world=True)
+    camera = _predict(poses[1], _motion(poses[0], poses[1], in_world=False), in_world=False)
+    np.testing.assert_allclose(world, poses[2], atol=1e-12)
+    assert np.linalg.norm(camera[:3, 3] - poses[2][:3, 3]) > 0.003  # the body-frame model turns the walk
