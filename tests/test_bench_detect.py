@@ -9,6 +9,7 @@ import pytest
 from typer.testing import CliRunner
 
 from ndfa.cli import app
+from ndfa.core.errors import OptionError
 from ndfa.ndf.encoder import DEFAULT_WEIGHTS
 
 SAMPLE = Path(__file__).parents[1] / "recordings" / "sample"
@@ -30,3 +31,16 @@ def test_bench_detect_compares_before_and_now_and_under_load():
 def test_bench_detect_refuses_an_unknown_runtime():
     result = CliRunner().invoke(app, ["bench", "detect", "--runtime", "gpu"])
     assert result.exit_code == 2 and "--runtime" in result.output
+
+
+def test_bench_detect_with_fewer_points_and_neighbours():
+    result = CliRunner(env={"COLUMNS": "220"}).invoke(app, [
+        "bench", "detect", "--source", str(SAMPLE / "source.mcap"), "--target", str(SAMPLE / "target.mcap"),
+        "--frame-step", "30", "--points", "224", "--neighbours", "10"])
+    assert result.exit_code == 0, result.output
+    assert "points / neighbours" in result.output and "224 / 10" in result.output
+
+
+def test_bench_detect_refuses_too_few_points():
+    result = CliRunner().invoke(app, ["bench", "detect", "--points", "5"])
+    assert isinstance(result.exception, OptionError) and "--points must be >= 10" in str(result.exception)

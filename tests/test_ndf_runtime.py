@@ -163,3 +163,21 @@ def test_the_coarse_points_near_the_center_are_decoded_first(near_center):
     full = encoder.encode_batch([cloud], [np.eye(4)])[0]
     assert len(full.reconstruction) == 1
     np.testing.assert_array_equal(code.reconstruction, full.reconstruction)
+
+
+def test_fewer_points_and_neighbours_than_the_checkpoint(views):
+    """`EncoderConfig.n_points` and `knn` reach both runtimes: ONNX Runtime agrees with torch at 224
+    points and 10 neighbours, and the result is not the checkpoint's 256 and 12."""
+    clouds, poses = views
+    config = {"n_points": 224, "knn": 10}
+    by_torch, by_onnx = (NDFEncoder(config=EncoderConfig(runtime=runtime, **config))
+                         for runtime in ("torch", "onnxruntime"))
+    assert by_torch.resample(clouds[0]).shape == (224, 3) and by_onnx.model.encoder.knn == 10
+    fewer = by_onnx.encode_batch(clouds[:4], poses[:4])
+    for a, b in zip(by_torch.encode_batch(clouds[:4], poses[:4]), fewer):
+        assert _cosine(a.shape_code, b.shape_code) > 0.999
+        assert np.linalg.norm(a.center_world - b.center_world) < 1e-3
+    shipped = NDFEncoder(config=EncoderConfig(runtime="onnxruntime")).encode_batch(clouds[:4], poses[:4])
+    assert all(not np.allclose(a.z, b.z, atol=1e-4) for a, b in zip(shipped, fewer))
+    with pytest.raises(ModelError, match="n_points"):
+        NDFEncoder(config=EncoderConfig(runtime="torch", n_points=5))

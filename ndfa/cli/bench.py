@@ -9,7 +9,7 @@ import typer
 from rich.table import Table
 
 from ndfa.cli.app import app, console
-from ndfa.cli.checks import at_least_one, checkpoint, thread_count
+from ndfa.cli.checks import at_least, at_least_one, checkpoint, thread_count
 
 
 @app.command("bench")
@@ -43,6 +43,10 @@ def bench_command(
                                callback=at_least_one),
     overlap: bool = typer.Option(True, "--overlap/--no-overlap",
                                  help="detect: now, the stages run at the same time in threads (else one after the other)."),
+    points: Optional[int] = typer.Option(None, help="detect: now, points per observation the NDF encodes (default: "
+                                                    "the checkpoint's).", callback=at_least(10)),
+    neighbours: Optional[int] = typer.Option(None, help="detect: now, the NDF encoder's neighbours per point "
+                                                        "(default: the checkpoint's).", callback=at_least_one),
 ) -> None:
     """Time each stage of a pipeline and print milliseconds."""
     from ndfa.eval.bench import bench_detect_runs, bench_detection_scaling, bench_ndf, bench_sim
@@ -70,7 +74,8 @@ def bench_command(
                 raise typer.BadParameter(f"{option} must be one of {', '.join(RUNTIMES)}, got {value!r}")
         rows = bench_detect_runs(source, target, threads=threads, compare=compare, load=load, frame_step=frame_step,
                                  runtime=runtime, weights=weights, before_runtime=before_runtime,
-                                 before_weights=before_weights, overlap=overlap, repeat=repeat)
+                                 before_weights=before_weights, overlap=overlap, repeat=repeat,
+                                 n_points=points, knn=neighbours)
         first = rows[0]
         table = Table(title=f"ndfa bench detect: target pass of {target} (no sinks)",
                       caption=f"{first['frames']} frames, {threads} thread(s); {first['machine']}")
@@ -84,6 +89,7 @@ def bench_command(
         table.add_row("frames/s", *(f"{row['fps']:.1f}" for row in rows))
         table.add_row("CPU s (both passes)", *(f"{row['cpu_s']:.1f}" for row in rows))
         table.add_row("reconstructions", *(row["reconstruction"] for row in rows))
+        table.add_row("points / neighbours", *(f"{row['points']} / {row['neighbours']}" for row in rows))
         table.add_row("TP / FP / FN", *("-" if row["score"] is None else "/".join(map(str, row["score"])) for row in rows))
         console.print(table)
         now = next(row for row in rows if row["label"] == "now")

@@ -14,6 +14,7 @@ from rich.table import Table
 from ndfa.change.detector import DetectorConfig
 from ndfa.cli.app import app, bar_per_label, console, err_console, progress_bar
 from ndfa.cli.checks import (
+    at_least,
     at_least_one,
     checkpoint,
     in_range,
@@ -81,6 +82,10 @@ def detect_command(
                                           callback=thread_count),
     runtime: str = typer.Option("auto", help="Where the NDF runs: auto (ONNX Runtime when installed, else torch) | "
                                              "onnxruntime (faster; docs/speed.md) | torch (the reference)."),
+    points: Optional[int] = typer.Option(None, help="Points per observation the NDF encodes (default: the "
+                                                    "checkpoint's; fewer is faster, docs/speed.md).", callback=at_least(10)),
+    neighbours: Optional[int] = typer.Option(None, help="The NDF encoder's neighbours per point (default: the "
+                                                        "checkpoint's).", callback=at_least_one),
 ) -> None:
     """Detect added, removed and moved objects between two recordings (the paper's method), or
     between each consecutive pair of more, with every object's history over them."""
@@ -108,7 +113,8 @@ def detect_command(
     detector = replace(defaults,
                        association=replace(defaults.association, **{k: v for k, v in association.items() if v is not None}),
                        decision=replace(defaults.decision, **({} if edge_distance is None else {"edge_m": edge_distance})))
-    config = PipelineConfig(detector=detector, weights=weights, encoder=EncoderConfig(runtime=runtime, threads=threads or 1))
+    config = PipelineConfig(detector=detector, weights=weights, encoder=EncoderConfig(runtime=runtime, threads=threads or 1,
+                                                                                       n_points=points, knn=neighbours))
     pipeline = ChangeDetectionPipeline(config)
     runtime = pipeline.encoder.runtime.name
     err_console.print(f"NDF runtime: {runtime}" + (f", {threads or 1} thread(s)" if runtime == "onnxruntime" else ""),

@@ -120,7 +120,8 @@ def bench_ndf(weights: Path | None = None, repeats: int = 30, points: int = 1000
 
 
 def bench_detect(source: Path, target: Path, threads: int = 1, frame_step: int = 1, runtime: str = "auto",
-                 weights: Path | None = None, full_reconstruction: bool = False, overlap: bool = True) -> dict:
+                 weights: Path | None = None, full_reconstruction: bool = False, overlap: bool = True,
+                 n_points: int | None = None, knn: int | None = None) -> dict:
     """The whole target pass without sinks: frames per second, and ms per frame of each stage.
     `threads`: torch's and ONNX Runtime's; `runtime`: the NDF's (`ndfa.ndf.runtime`); `weights`:
     the NDF's (default: the shipped ones); `full_reconstruction`: decode every reconstruction, as a
@@ -136,7 +137,7 @@ def bench_detect(source: Path, target: Path, threads: int = 1, frame_step: int =
     from ndfa.run.detect import RunOptions, run_detection
 
     torch.set_num_threads(threads)
-    config = PipelineConfig(encoder=EncoderConfig(runtime=runtime, threads=threads), weights=weights)
+    config = PipelineConfig(encoder=EncoderConfig(runtime=runtime, threads=threads, n_points=n_points, knn=knn), weights=weights)
     pipeline = ChangeDetectionPipeline(config)
     cpu_started = time.process_time()
     result = score_detection(run_detection(source, target, config, sinks=[], options=RunOptions(frame_step=frame_step),
@@ -146,6 +147,7 @@ def bench_detect(source: Path, target: Path, threads: int = 1, frame_step: int =
     return {"fps": result.target_fps, "frames": result.frames["target"], "total_ms": per_frame_ms,
             "stage_ms": stages, "threads": threads, "runtime": pipeline.encoder.runtime.name,
             "weights": "shipped" if weights is None else str(weights),
+            "points": pipeline.encoder.n_points, "neighbours": pipeline.encoder.model.encoder.knn,
             "reconstruction": "full" if full_reconstruction else "as decisions need",
             "stages": "at the same time" if overlap else "one after the other",
             "cpu_s": time.process_time() - cpu_started,  # both passes, this process's CPU time
@@ -156,7 +158,8 @@ def bench_detect(source: Path, target: Path, threads: int = 1, frame_step: int =
 def bench_detect_runs(source: Path, target: Path, threads: int = 1, compare: bool = False, load: bool = False,
                       frame_step: int = 1, runtime: str = "auto", weights: Path | None = None,
                       before_runtime: str = "torch", before_weights: Path | None = None,
-                      overlap: bool = True, repeat: int = 1) -> list[dict]:
+                      overlap: bool = True, repeat: int = 1, n_points: int | None = None,
+                      knn: int | None = None) -> list[dict]:
     """`bench_detect` back to back in one process, each row labelled: with `compare` first the
     "before" (`before_runtime` with `before_weights`, default the shipped ones, as the pass ran
     before: every reconstruction decoded, the stages one after the other), then "now"
@@ -164,12 +167,13 @@ def bench_detect_runs(source: Path, target: Path, threads: int = 1, compare: boo
     frames/s with every run's in `fps_runs` (the overlapping stages vary from run to run); with
     `load` "now" once more beside one busy process (`python -c 'while True: pass'`, started here
     and stopped after), the question being whether the pass keeps its speed when the machine is
-    shared."""
+    shared. `n_points`, `knn`: the encoder's now (`EncoderConfig`; None: the checkpoint's)."""
     rows = []
     if compare:
         rows.append({"label": "before"} | bench_detect(source, target, threads, frame_step, before_runtime, before_weights,
                                                        full_reconstruction=True, overlap=False))
-    runs = [bench_detect(source, target, threads, frame_step, runtime, weights, overlap=overlap) for _ in range(repeat)]
+    runs = [bench_detect(source, target, threads, frame_step, runtime, weights, overlap=overlap, n_points=n_points, knn=knn)
+            for _ in range(repeat)]
     median_run = sorted(runs, key=lambda run: run["fps"])[(len(runs) - 1) // 2]
     rows.append({"label": "now"} | median_run | {"fps_runs": [run["fps"] for run in runs]})
     if load:
@@ -179,7 +183,7 @@ def bench_detect_runs(source: Path, target: Path, threads: int = 1, compare: boo
         busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])
         try:
             rows.append({"label": "beside one busy process"} | bench_detect(source, target, threads, frame_step, runtime, weights,
-                                                                            overlap=overlap))
+                                                                            overlap=overlap, n_points=n_points, knn=knn))
         finally:
             busy.kill()
             busy.wait()

@@ -83,6 +83,13 @@ class EncoderConfig:
     threads: ONNX Runtime's intra-op threads (torch's are process-wide: `torch.set_num_threads`).
         1: the pass is then one thread and keeps its speed beside another busy process on a
         2-core machine (docs/speed.md).
+    n_points, knn: points per observation and the encoder's neighbours per point, instead of the
+        checkpoint's (None: the checkpoint's, 256 and 12 for the shipped weights). Fewer is faster
+        (the encoder is linear in both, its neighbour search quadratic in the points); keeping
+        knn / n_points keeps the local layer's neighbourhood at the size it was trained on. With
+        224 and 10 the shipped NDF's centers on `paper` are within the resampling's own noise
+        and encoding takes 13 % less CPU; the detector's reports move as with another resampling
+        seed (docs/speed.md, 2026-12-03 afternoon), so this is not the default.
     """
 
     v0: float = 0.5                  # occupancy threshold of the reconstruction
@@ -94,6 +101,8 @@ class EncoderConfig:
     seed: int = 0                    # of the point resampling, so encoding is deterministic
     runtime: str = "auto"
     threads: int = 1
+    n_points: int | None = None
+    knn: int | None = None
 
 
 class NDFEncoder:
@@ -105,7 +114,11 @@ class NDFEncoder:
         self.weights = Path(weights) if weights is not None else DEFAULT_WEIGHTS
         self.model, extra = load_model(self.weights)
         self.model.eval()
-        self.n_points = int(extra.get("n_points", 400))
+        if config.n_points is not None and config.n_points < MIN_POINTS or config.knn is not None and config.knn < 1:
+            raise ModelError(f"encoding needs n_points >= {MIN_POINTS} and knn >= 1, got {config.n_points} and {config.knn}")
+        self.n_points = config.n_points or int(extra.get("n_points", 400))
+        if config.knn is not None:
+            self.model.encoder.knn = config.knn  # read by the encoder network and its export
         self.config = config
         self.runtime = make_runtime(self.model, self.n_points, config.runtime, config.threads)
         self._frame_weights = frame_weights_of(self.model)
