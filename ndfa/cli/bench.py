@@ -20,11 +20,11 @@ def bench_command(
     frames: int = typer.Option(60, help="sim: frames to time.", callback=at_least_one),
     weights: Optional[Path] = typer.Option(None, help="ndf, detect: checkpoint to time (default: the shipped weights).",
                                            callback=checkpoint),
-    source: Path = typer.Option(Path("recordings/sample/source.mcap"), help="detect: source recording."),
-    target: Path = typer.Option(Path("recordings/sample/target.mcap"), help="detect: target recording."),
+    source: Path = typer.Option(Path("recordings/sample/source.mcap"), help="detect, raw: source recording."),
+    target: Path = typer.Option(Path("recordings/sample/target.mcap"), help="detect, raw: target recording."),
     recording: Path = typer.Option(Path("out/paper/target.mcap"), help="segment: recording with ground-truth masks."),
     step: int = typer.Option(1, help="segment: use every N-th frame.", callback=at_least_one),
-    threads: int = typer.Option(1, help="detect: torch's and ONNX Runtime's CPU threads (docs/speed.md).",
+    threads: int = typer.Option(1, help="detect, raw: torch's and ONNX Runtime's CPU threads (docs/speed.md).",
                                 callback=thread_count),
     compare: bool = typer.Option(False, "--compare", help="detect: first the before (--before-runtime, --before-weights, "
                                                           "every reconstruction decoded, the stages one after the "
@@ -37,7 +37,7 @@ def bench_command(
     before_runtime: str = typer.Option("torch", help="detect --compare: the NDF's runtime before."),
     before_weights: Optional[Path] = typer.Option(None, help="detect --compare: the NDF's weights before (default: the shipped ones).",
                                                   callback=checkpoint),
-    frame_step: int = typer.Option(1, help="detect: use every N-th frame.", callback=at_least_one),
+    frame_step: int = typer.Option(1, help="detect, raw: use every N-th frame.", callback=at_least_one),
     repeat: int = typer.Option(1, help="detect, raw: run now (raw: and before) this many times; a column is the "
                                        "run of median frames/s.",
                                callback=at_least_one),

@@ -1,0 +1,200 @@
+"""The measurements behind docs/speed.md's section of 2026-12-03 afternoon (issue 32): where the raw
+pass's CPU goes, the levers tried, and what grows with a recording's length.
+
+    python studies/raw_speed.py segmentation RAW_TARGET.mcap [STEP]   # cProfile of segment_frame (true poses)
+    python studies/raw_speed.py alignment RAW_DIR                     # cProfile of the scene alignment (true poses)
+    python studies/raw_speed.py stride MASKED_TARGET.mcap [STEP]      # segmentation recall and CPU, stride 2 vs 3
+    python studies/raw_speed.py gate RAW_TARGET.mcap [STEP]           # the objectness gate on the coarse grid only
+    python studies/raw_speed.py normals RAW_TARGET.mcap [STEP]        # right_angles at fewer query points
+    python studies/raw_speed.py growth MASKED_DIR                     # tracemalloc over a target pass
+    python studies/raw_speed.py repeat SHORT_DIR LONG_DIR TIMES       # a long recording: the frames repeated
+
+Speed figures are CPU times (`time.process_time`): on a shared machine wall times measure the others.
+"""
+
+from __future__ import annotations
+
+import cProfile
+import dataclasses
+import pstats
+import sys
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from ndfa.io.recording import RecordingReader, RecordingWriter
+from ndfa.perception import objectness
+from ndfa.perception.segmentation import segment_frame
+from ndfa.perception.segmentation_config import SegmentationConfig
+
+
+def true_posed(path: str, step: int) -> list:
+    """The recording's frames (every `step`-th) on their true poses (a raw recording has none of its own)."""
+    return [dataclasses.replace(f, pose_world_camera=f.pose_world_camera_true) for f in RecordingReader(path).frames(step=step)]
+
+
+def segmentation(path: str, step: str = "8") -> None:
+    frames = true_posed(path, int(step))
+    started, profile = time.process_time(), cProfile.Profile()
+    profile.enable()
+    for frame in frames:
+        segment_frame(frame, SegmentationConfig())
+    profile.disable()
+    print(f"{len(frames)} frames, {(time.process_time() - started) / len(frames) * 1e3:.1f} ms CPU per frame (profiled)")
+    pstats.Stats(profile).sort_stats("tottime").print_stats(25)
+
+
+def alignment(directory: str) -> None:
+    from ndfa.run.align import registration_prior
+    from ndfa.run.world import prepare_session
+
+    readers = [RecordingReader(Path(directory) / f"{s}.mcap") for s in ("source", "target")]
+    worlds = {s: prepare_session(r, s, up="z", poses="truth") for s, r in zip(("source", "target"), readers)}
+    started, wall, profile = time.process_time(), time.perf_counter(), cProfile.Profile()
+    profile.enable()
+    result = registration_prior(readers[0], readers[1], worlds, "scene")
+    profile.disable()
+    print(f"CPU {time.process_time() - started:.1f} s, wall {time.perf_counter() - wall:.1f} s;",
+          "none" if result is None else result.describe())
+    pstats.Stats(profile).sort_stats("cumtime").print_stats(30)
+
+
+def stride(path: str, step: str = "4") -> None:
+    from ndfa.eval.segmentation import segmentation_recall
+
+    frames = list(RecordingReader(path).frames(step=int(step)))
+    configs = {"stride 2": SegmentationConfig(), "stride 3, min_cluster_points 13": SegmentationConfig(stride=3, min_cluster_points=13)}
+    for label, config in list(configs.items()) * 2:  # twice, alternating: the CPU times' spread
+        r = segmentation_recall(frames, config)
+        print(f"{label}: recovered {r.recovered}/{r.observations} = {r.recall:.1%}, {r.segments} segments, "
+              f"{r.spurious} spurious, {r.cpu_ms_per_frame:.1f} ms CPU per frame", flush=True)
+
+
+def gate(path: str, step: str = "3") -> None:
+    from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
+
+    pipeline = ChangeDetectionPipeline(PipelineConfig())
+    encoder = pipeline.encoder
+    v0, threshold = encoder.config.v0, pipeline.config.min_segment_occupancy
+    decoded: list[np.ndarray] = []
+    full_grid = encoder._grid_occupancy
+
+    def keep(z, queries, points, full=True):  # noqa: ANN001, ANN202  (the encoder's own signature)
+        occupancy = full_grid(z, queries, points, full)
+        decoded.append(occupancy.copy())
+        return occupancy
+
+    encoder._grid_occupancy = keep  # type: ignore[method-assign]
+    means = []
+    for frame in true_posed(path, int(step)):
+        observed = pipeline.perceive(dataclasses.replace(frame, instances=None))
+        decoded.clear()
+        pipeline.encode(observed, full_reconstruction=True)
+        for occupancy in (np.concatenate(decoded) if decoded else []):
+            coarse = occupancy[encoder._coarse]
+            means.append([occupancy[occupancy > v0].mean() if (occupancy > v0).any() else 0.0,
+                          coarse[coarse > v0].mean() if (coarse > v0).any() else 0.0])
+    full_mean, coarse_mean = np.array(means).T
+    differ = (full_mean >= threshold) != (coarse_mean >= threshold)
+    print(f"{len(full_mean)} segments: gate passed {int((full_mean >= threshold).sum())} (full grid), "
+          f"{int((coarse_mean >= threshold).sum())} (coarse); {int(differ.sum())} decided differently")
+    d = coarse_mean - full_mean
+    print(f"coarse - full: median {np.median(d):.3f}, 5th/95th percentile {np.percentile(d, 5):.3f}/"
+          f"{np.percentile(d, 95):.3f}, largest {np.abs(d).max():.3f}")
+    for margin in (0.01, 0.02, 0.03, 0.05):
+        near = np.abs(coarse_mean - threshold) < margin
+        print(f"full grid only within {margin} of the gate: {near.mean():.1%} decoded in full, "
+              f"{int((differ & ~near).sum())} decided differently")
+
+
+def normals(path: str, step: str = "4") -> None:
+    clusters = []
+    measured = objectness.right_angles
+
+    def keep(heights, flat, neighbours=24):  # noqa: ANN001, ANN202
+        clusters.append((heights.copy(), flat.copy(), neighbours))
+        return measured(heights, flat, neighbours)
+
+    objectness.right_angles = keep  # type: ignore[assignment]
+    for frame in true_posed(path, int(step)):
+        segment_frame(frame, SegmentationConfig())
+    objectness.right_angles = measured  # type: ignore[assignment]
+    sizes = [len(c[0]) for c in clusters]
+    print(f"{len(clusters)} clusters measured, {np.median(sizes):.0f} points (median), {max(sizes)} at most")
+    reference = [measured(*c) for c in clusters]
+    for most in (100_000, 400, 200, 100):
+        started = time.process_time()
+        values = [_right_angles_at(*c, most) for c in clusters]
+        cpu_ms = (time.process_time() - started) / len(clusters) * 1e3
+        both = [(a, b) for a, b in zip(values, reference) if a is not None and b is not None]
+        changed = sum((a is None) != (b is None) or (a is not None and b is not None and (a > 0.5) != (b > 0.5))
+                      for a, b in zip(values, reference))
+        print(f"at most {most} query points: {cpu_ms:.2f} ms CPU per cluster, values within "
+              f"{max(abs(a - b) for a, b in both):.3f}, {changed} verdicts changed")
+
+
+def _right_angles_at(heights: np.ndarray, flat: np.ndarray, neighbours: int, most: int) -> float | None:
+    """`objectness.right_angles` with the normals estimated at no more than `most` evenly spaced points."""
+    points = np.column_stack([flat, heights])
+    if len(points) <= neighbours:
+        return None
+    query = points[np.linspace(0, len(points) - 1, most).astype(int)] if len(points) > most else points
+    _, nearest = cKDTree(points).query(query, neighbours)
+    local = points[nearest] - points[nearest].mean(axis=1, keepdims=True)
+    normal = np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))[1][:, :, 0]
+    wall = np.abs(normal[:, 2]) < 0.4
+    if wall.sum() < 10:
+        return None
+    return float(np.abs(np.mean(np.exp(4j * np.arctan2(normal[wall, 1], normal[wall, 0])))))
+
+
+def growth(directory: str) -> None:
+    from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
+    from ndfa.run.detect import run_detection
+
+    snapshots = {}
+
+    def on_frame(session: str, done: int, total: int) -> None:
+        if session == "target" and done in (total // 4, total - 1):
+            snapshots[done] = tracemalloc.take_snapshot()
+            print(f"target frame {done}: {tracemalloc.get_traced_memory()[0] / 1e6:.2f} MB traced", flush=True)
+
+    pipeline = ChangeDetectionPipeline(PipelineConfig())
+    tracemalloc.start(8)
+    result = run_detection(Path(directory) / "source.mcap", Path(directory) / "target.mcap", pipeline.config,
+                           sinks=[], on_frame=on_frame, pipeline=pipeline, overlap=False)
+    first, last = (snapshots[k] for k in sorted(snapshots))
+    for stat in last.compare_to(first, "traceback")[:8]:
+        print(stat, *stat.traceback.format()[-4:], sep="\n    ")
+    print(f"decisions kept: {len(result.pair.decisions)}; most measurements of an object: "
+          f"{max(int(v.max()) for v in result.object_measurements.values())}")
+
+
+def repeat(short: str, long: str, times: str) -> None:
+    """LONG/{source,target}.mcap: SHORT's frames `times` times over, renumbered, timestamps continued."""
+    Path(long).mkdir(parents=True, exist_ok=True)
+    for session in ("source", "target"):
+        reader = RecordingReader(Path(short) / f"{session}.mcap")
+        first, second = reader.frames(stop=2)
+        interval, count = second.timestamp - first.timestamp, len(reader)
+        meta = {k: v for k, v in reader.meta.items() if k not in ("format", "format_version", "depth_scale", "units")}
+        partial = Path(long) / f".{session}.mcap.partial"
+        with RecordingWriter(partial, meta) as writer:
+            if reader.ground_truth is not None:
+                writer.write_ground_truth(reader.ground_truth)
+            for lap in range(int(times)):
+                for frame in reader.frames():
+                    index = lap * count + frame.index
+                    writer.write_frame(dataclasses.replace(frame, index=index, timestamp=first.timestamp + index * interval))
+        partial.rename(Path(long) / f"{session}.mcap")
+        print(f"{session}: {count * int(times)} frames")
+
+
+if __name__ == "__main__":
+    commands = {f.__name__: f for f in (segmentation, alignment, stride, gate, normals, growth, repeat)}
+    if len(sys.argv) < 2 or sys.argv[1] not in commands:
+        sys.exit(__doc__)
+    commands[sys.argv[1]](*sys.argv[2:])
