@@ -116,6 +116,9 @@ def test_a_standalone_prior_registers_a_table_where_most_mugs_changed_and_the_mu
     kinds = sorted((e.kind, e.session, e.object_id) for e in events
                    if type(e).__name__ == "DecisionEvent" and e.kind != "unchanged")
     assert kinds == [("added", "target", 1), ("added", "target", 2), ("removed", "source", 1), ("removed", "source", 2)]
+    # Given poses in one world, judged on the same evidence: accepted as such, and named so.
+    shared, _ = run(RegistrationPrior("shared world", truth, standalone=True, evidence="figures"))
+    assert shared.registration is not None and shared.registration.method == "shared world (own evidence)"
 
 
 def _true_rel(readers: dict, worlds: dict) -> np.ndarray:
@@ -142,7 +145,7 @@ def test_given_poses_in_different_worlds_are_never_accepted_and_a_scene_alignmen
     # The sample's target poses carry an offset: its world is not the source's.
     auto = registration_prior(readers["source"], readers["target"], worlds, "auto")
     assert auto is not None and auto.method == "shared world" and not auto.ok and auto.prior() is None
-    assert auto.evidence is None  # a shared world is never judged (nor accepted) on the scene's evidence
+    assert auto.evidence is None  # refuted by its upright surfaces: never judged further, never accepted
     scene = registration_prior(readers["source"], readers["target"], worlds, "scene")
     assert scene is not None and scene.evidence is not None
     prior = scene.prior()

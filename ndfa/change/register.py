@@ -41,7 +41,7 @@ class Registration:
     n_pairs: int                # candidate pairs it was chosen from
     n_hypotheses: int           # minimal samples fitted
     method: RegistrationMethod = "object pairs"
-    evidence: str = ""          # "scene (own evidence)": the figures it was accepted on
+    evidence: str = ""          # "... (own evidence)": the figures it was accepted on
 
 
 @dataclass(frozen=True)
@@ -54,9 +54,9 @@ class RegistrationPrior:
     # with a clear overlap) rules out chance layouts of few objects; a weak one (rooms of identical
     # tables align several ways) is only one more hypothesis.
     binding: bool = True
-    # Whether it stands without object pairs: a scene alignment whose own evidence is strong
-    # (`ndfa.run.scene_evidence`), accepted with fewer verifying pairs than `prior_min_inliers`;
-    # `evidence` says on which figures.
+    # Whether it stands without object pairs: a scene alignment or shared world whose own evidence
+    # is strong (`ndfa.run.scene_evidence`), accepted with fewer verifying pairs than
+    # `prior_min_inliers`; `evidence` says on which figures.
     standalone: bool = False
     evidence: str = ""
 

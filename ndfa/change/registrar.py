@@ -12,9 +12,10 @@ are scored at every attempt by the same pairs (`ndfa.change.register.verify_prio
 there are N of them: with few objects (two mugs on a table) RANSAC never gets its N, but a prior
 that two pairs agree with is a T_rel. Each candidate must pass its own bar (RANSAC `RansacConfig.min_inliers`,
 a prior `PriorConfig.min_inliers`, and a RANSAC fit must agree with a prior where there is one); the one
-with most inliers wins, RANSAC's on a tie. A standalone prior (a scene alignment whose own
-evidence is strong, `RegistrationPrior.standalone`) passes with fewer pairs, as "scene (own
-evidence)": the objects are then tested against it, and pairs that confirm it later replace it.
+with most inliers wins, RANSAC's on a tie. A standalone prior (a scene alignment or shared world
+whose own evidence is strong, `RegistrationPrior.standalone`) passes with fewer pairs, as "scene (own
+evidence)" or "shared world (own evidence)": the objects are then tested against it, and pairs that
+confirm it later replace it.
 """
 
 from __future__ import annotations
@@ -29,7 +30,11 @@ from ndfa.change.associate import Association, SessionMap, cosine_similarity
 from ndfa.change.config import DetectorConfig
 from ndfa.change.register import Registration, RegistrationPrior, apply, ransac_registration, verify_prior
 from ndfa.change.tree import Region
-from ndfa.core.events import RegistrationEvent
+from ndfa.core.events import RegistrationEvent, RegistrationMethod
+
+# A standalone prior accepted without confirming pairs, named by what proposed it.
+OWN_EVIDENCE: dict[RegistrationMethod, RegistrationMethod] = {
+    "scene alignment": "scene (own evidence)", "shared world": "shared world (own evidence)"}
 
 
 class RegisteredCenters:
@@ -142,7 +147,7 @@ class Registrar:
                                  support_m=self.prior_config.support_m)
             confirmed = len(check.inliers) >= self.prior_config.min_inliers
             if not confirmed and prior.standalone:  # too few pairs: it stands on the scene's own evidence
-                check = dataclasses.replace(check, method="scene (own evidence)", evidence=prior.evidence)
+                check = dataclasses.replace(check, method=OWN_EVIDENCE[prior.method], evidence=prior.evidence)
             verified.append((prior, check, confirmed or prior.standalone))
         # A binding prior vetoes RANSAC's fits only while the objects support it: one they do not
         # (a confident but wrong scene alignment) must not stop a registration they do support.

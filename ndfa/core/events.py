@@ -19,10 +19,11 @@ SESSIONS: tuple[Session, Session] = ("source", "target")  # a pair's two session
 DecisionKind = Literal["unchanged", "added", "removed", "moved", "rotated"]
 GraphMode = Literal["graph", "in place", "fallback"]
 # Where a T_rel came from: RANSAC on shape-matched object pairs (the paper's), or a prior hypothesis
-# the pairs verified: the sessions' shared world, or the alignment of their scene clouds; or that
-# alignment accepted on the static scene's own evidence where too few pairs could verify it
+# the pairs verified: the sessions' shared world, or the alignment of their scene clouds; or either
+# accepted on the static scene's own evidence where too few pairs could verify it
 # (`ndfa.run.scene_evidence`).
-RegistrationMethod = Literal["object pairs", "shared world", "scene alignment", "scene (own evidence)"]
+RegistrationMethod = Literal["object pairs", "shared world", "scene alignment", "scene (own evidence)",
+                             "shared world (own evidence)"]
 # The decision score at and above which the detector reports a change (`DecisionEvent.score`).
 CHANGE_SCORE = 0.5
 
@@ -97,7 +98,7 @@ class RegistrationEvent:
     target_centers: np.ndarray               # (K, 3) inlier target centers, target world
     source_centers: np.ndarray               # (K, 3) their source partners, source world
     method: RegistrationMethod = "object pairs"
-    evidence: str = ""                       # "scene (own evidence)": the figures it was accepted on
+    evidence: str = ""                       # "... (own evidence)": the figures it was accepted on
 
 
 @dataclass(frozen=True, kw_only=True)

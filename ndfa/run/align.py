@@ -13,9 +13,9 @@ which the object pairs then verify (`ndfa.change.register.verify_prior`):
   both levelled so z is up): the sessions' fused clouds are aligned globally (FPFH features and
   RANSAC, Open3D), then by ICP that turns about z and shifts only (both are levelled; 4 DoF).
 
-A scene alignment is also judged on its own evidence (`ndfa.run.scene_evidence`): when it is
-strong, the registrar accepts it where too few object pairs can confirm it (a table where most
-objects changed; docs/registration.md).
+Either hypothesis, once proposed, is also judged on its own evidence (`ndfa.run.scene_evidence`):
+when it is strong, the registrar accepts it where too few object pairs can confirm it (a table
+where most objects changed; docs/registration.md).
 
 A fused cloud is the depth of `frames` frames spread over the session, back-projected with the
 poses the detector will use, in the session's levelled world. Why these defaults, and what they
@@ -110,9 +110,11 @@ def registration_prior(source: RecordingReader, target: RecordingReader, worlds:
         mode = "scene"
     result = align_scenes(source_cloud, target_cloud, config) if mode == "scene" else \
         check_shared_world(source_cloud, target_cloud, shared, config)
-    if result.ok and result.transform is not None and mode == "scene" and config.evidence is not None:
-        # Only a scene alignment: a shared world is the poses' claim, which no scene evidence can
-        # stand in for (given poses in different worlds overlap by chance).
+    if result.ok and result.transform is not None and config.evidence is not None:
+        # A scene alignment, or a shared world that the upright surfaces did not refute: either is
+        # judged by the same bars. The shared world's check (`check_shared_world`) asks little
+        # (given poses in different worlds can overlap that much by chance); its own evidence asks
+        # what a found alignment must show, halves aligned from scratch and no rival included.
         result.evidence = own_evidence(source_cloud, target_cloud, result.transform, config)
     result.seconds = time.perf_counter() - started
     return result

@@ -125,8 +125,8 @@ class PairResult:
                 self.notes.append("the sessions' poses are given but do not share one world: --registration scene "
                                   "aligns their scene clouds instead")
         if alignment is not None and alignment.evidence is not None and not alignment.evidence.ok:
-            self.notes.append("too few object pairs confirmed the scene alignment, and its own evidence is too weak "
-                              f"to stand without them ({alignment.evidence.describe()}): no registration")
+            self.notes.append(f"too few object pairs confirmed the {alignment.method}, and its own evidence is too "
+                              f"weak to stand without them ({alignment.evidence.describe()}): no registration")
 
     def as_dict(self) -> dict:
         out = {"pair": self.label, "source": self.source, "target": self.target,

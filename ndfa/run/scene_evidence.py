@@ -1,4 +1,5 @@
-"""Whether a scene alignment holds on its own evidence, when the object pairs cannot confirm it.
+"""Whether a scene alignment (or the shared world of given poses) holds on its own evidence, when
+the object pairs cannot confirm it.
 
 The paper registers two sessions by shape-matched objects that stayed; a scene alignment
 (`ndfa.run.align`) is normally accepted only when two such pairs agree with it. On a
