@@ -10,7 +10,7 @@ ndfa changes two things (`ViewsConfig`; why: `docs/detector.md`): with `fusion="
 object keeps the mean of its measurements' unit codes and the median of their centers instead of
 the most confident measurement's, and a measurement within `same_place_m` of an object (measured
 horizontally) joins it whatever the codes say. A measurement that joins no object by these rules
-joins an alike object within `revisit_m` that was not measured in the same frame: the odometry
+joins the nearest object within `revisit_m` that was not measured in the same frame: the odometry
 drifts between two visits of a place, more than `distance_m` on real sequences.
 """
 
@@ -133,9 +133,11 @@ class SessionMap:
             horizontal_distance = np.linalg.norm(horizontal(offsets), axis=1)
             alike = similarity > c.shape_similarity
             same = (horizontal_distance < views.same_place_m) | ((distance < c.distance_m) & alike)
-            # The same object seen again after the odometry drifted: near, alike, and not seen in
-            # this frame (two objects measured in one frame are two objects).
-            seen_again = ((horizontal_distance < drift.revisit_m) & (np.abs(offsets[:, UP_AXIS]) < drift.revisit_m) & alike
+            # The same object seen again after the odometry drifted: near, and not seen in this frame
+            # (two objects measured in one frame are two objects). Not "alike": a place seen again
+            # is mostly seen from elsewhere, and one mug's codes from opposite sides are 0.0-0.6
+            # cosine-similar (docs/detector.md, "Drift"), no evidence of another object.
+            seen_again = ((horizontal_distance < drift.revisit_m) & (np.abs(offsets[:, UP_AXIS]) < drift.revisit_m)
                           & np.array([o.last_frame != m.frame_index for o in objects]))
             if same.any():  # the nearest (the first of equals, in id order)
                 k = int(np.flatnonzero(same)[np.argmin(distance[same])])

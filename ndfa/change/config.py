@@ -64,7 +64,7 @@ class ViewsConfig:
 class DriftConfig:
     """Allowances for poses that drift between the views of a place (docs/detector.md, "Drift")."""
 
-    revisit_m: float = 0.12      # an alike object this close, not measured in the same frame, takes the measurement. Off: 0
+    revisit_m: float = 0.12      # an object this close (horizontally and in height), not measured in the same frame, takes the measurement. Off: 0
     across_cells: bool = True    # association candidates also from the cells across an edge within reach. Off: False (the cell only)
     # The position tests of `DecisionConfig` and `EvidenceConfig.in_place_m` widen by this many times
     # the two objects' combined center scatter (`SessionObject.center_scatter_m`): about 0.5 cm in

@@ -13,8 +13,8 @@ rest with DBSCAN; this is that, for one frame at a time:
    both found; at the end all planes take the normal of the widest one.
 3. Candidates: points above a support plane by more than `min_height_m` and at most
    `band_height_m`, whose horizontal position lies over (or within `footprint_margin_m` of) that
-   plane's own inliers, and whose grid cell (`footprint_cell_m`) holds no point higher than
-   `max_object_height_m` (that column is part of something taller: a wall, a table leg).
+   plane's own inliers, and with no point higher than `max_object_height_m` within
+   `column_radius_m` horizontally (that column is part of something taller: a wall, a table leg).
    Rule for the floor: none is needed. Every horizontal plane supports objects; what stands on
    the floor (legs) or next to it (walls) reaches above an object's height and is dropped here or
    at step 5. So a frame that sees only a table top, or only the floor with objects on it, needs
@@ -181,14 +181,27 @@ def _candidates(points: np.ndarray, min_heights: np.ndarray, planes: list[Plane]
             continue
         plane_cells = np.unique(_cell_keys(points[plane.inliers] @ axes.T, config.footprint_cell_m))
         footprint = np.unique(plane_cells[:, None] + neighbours[None])
-        band_cells = _cell_keys(points[band] @ axes.T, config.footprint_cell_m)
-        # Columns that reach above an object's height hold parts of taller things (walls, legs):
-        # dropped before clustering, which they would otherwise dominate.
-        tall_cells = band_cells[h[band] > config.max_object_height_m]
-        chosen = band[np.isin(band_cells, footprint) & ~np.isin(band_cells, tall_cells)]
+        band_flat = points[band] @ axes.T
+        band_cells = _cell_keys(band_flat, config.footprint_cell_m)
+        chosen = band[np.isin(band_cells, footprint) & ~_under_tall(band_flat, h[band], config)]
         candidate[chosen] = True
         plane_of_point[chosen] = index
     return candidate, plane_of_point
+
+
+def _under_tall(flat: np.ndarray, heights: np.ndarray, config: SegmentationConfig) -> np.ndarray:
+    """Which band points stand in a column that reaches above an object's height: a point higher
+    than `max_object_height_m` lies within `column_radius_m` of them horizontally. Such columns hold
+    parts of taller things (walls, cabinet fronts, legs), dropped before clustering, which they
+    would otherwise dominate. A radius, not grid cells: whether a wall's foot shared a cell with
+    the wall above it depended on where the cell edges fell, which a tenth of a degree of levelling
+    moves by a centimetre a few metres out (docs/segmentation.md, "Columns")."""
+    tall = heights > config.max_object_height_m
+    if not tall.any():
+        return np.zeros(len(flat), dtype=bool)
+    distance, _ = cKDTree(flat[tall]).query(flat, distance_upper_bound=config.column_radius_m)
+    under: np.ndarray = np.isfinite(distance)
+    return under
 
 
 _KEY_SPAN = 1 << 24  # cells per axis in a cell key: 5 cm cells cover +-400 km

@@ -42,6 +42,10 @@ class SegmentationConfig:
     footprint_cell_m, footprint_margin_m: a candidate must lie within `footprint_margin_m` of a
         grid cell holding inliers of its plane (horizontally): objects stand on the plane, whose
         visible surface surrounds them; things merely at the right height elsewhere do not.
+    column_radius_m: a candidate with a point of the band higher than `max_object_height_m`
+        within this distance horizontally is part of something taller (a wall, a cabinet's front,
+        a leg) and dropped; about the reach of the 5 cm grid cells this test used before (a disc of
+        a 5 cm cell's area has a 2.8 cm radius), without their edges (docs/segmentation.md).
     dbscan_eps_m, dbscan_min_points: DBSCAN's radius and core-point count. Mugs stand at least
         1 cm apart in the synthetic world; two closer than eps become one cluster.
     min_cluster_points: smaller clusters are dropped (at stride 2, a mug 4 m away still has ~60).
@@ -85,6 +89,7 @@ class SegmentationConfig:
     band_height_m: float = 0.30
     footprint_cell_m: float = 0.05
     footprint_margin_m: float = 0.10
+    column_radius_m: float = 0.03
     dbscan_eps_m: float = 0.025
     dbscan_min_points: int = 4
     min_cluster_points: int = 30
