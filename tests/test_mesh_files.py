@@ -114,7 +114,8 @@ def test_glb_loads(tmp_path):
 
 def test_too_wide_meshes_are_narrowed_to_fit_the_tables_or_refused(tmp_path):
     from ndfa.sim.presets import make_config
-    from ndfa.sim.world import build_world, footprint_radius
+    from ndfa.sim.table_space import footprint_radius
+    from ndfa.sim.world import build_world
 
     for i in range(4):  # bowls: 40 cm across, 10 cm tall (metres)
         vertices, faces = revolved_cup(radius=0.20, height=0.10 + 0.005 * i)

@@ -5,7 +5,8 @@ import pytest
 
 from ndfa.core.errors import SimError
 from ndfa.sim.presets import make_config
-from ndfa.sim.world import CHANGE_KINDS, build_world, footprint_radius, procedural_models
+from ndfa.sim.table_space import footprint_radius
+from ndfa.sim.world import CHANGE_KINDS, build_world, procedural_models
 
 
 @pytest.fixture(scope="module")

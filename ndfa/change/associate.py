@@ -9,7 +9,8 @@ measurement starts a new object.
 ndfa changes two things (`ViewsConfig`; why: `docs/detector.md`): with `fusion="mean"` an
 object keeps the mean of its measurements' unit codes and the median of their centers instead of
 the most confident measurement's, and a measurement within `same_place_m` of an object (measured
-horizontally) joins it whatever the codes say. A measurement that joins no object by these rules
+horizontally; with the height tree T_z, `LevelsConfig`, also within half its interval in height, so
+that a mug never joins the one on the shelf above) joins it whatever the codes say. A measurement that joins no object by these rules
 joins the nearest object within `revisit_m` that was not measured in the same frame: the odometry
 drifts between two visits of a place, more than `distance_m` on real sequences.
 """
@@ -106,7 +107,7 @@ class SessionMap:
 
     def __init__(self, config: DetectorConfig = DetectorConfig()) -> None:
         self.config = config  # its association (the paper's), views and drift parts
-        self.tree = ObjectTree(config.association.tree_length_m)
+        self.tree = ObjectTree(config.association.tree_length_m, config.levels.tree_height_m)
         self.objects: dict[int, SessionObject] = {}
 
     def __len__(self) -> int:
@@ -132,7 +133,10 @@ class SessionMap:
             similarity = cosine_similarity(m.shape_code, np.array([o.shape_code for o in objects]))
             horizontal_distance = np.linalg.norm(horizontal(offsets), axis=1)
             alike = similarity > c.shape_similarity
-            same = (horizontal_distance < views.same_place_m) | ((distance < c.distance_m) & alike)
+            same_place = horizontal_distance < views.same_place_m
+            if self.config.levels.tree_height_m is not None:  # on shelves, one place is one level (`LevelsConfig`)
+                same_place &= np.abs(offsets[:, UP_AXIS]) < self.config.levels.tree_height_m / 2
+            same = same_place | ((distance < c.distance_m) & alike)
             # The same object seen again after the odometry drifted: near, and not seen in this frame
             # (two objects measured in one frame are two objects). Not "alike": a place seen again
             # is mostly seen from elsewhere, and one mug's codes from opposite sides are 0.0-0.6

@@ -1,8 +1,8 @@
 """The change detector's parameters: the paper's (Sec. IV, V-C), and ndfa's additions beside them.
 
 `DetectorConfig` holds three parts with the paper's own parameters (`association`, `registration`,
-`decision`) and one part per addition of ndfa's (`views`, `drift`, `ransac`, `priors`, `waiting`,
-`evidence`, `rotation`). Every knob of an addition says at its field the value that switches it
+`decision`) and one part per addition of ndfa's (`levels`, `views`, `drift`, `ransac`, `priors`,
+`waiting`, `evidence`, `rotation`). Every knob of an addition says at its field the value that switches it
 off; `DetectorConfig.paper()` is the paper's parameters with every addition off. Why each default
 differs from the paper's, what was measured to choose it, and what each addition does on the
 seven masked scenes: `docs/detector.md`.
@@ -46,6 +46,22 @@ class DecisionConfig:
 
 
 # -- ndfa's additions, each with its "off" ---------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class LevelsConfig:
+    """Objects on surfaces above one another (`ndfa.change.tree`: a third interval tree, T_z)."""
+
+    # h: the interval length of T_z, metres: objects whose centers are this far apart in height or
+    # more are never in one cell (not neighbours, not association candidates), and a measurement
+    # joins an object by `ViewsConfig.same_place_m` only within h / 2 in height. Shelves stand
+    # 25 cm or more apart, and the centers of a category's objects on one surface lie within a few
+    # cm of each other (docs/shelves.md). Off: None (the paper's tree: a cell is a column).
+    tree_height_m: float | None = 0.2
+
+    def __post_init__(self) -> None:
+        if self.tree_height_m is not None and not self.tree_height_m > 0:
+            raise ValueError(f"levels tree_height_m must be positive or None, got {self.tree_height_m}")
 
 
 @dataclass(frozen=True)
@@ -116,8 +132,8 @@ class EvidenceConfig:
 
     in_place_m: float = 0.05           # no edge agrees, yet unchanged this close to its shape match. Off: 0
     # A source object counts as looked at by the target (and so "removed" when never matched) when a
-    # tested target object stands in its neighbourhood AND within this height of it: the trees are
-    # horizontal, so without it testing a mug on a table "observes" a piece of floor under the
+    # tested target object stands in its neighbourhood AND within this height of it: the paper's
+    # trees are horizontal (without `LevelsConfig`'s T_z), so without it testing a mug on a table "observes" a piece of floor under the
     # table, which the target may never have seen. Off: 0 (any height).
     observed_height_m: float = 0.3
     # A changed target object is reported "moved" from a removed source object only when their codes
@@ -149,7 +165,7 @@ class RotationConfig:
             raise ValueError(f"rotation threshold_deg must be in (0, 180) degrees or None, got {self.threshold_deg}")
 
 
-ADDITIONS = ("views", "drift", "ransac", "priors", "waiting", "evidence", "rotation")
+ADDITIONS = ("levels", "views", "drift", "ransac", "priors", "waiting", "evidence", "rotation")
 
 
 @dataclass(frozen=True)
@@ -159,6 +175,7 @@ class DetectorConfig:
     association: AssociationConfig = field(default_factory=AssociationConfig)
     registration: RegistrationConfig = field(default_factory=RegistrationConfig)
     decision: DecisionConfig = field(default_factory=DecisionConfig)
+    levels: LevelsConfig = field(default_factory=LevelsConfig)
     views: ViewsConfig = field(default_factory=ViewsConfig)
     drift: DriftConfig = field(default_factory=DriftConfig)
     ransac: RansacConfig = field(default_factory=RansacConfig)
@@ -182,7 +199,8 @@ class DetectorConfig:
         unknown = set(additions) - set(ADDITIONS)
         if unknown:
             raise ValueError(f"unknown additions {sorted(unknown)}; they are {', '.join(ADDITIONS)}")
-        off = {"views": ViewsConfig(same_place_m=0.0, fusion="best"),
+        off = {"levels": LevelsConfig(tree_height_m=None),
+               "views": ViewsConfig(same_place_m=0.0, fusion="best"),
                "drift": DriftConfig(revisit_m=0.0, across_cells=False, scatter_factor=0.0, cell_margin_m=0.0),
                "ransac": RansacConfig(candidates=1, min_inliers=0, enough_inliers=0, retry_frames=1, small_maps=False),
                "priors": PriorConfig(enabled=False),

@@ -1,7 +1,11 @@
-"""The spatial object tree of the paper (Sec. IV-A): two coordinate interval trees, T_x and T_y.
+"""The spatial object tree of the paper (Sec. IV-A): two coordinate interval trees, T_x and T_y,
+and optionally a third, T_z, over height.
 
-x and y are the world's horizontal axes (`ndfa.core.conventions.HORIZONTAL_AXES`): a cell is a
-column over the ground, so objects stacked or seen at odd heights stay neighbours.
+x and y are the world's horizontal axes (`ndfa.core.conventions.HORIZONTAL_AXES`). With T_x and
+T_y alone (the paper's tree) a cell is a column over the ground, so objects on shelves above one
+another are neighbours. T_z (the extension the paper calls straightforward, ndfa's
+`LevelsConfig`) cuts the column into slabs along the world's up axis: a cell is then a box, and
+objects on surfaces a slab's height apart or more are not neighbours.
 
 Each tree cuts its axis into intervals of fixed length `l`. An interval (a node) is created by the
 first object center that falls outside every existing one, as [t - l/2, t + l/2]; it holds the
@@ -15,8 +19,8 @@ leaves no point in two nodes).
 
 A point near a cell's edge may belong to the cell across it: a measurement's center is noisy, and a
 target object's center carries T_rel's error into the source world. Queries take a `margin`: the
-region they look in is every cell that the square of half-side `margin` around the point touches
-(the cell itself when the margin is 0, the paper's rule).
+region they look in is every cell that the square (with T_z, the cube) of half-side `margin` around
+the point touches (the cell itself when the margin is 0, the paper's rule).
 
 The tree is kept as a sorted array of interval bounds searched by bisection: the implicit form
 of a perfectly balanced binary search tree, so a point query costs O(log n) in the number of
@@ -31,9 +35,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ndfa.core.conventions import HORIZONTAL_AXES
+from ndfa.core.conventions import HORIZONTAL_AXES, UP_AXIS
 
 X, Y = HORIZONTAL_AXES  # the world axes that T_x and T_y cut
+Z = UP_AXIS             # the one T_z cuts
 
 
 @dataclass
@@ -91,52 +96,66 @@ class IntervalTree:
         return node
 
 
-Cell = tuple[IntervalNode, IntervalNode]  # (T_x node, T_y node): about l x l of ground
+Cell = tuple[IntervalNode, ...]  # (T_x node, T_y node[, T_z node]): about l x l of ground[, h high]
+
+
+def _within(values: np.ndarray, nodes: tuple[IntervalNode, ...], margin: float) -> np.ndarray:
+    inside: np.ndarray = np.zeros(len(values), dtype=bool)
+    for node in nodes:
+        inside |= (values >= node.low - margin) & (values <= node.high + margin)
+    return inside
 
 
 @dataclass(frozen=True)
 class Region:
-    """Cells of one tree around a point: every pair of a T_x node in `x` and a T_y node in `y`."""
+    """Cells of one tree around a point: every pair (triple) of a T_x node in `x`, a T_y node in
+    `y` (and a T_z node in `z`; None: the tree has no T_z, a cell is a column)."""
 
     x: tuple[IntervalNode, ...]
     y: tuple[IntervalNode, ...]
+    z: tuple[IntervalNode, ...] | None = None
 
     def objects(self) -> set[int]:
-        """Ids of the objects in the region (each object sits in one T_x and one T_y node)."""
-        in_x: set[int] = set().union(*(n.objects for n in self.x))
-        return in_x.intersection(set().union(*(n.objects for n in self.y)))
+        """Ids of the objects in the region (each object sits in one node of each tree)."""
+        axes = (self.x, self.y) if self.z is None else (self.x, self.y, self.z)
+        found: set[int] = set().union(*(n.objects for n in axes[0]))
+        for nodes in axes[1:]:
+            found &= set().union(*(n.objects for n in nodes))
+        return found
 
     def contains(self, points: np.ndarray, margin: float = 0.0) -> np.ndarray:
         """Which of `points` (N, 3) lie in the region grown by `margin` on every side (a tree of
         another session may never have held them): (N,) bool."""
-        x, y = points[:, X], points[:, Y]
-        in_x = np.zeros(len(points), dtype=bool)
-        in_y = np.zeros(len(points), dtype=bool)
-        for node in self.x:
-            in_x |= (x >= node.low - margin) & (x <= node.high + margin)
-        for node in self.y:
-            in_y |= (y >= node.low - margin) & (y <= node.high + margin)
-        return in_x & in_y
+        inside: np.ndarray = _within(points[:, X], self.x, margin) & _within(points[:, Y], self.y, margin)
+        if self.z is not None:
+            inside &= _within(points[:, Z], self.z, margin)
+        return inside
 
 
 class ObjectTree:
-    """T = (T_x, T_y): where each object is, and which objects are neighbours of a point."""
+    """T = (T_x, T_y[, T_z]): where each object is, and which objects are neighbours of a point.
 
-    def __init__(self, length: float) -> None:
+    `length`: l, the interval length of T_x and T_y; `height`: that of T_z, or None for the
+    paper's tree without one."""
+
+    def __init__(self, length: float, height: float | None = None) -> None:
         self.x = IntervalTree(length)
         self.y = IntervalTree(length)
-        self._cells: dict[int, tuple[IntervalNode, IntervalNode]] = {}
+        self.z = None if height is None else IntervalTree(height)
+        self._cells: dict[int, Cell] = {}
 
     def __len__(self) -> int:
         return len(self._cells)
 
     def insert(self, object_id: int, center: np.ndarray) -> None:
-        """Place (or move) `object_id` at `center` (x, y, z): in the nodes its x and y land in."""
+        """Place (or move) `object_id` at `center` (x, y, z): in the nodes its coordinates land in."""
         self.remove(object_id)
-        node_x, node_y = self.x.find_or_create(float(center[X])), self.y.find_or_create(float(center[Y]))
-        node_x.objects.add(object_id)
-        node_y.objects.add(object_id)
-        self._cells[object_id] = (node_x, node_y)
+        cell: Cell = (self.x.find_or_create(float(center[X])), self.y.find_or_create(float(center[Y])))
+        if self.z is not None:
+            cell += (self.z.find_or_create(float(center[Z])),)
+        for node in cell:
+            node.objects.add(object_id)
+        self._cells[object_id] = cell
 
     def remove(self, object_id: int) -> None:
         cell = self._cells.pop(object_id, None)
@@ -145,15 +164,16 @@ class ObjectTree:
                 node.objects.discard(object_id)
 
     def region(self, point: np.ndarray, margin: float = 0.0) -> Region:
-        """The cells within `margin` of `point` (horizontally, per axis): see the module docstring."""
+        """The cells within `margin` of `point` (per axis): see the module docstring."""
         x, y = float(point[X]), float(point[Y])
-        return Region(self.x.overlapping(x - margin, x + margin), self.y.overlapping(y - margin, y + margin))
+        z = None if self.z is None else self.z.overlapping(float(point[Z]) - margin, float(point[Z]) + margin)
+        return Region(self.x.overlapping(x - margin, x + margin), self.y.overlapping(y - margin, y + margin), z)
 
     def neighbourhood(self, point: np.ndarray, margin: float = 0.0) -> set[int]:
-        """Ids of the objects in both a T_x and a T_y node within `margin` of `point` (empty if none);
+        """Ids of the objects in a node of every tree within `margin` of `point` (empty if none);
         with margin 0, the objects of the cell `point` falls in."""
         return self.region(point, margin).objects()
 
     def cell(self, object_id: int) -> Cell:
-        """The (T_x, T_y) nodes that hold `object_id`."""
+        """The (T_x, T_y[, T_z]) nodes that hold `object_id`."""
         return self._cells[object_id]

@@ -11,6 +11,7 @@ from typing import Optional
 import typer
 from rich.table import Table
 
+from ndfa.change.config import LevelsConfig
 from ndfa.change.detector import DetectorConfig
 from ndfa.cli.app import app, bar_per_label, console, err_console, progress_bar
 from ndfa.cli.checks import (
@@ -64,6 +65,10 @@ def detect_command(
     tree_length: Optional[float] = typer.Option(
         None, help=f"Interval length l of the object trees, metres (default {_DETECTOR.association.tree_length_m}).",
         callback=positive),
+    tree_height: Optional[float] = typer.Option(
+        None, help=f"Interval length of the height tree T_z, metres (default {_DETECTOR.levels.tree_height_m}); 0: no "
+                   "T_z, the paper's two-dimensional tree (objects on shelves above one another are neighbours; "
+                   "docs/shelves.md).", callback=in_range(ge=0, le=100, why="metres; 0 switches T_z off")),
     up: str = typer.Option("auto", help="World up: auto (a synthetic recording's z, otherwise estimated from the "
                                         "support planes and levelled if tilted) | estimate (always) | z (trust "
                                         "the recording: its world is z-up)."),
@@ -113,6 +118,8 @@ def detect_command(
     detector = replace(defaults,
                        association=replace(defaults.association, **{k: v for k, v in association.items() if v is not None}),
                        decision=replace(defaults.decision, **({} if edge_distance is None else {"edge_m": edge_distance})))
+    if tree_height is not None:
+        detector = replace(detector, levels=LevelsConfig(tree_height_m=tree_height or None))
     config = PipelineConfig(detector=detector, weights=weights, encoder=EncoderConfig(runtime=runtime, threads=threads or 1,
                                                                                        n_points=points, knn=neighbours))
     pipeline = ChangeDetectionPipeline(config)

@@ -13,6 +13,8 @@
   with a RealSense D435: clutter on the desks, a monitor at each desk whose screen returns no or
   wrong depth, a ceiling with strip lights, textures, hand-held motion (sweeps, pitch towards the
   desks, shake) at 30 Hz from a standing eye height, depth aligned to colour (docs/sim_raw_sensor.md).
+- `shelves`: mugs on open shelf units of 3-4 levels 25-35 cm apart (`ndfa.sim.shelves`), changes on
+  every level, seen from the front in the source and from behind in the target (docs/shelves.md).
 """
 
 from __future__ import annotations
@@ -26,9 +28,13 @@ from ndfa.core.errors import SimError
 from ndfa.sim.camera import PinholeCamera
 from ndfa.sim.noise import DepthNoise
 from ndfa.sim.pose_error import PoseError
+from ndfa.sim.shelves import SHELF_ROUTES, ShelfConfig
 from ndfa.sim.trajectory import ROUTES, TrajectoryConfig
 
-PRESETS = ("paper", "sample", "random", "office")
+PRESETS = ("paper", "sample", "random", "office", "shelves")
+# The object categories a scene may place (`ndfa.sim.categories`). Mugs alone for now: the shipped
+# NDF knows no other category (issue 33 item 2, NDF v3, adds the others).
+SCENE_CATEGORIES = ("mug",)
 
 
 @dataclass(frozen=True)
@@ -67,14 +73,25 @@ class SimConfig:
     # Pieces of furniture along the walls (`ndfa.sim.furniture`): static, part of the room; they
     # break the box room's symmetry. 0 leaves the seed's scene as it was.
     furniture: int = 0
+    # Shelf units instead of the grid of tables (`ndfa.sim.shelves`): their levels are the tables
+    # (`table_rows`, `table_cols` then play no part) and the routes are `SHELF_ROUTES`.
+    shelves: ShelfConfig | None = None
+    # What stands on the tables: the categories the scene's models are drawn from.
+    categories: tuple[str, ...] = ("mug",)
 
     def __post_init__(self) -> None:
         lo, hi = self.mugs_per_table
         if not 0 <= lo <= hi:
             raise SimError(f"mugs per table range {self.mugs_per_table} is empty")
+        routes = ROUTES if self.shelves is None else SHELF_ROUTES
         for route in (self.source_route, self.target_route):
-            if route not in ROUTES:
-                raise SimError(f"unknown camera route {route!r}; expected one of {ROUTES}")
+            if route not in routes:
+                raise SimError(f"unknown camera route {route!r} for {'tables' if self.shelves is None else 'shelves'}; "
+                               f"expected one of {routes}")
+        unknown = [c for c in self.categories if c not in SCENE_CATEGORIES]
+        if not self.categories or unknown:
+            raise SimError(f"scene categories must be some of {', '.join(SCENE_CATEGORIES)} (the shipped NDF knows "
+                           f"mugs alone), got {', '.join(self.categories) or 'none'}")
         if self.table_rows < 1 or self.table_cols < 1:
             raise SimError("a scene needs at least one table")
         if self.clutter_per_table < 0:
@@ -102,6 +119,8 @@ def make_config(preset: str, seed: int = 0, **overrides) -> SimConfig:
         config = _random(seed)
     elif preset == "office":
         config = _office(seed)
+    elif preset == "shelves":
+        config = _shelves(seed)
     else:
         raise SimError(f"unknown preset {preset!r}; expected one of {', '.join(PRESETS)}")
     unknown = set(overrides) - {f.name for f in dataclasses.fields(SimConfig)}
@@ -160,14 +179,15 @@ def _random(seed: int) -> SimConfig:
         source_route=str(source_route),
         target_route=str(target_route),
         depth_noise=DepthNoise().scaled(float(rng.uniform(0.5, 2.0))),
-        target_pose_error=PoseError(
-            offset_translation_m=float(rng.uniform(0.0, 1.0)),
-            offset_yaw_deg=float(rng.uniform(0.0, 180.0)),
-            offset_tilt_deg=float(rng.uniform(0.0, 3.0)),
-            drift_translation_m=float(rng.uniform(0.0, 0.002)),
-            drift_yaw_deg=float(rng.uniform(0.0, 0.05)),
-        ),
+        target_pose_error=_drawn_pose_error(rng),
     )
+
+
+def _drawn_pose_error(rng: np.random.Generator) -> PoseError:
+    """The target's pose error of a drawn scene: an offset of up to 1 m, 180 deg and 3 deg of tilt, a small drift."""
+    return PoseError(offset_translation_m=float(rng.uniform(0.0, 1.0)), offset_yaw_deg=float(rng.uniform(0.0, 180.0)),
+                     offset_tilt_deg=float(rng.uniform(0.0, 3.0)), drift_translation_m=float(rng.uniform(0.0, 0.002)),
+                     drift_yaw_deg=float(rng.uniform(0.0, 0.05)))
 
 
 # A RealSense D435's colour stream at 640 x 480 (depth aligned to it): about 69 x 42 deg.
@@ -191,4 +211,27 @@ def _office(seed: int) -> SimConfig:
         # walk (2.4 m/s), while the turns stay a hand's (at most 90 deg/s: 3 deg per frame);
         # from a standing eye height (0.6 m over the desks: about 20 deg down to a desk's middle).
         trajectory=TrajectoryConfig(step_m=0.08, height_above_table_m=0.6, motion="handheld"),
+    )
+
+
+def _shelves(seed: int) -> SimConfig:
+    """Mugs on shelf units (see the module docstring); the change counts, noise and target pose
+    error drawn from the seed as `random`'s are. The change script puts a change on every level
+    number (`ndfa.sim.world.build_world`), so a scene has at least as many changes as levels."""
+    rng = np.random.default_rng([seed, 0x5E1F])
+    return SimConfig(
+        preset="shelves",
+        seed=seed,
+        mugs_per_table=(3, 4),
+        total_mugs=None,
+        mug_models=int(rng.integers(12, 20, endpoint=True)),
+        changes={"added": int(rng.integers(1, 3, endpoint=True)), "removed": int(rng.integers(1, 3, endpoint=True)),
+                 "switched": 2 * int(rng.integers(1, 2, endpoint=True)), "moved": int(rng.integers(1, 2, endpoint=True))},
+        source_route="front",
+        target_route="back",
+        depth_noise=DepthNoise().scaled(float(rng.uniform(0.5, 1.5))),
+        target_pose_error=_drawn_pose_error(rng),
+        # From 0.2 m over a level the camera looks down at it and under the board above.
+        trajectory=TrajectoryConfig(height_above_table_m=0.2),
+        shelves=ShelfConfig(),
     )

@@ -17,7 +17,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ndfa.core.errors import SimError
-from ndfa.core.geometry import make_pose, rotation_z
 from ndfa.sim.clutter import (
     CLUTTER_FIRST_ID,
     CLUTTER_KINDS,
@@ -29,26 +28,13 @@ from ndfa.sim.furniture import FurniturePiece, wall_furniture
 from ndfa.sim.mug import Mug
 from ndfa.sim.presets import SimConfig
 from ndfa.sim.scene import Room, Table, room_around, table_grid
+from ndfa.sim.shelves import ShelfLevel, ShelfUnit, shelf_units
 from ndfa.sim.splits import TEST_SEEDS, make_split_mug
+from ndfa.sim.table_space import Placement, TableSpace
 
 CHANGE_KINDS = ("added", "removed", "moved", "switched")
 ROTATED = "rotated"  # a mug turned in place about up (`turn_in_place`; not one of the change script's kinds)
 SESSIONS = ("source", "target")
-
-
-@dataclass(frozen=True)
-class Placement:
-    """A mug instance standing on a table: position `xy` and `yaw` in the table-top frame."""
-
-    instance_id: int
-    model_id: str
-    table_id: int
-    xy: tuple[float, float]
-    yaw: float
-
-    def pose_world_object(self, table: Table) -> np.ndarray:
-        """Object-to-world pose (mug frame: z-up, base at z = 0, axis on z)."""
-        return table.pose_world_top @ make_pose(rotation_z(self.yaw), np.array([*self.xy, 0.0]))
 
 
 @dataclass(frozen=True)
@@ -72,6 +58,7 @@ class World:
     colors: dict[int, tuple[float, float, float]] = field(default_factory=dict)
     clutter: list[ClutterItem] = field(default_factory=list)
     furniture: list[FurniturePiece] = field(default_factory=list)  # along the walls: part of the room
+    shelf_units: list[ShelfUnit] = field(default_factory=list)  # their levels are `tables`
 
     def layout(self, session: str) -> dict[int, Placement]:
         if session not in SESSIONS:
@@ -105,12 +92,21 @@ def build_world(config: SimConfig, models: list[Mug]) -> World:
     the mug models to place. Deterministic in `config.seed`."""
     if not models:
         raise SimError("no mug models to place")
-    tables = table_grid(config.table_rows, config.table_cols)
+    units: list[ShelfUnit] = []
+    levels: list[ShelfLevel] = []
+    if config.shelves is None:
+        tables = table_grid(config.table_rows, config.table_cols)
+    else:
+        units, levels = shelf_units(config.shelves, np.random.default_rng([config.seed, 7]))
+        tables = list(levels)
     mugs = {m.model_id: m for m in models}
     rng = np.random.default_rng([config.seed, 2])
     counts = _mugs_per_table(len(tables), config.mugs_per_table, config.total_mugs, rng)
     source = place_source(tables, mugs, counts, rng)
-    target, changes = apply_changes(tables, mugs, source, config.changes, rng, config.switch_within_table)
+    for _ in range(100):  # on shelves, until every level number holds a change (the first draw elsewhere)
+        target, changes = apply_changes(tables, mugs, source, config.changes, rng, config.switch_within_table)
+        if not levels or _levels_changed(levels, source, target, changes) == {t.level for t in levels}:
+            break
     if config.rotated:  # from a stream of its own: the other changes stay the seed's
         target, turned = turn_in_place(target, changes, mugs, config.rotated, config.rotated_deg,
                                        np.random.default_rng([config.seed, 5]))
@@ -122,7 +118,14 @@ def build_world(config: SimConfig, models: list[Mug]) -> World:
                             np.random.default_rng([config.seed, 4])) if config.clutter_per_table else []
     room = room_around(tables)
     furniture = wall_furniture(room, config.furniture, np.random.default_rng([config.seed, 6])) if config.furniture else []
-    return World(tables, room, mugs, source, target, changes, colors, clutter, furniture)
+    return World(tables, room, mugs, source, target, changes, colors, clutter, furniture, units)
+
+
+def _levels_changed(levels: list[ShelfLevel], source: dict[int, Placement], target: dict[int, Placement],
+                    changes: list[Change]) -> set[int]:
+    """The level numbers (`ShelfLevel.level`) a change left or reached."""
+    tables = [p.table_id for c in changes for layout in (source, target) if (p := layout.get(c.instance_id))]
+    return {levels[t - 1].level for t in tables}
 
 
 def _mugs_per_table(n_tables: int, per_table: tuple[int, int], total: tuple[int, int] | None,
@@ -135,55 +138,6 @@ def _mugs_per_table(n_tables: int, per_table: tuple[int, int], total: tuple[int,
         if total is None or total[0] <= sum(counts) <= total[1]:
             return counts
     raise SimError(f"could not draw {lo}-{hi} mugs per table summing to {total}")
-
-
-def footprint_radius(mug: Mug) -> float:
-    """Radius of the circle about the mug's axis that contains it seen from above (handle included)."""
-    return float(np.linalg.norm(mug.mesh.vertices[:, :2], axis=1).max())
-
-
-class TableSpace:
-    """Free space on table tops, with mugs as circles: finds collision-free spots."""
-
-    def __init__(self, tables: list[Table], mugs: dict[str, Mug], clearance: float = 0.01, edge_margin: float = 0.03):
-        self.tables = tables
-        self.radius = {model_id: footprint_radius(m) for model_id, m in mugs.items()}
-        self.clearance = clearance
-        self.edge_margin = edge_margin
-        # table id -> {key: (xy, radius)}; the key is a mug's instance id (or any other hashable
-        # name for things that are not one placement, as the clutter's).
-        self.occupied: dict[int, dict[object, tuple[np.ndarray, float]]] = {t.table_id: {} for t in tables}
-
-    def fits(self, table_id: int, xy: np.ndarray, radius: float) -> bool:
-        half = np.array(self.tables[table_id - 1].size_xy) / 2 - radius - self.edge_margin
-        if np.any(np.abs(xy) > half):
-            return False
-        return all(
-            np.linalg.norm(xy - other_xy) >= radius + other_r + self.clearance
-            for other_xy, other_r in self.occupied[table_id].values()
-        )
-
-    def add(self, placement: Placement) -> None:
-        self.occupied[placement.table_id][placement.instance_id] = (
-            np.array(placement.xy),
-            self.radius[placement.model_id],
-        )
-
-    def find_spot(self, table_id: int, model_id: str, rng: np.random.Generator, tries: int = 300) -> np.ndarray | None:
-        """A random collision-free position for `model_id` on the table, or None if none was found."""
-        return self.find_spot_for_radius(table_id, self.radius[model_id], rng, tries)
-
-    def find_spot_for_radius(self, table_id: int, radius: float, rng: np.random.Generator,
-                             tries: int = 300) -> np.ndarray | None:
-        """A random collision-free position for a circle of `radius`, or None if none was found."""
-        half = np.array(self.tables[table_id - 1].size_xy) / 2 - radius - self.edge_margin
-        if np.any(half <= 0):
-            return None
-        for _ in range(tries):
-            xy = rng.uniform(-half, half)
-            if self.fits(table_id, xy, radius):
-                return xy
-        return None
 
 
 def place_source(

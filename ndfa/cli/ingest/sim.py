@@ -16,7 +16,7 @@ from ndfa.sim.furniture import MAX_FURNITURE
 from ndfa.sim.handheld import MOTIONS
 from ndfa.sim.mesh_io import load_mug_dir
 from ndfa.sim.noise import DepthNoise
-from ndfa.sim.presets import make_config
+from ndfa.sim.presets import SCENE_CATEGORIES, make_config
 from ndfa.sim.trajectory import RAW_MAX_TURN_DEG
 
 # Upper bounds of the scene's sizes and counts: past them a scene only takes memory and time (a
@@ -45,7 +45,8 @@ def _parse_range(text: str, what: str) -> tuple[int, int]:
 def ingest_sim_command(
     out: Path = typer.Option(..., "--out", "-o", help="Output directory for source.mcap and target.mcap "
                              "(with --sessions N > 2: session_0.mcap ... session_{N-1}.mcap).", callback=output_dir),
-    preset: str = typer.Option("paper", help="paper | sample | random | office (docs/sim_raw_sensor.md)."),
+    preset: str = typer.Option("paper", help="paper | sample | random | office (docs/sim_raw_sensor.md) | shelves "
+                                             "(shelf units of 3-4 levels, docs/shelves.md)."),
     sessions: int = typer.Option(2, help="Sessions to render, with the change counts applied between each "
                                          "consecutive pair (docs/sessions.md).", callback=in_range(ge=2, le=100)),
     seed: int = typer.Option(0, help="Seed of everything random in the scene.", callback=seed_range),
@@ -102,6 +103,9 @@ def ingest_sim_command(
     max_turn: Optional[float] = typer.Option(None, help="Most the camera turns between frames, degrees; 0: unlimited "
                                                         f"(default: {RAW_MAX_TURN_DEG:g} with --raw, else unlimited).",
                                             callback=in_range(ge=0, le=180)),
+    categories: Optional[str] = typer.Option(None, help="Object categories the scene places, comma-separated "
+                                             f"(default: mug; for now only {', '.join(SCENE_CATEGORIES)}: the "
+                                             "shipped NDF knows mugs alone)."),
     rotated: int = typer.Option(0, help="Mugs turned in place about up in the target (unchanged mugs with a handle).",
                                 callback=mug_count),
     rotated_deg: tuple[float, float] = typer.Option((45.0, 180.0), help="MIN MAX: the range (degrees) each "
@@ -156,6 +160,8 @@ def ingest_sim_command(
         overrides["textures"] = textures
     if clutter is not None:
         overrides["clutter_per_table"] = clutter
+    if categories is not None:
+        overrides["categories"] = tuple(c.strip() for c in categories.split(",") if c.strip())
     config = make_config(preset, seed, **overrides)
 
     check_output_dir(out)
@@ -168,7 +174,8 @@ def ingest_sim_command(
         summaries = ingest_sim(config, out, models=user_models, on_progress=bar_per_label(progress, "rendering "),
                                sessions=sessions)
 
-    table = Table(title=f"{config.preset} scene, seed {config.seed}: {config.table_rows * config.table_cols} tables -> {out}")
+    surfaces = f"{config.table_rows * config.table_cols} tables" if config.shelves is None else "shelf units"
+    table = Table(title=f"{config.preset} scene, seed {config.seed}: {surfaces} -> {out}")
     kinds = ("added", "removed", "moved", "switched") + (("rotated",) if rotated else ())
     for column in ("session", "frames", "mugs", *kinds, "size"):
         table.add_column(column, justify="left" if column == "session" else "right")

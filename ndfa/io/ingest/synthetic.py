@@ -41,6 +41,7 @@ from ndfa.sim.office import OfficeFixtures, office_fixtures
 from ndfa.sim.presets import SimConfig
 from ndfa.sim.render import RenderObject, SceneRenderer
 from ndfa.sim.sessions import build_sessions, history_truth, session_names
+from ndfa.sim.shelves import shelf_camera_poses
 from ndfa.sim.texture import RoomTextures, room_textures
 from ndfa.sim.trajectory import camera_poses
 from ndfa.sim.world import World, procedural_models
@@ -149,8 +150,9 @@ def _render_session(plan: SessionPlan, config: SimConfig, path: Path, ground_tru
     # One stream per session and purpose: changing the noise model does not move the cameras.
     stream = plan.index
     route = getattr(config, plan.route_of)
-    true_poses = camera_poses(world.tables, dataclasses.replace(config.trajectory, route=route),
-                              np.random.default_rng([config.seed, 10, stream]), config.fps)
+    trajectory, route_rng = dataclasses.replace(config.trajectory, route=route), np.random.default_rng([config.seed, 10, stream])
+    true_poses = camera_poses(world.tables, trajectory, route_rng, config.fps) if not world.shelf_units else \
+        shelf_camera_poses(world.shelf_units, route, trajectory, route_rng, config.fps)
     recorded_poses, offset = true_poses, None
     if plan.role == "target" and config.target_pose_error.enabled and not config.raw:
         recorded_poses, offset = config.target_pose_error.apply(true_poses, plan.pose_error_rng(config.seed))
@@ -250,6 +252,7 @@ def render_objects(world: World, session: str, textures: RoomTextures | None = N
     objects = [RenderObject(mesh, 0, gray, texture) for mesh, texture in zip(world.room.meshes(), room_textures_)]
     objects += [RenderObject(table.mesh(), 0, wood, texture) for table, texture in zip(world.tables, table_textures)]
     objects += [RenderObject(piece.mesh, 0, piece.color) for piece in world.furniture]
+    objects += [RenderObject(unit.mesh(), 0, wood) for unit in world.shelf_units]
     for instance_id, placement in world.layout(session).items():
         mesh = world.mugs[placement.model_id].mesh.transformed(world.object_pose(placement))
         objects.append(RenderObject(mesh, instance_id, world.colors[instance_id]))
@@ -309,6 +312,8 @@ def world_ground_truth(world: World, config: SimConfig) -> dict:
             "table_id": item.table_id,
             "pose_world_object": (pose_world_level @ world.clutter_pose(item)).tolist(),
         } for item in world.clutter]
+    if world.shelf_units:  # their levels are the "tables", in the level world
+        truth["shelf_units"] = [unit.as_dict() for unit in world.shelf_units]
     if world.furniture:  # part of the room, in the level world
         truth["furniture"] = [piece.as_dict() for piece in world.furniture]
     fixtures = office(config, world)
