@@ -3,6 +3,9 @@ reports (`ndfa.run.pose_verdict`)."""
 
 from __future__ import annotations
 
+import dataclasses
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 
@@ -78,6 +81,27 @@ def test_without_overlapping_frames_nothing_vouches_for_the_poses():
     truth = _circling(frames=2, turns=0.5)   # two frames looking in opposite directions
     quality = judge(_evidence(truth, truth))
     assert quality.verdict == DOUBTFUL and quality.basis == "none" and not np.isfinite(quality.error_cm)
+
+
+def test_loops_the_optimised_graph_leaves_far_off_raise_the_estimated_error():
+    # A right session's loops sit within millimetres of the optimised poses; one that the graph
+    # leaves 85 cm off (the office's broken seed-3 target: odometry slid along a wall) is a contradiction.
+    right = _evidence(_circling(), _circling())
+    assert judge(dataclasses.replace(right, loops=3, loop_residual_cm=0.3)).verdict == GOOD
+    contradicted = judge(dataclasses.replace(right, loops=1, loop_residual_cm=85.0))
+    assert contradicted.verdict == UNUSABLE and contradicted.error_cm == 85.0
+    assert "loop closures lie that far" in contradicted.describe()
+
+
+def test_a_run_of_frames_whose_motion_was_partly_guessed_is_doubtful_at_best():
+    odometry = SimpleNamespace(unseen=[False, True, True, False] + [True] * 6 + [False] * 38)
+    truth = _circling()
+    sketches = {k: make_sketch(_room_depth(pose).astype(np.float32), K) for k, pose in enumerate(truth)}
+    evidence = gather_evidence(truth, sketches, odometry, list(range(len(truth))))
+    assert evidence.unseen_run == 6
+    quality = judge(evidence)
+    assert quality.verdict == DOUBTFUL and quality.error_cm < 10.0 and "guessed" in quality.describe()
+    assert judge(dataclasses.replace(evidence, unseen_run=4)).verdict == GOOD  # a few frames: the motion model holds
 
 
 def _change(kind: str, score: float, object_id: int = 1) -> DecisionEvent:

@@ -116,6 +116,25 @@ def test_a_wall_and_floor_clip_is_reported_degenerate():
     assert set(odometry.terms[1:]) == {"intensity"}  # the checkered walls carry the slide
 
 
+def test_sliding_along_a_bare_wall_the_frames_are_marked_unseen():
+    # Depth of one plane and no colour: the slide along it is not in the images, so with
+    # `unseen_from_prediction` each registration keeps the prediction there and says so per frame.
+    frames = []
+    for index in range(6):
+        eye = np.array([0.5, -0.4 + 0.04 * index, 1.2])
+        pose = look_at(eye, eye + np.array([1.0, 0.0, 0.0]))
+        depth, _ = render(pose, planes=(1,), colour=False)
+        frames.append(Frame(index=index, timestamp=index / 30.0, rgb=None, depth=depth, K=K, pose_world_camera=pose))
+    odometry = RgbdOdometry(RgbdOdometryConfig(unseen_from_prediction=(POINT_TO_PLANE,)))
+    for frame in frames:
+        odometry.update(frame)
+    assert odometry.unseen == [False] + [True] * 5 and odometry.unseen_frames == 5
+    walled = RgbdOdometry(RgbdOdometryConfig(unseen_from_prediction=()))
+    for frame in frames:
+        walled.update(frame)
+    assert walled.unseen == [False] * 6
+
+
 def test_loop_closure_removes_injected_drift():
     # A square loop of 16 keyframes; odometry edges carry a small yaw drift each; one loop edge
     # from the last keyframe back to the first holds the true relative pose.

@@ -51,6 +51,9 @@ class PoseEvidence:
     graph_moved_cm: the largest distance loop closure moved a keyframe.
     loop_residual_cm: median distance between a loop edge's measured and optimised relative pose.
     unpinned_share: share of the tracked frames whose motion nothing pinned (see the module docstring).
+    unseen_run: the longest run of consecutive frames whose registration kept the motion model's
+        guess along a direction their depth could not see (a bare wall's slide and roll:
+        `RgbdOdometry.unseen`); 0 for kiss-icp.
     """
 
     frames: int
@@ -69,6 +72,7 @@ class PoseEvidence:
     graph_moved_cm: float
     loop_residual_cm: float
     unpinned_share: float
+    unseen_run: int = 0
 
     def to_dict(self) -> dict:
         return {key: (None if isinstance(value, float) and not np.isfinite(value) else value)
@@ -102,7 +106,15 @@ def gather_evidence(poses: Sequence[np.ndarray], sketches: dict[int, DepthSketch
                         jumps=len({min(check.i, check.j) for check in steps if check.conflict_m > config.tau_m}),
                         unlinked=unlinked,
                         keyframes=keyframes, loops=loops, graph_moved_cm=moved, loop_residual_cm=loop_residual,
-                        unpinned_share=unpinned)
+                        unpinned_share=unpinned, unseen_run=_longest_run(getattr(odometry, "unseen", [])))
+
+
+def _longest_run(flags: Sequence[bool]) -> int:
+    longest = current = 0
+    for flag in flags:
+        current = current + 1 if flag else 0
+        longest = max(longest, current)
+    return longest
 
 
 def _conflict_cm(checks: list[PairCheck]) -> float:
@@ -152,11 +164,16 @@ class QualityThresholds:
         are doubtful, unusable. Right poses give 0-1 cm on the simulator's sessions and 5-6 cm on
         the 7-Scenes kitchen (a Kinect's depth noise and edges); drifted or broken ones 29 cm and up.
     min_pairs: fewer revisit pairs than this say too little: the revisits are left out.
+    max_unseen_run: a run of this many consecutive frames whose motion the odometry partly guessed
+        (`PoseEvidence.unseen_run`: a bare wall in view) makes the poses doubtful at best: what
+        happened along the wall is not in the images, and the conflict depths cannot see a slide
+        along the only surface in view.
     """
 
     doubtful_cm: float = 10.0
     unusable_cm: float = 25.0
     min_pairs: int = 10
+    max_unseen_run: int = 5
 
 
 @dataclass(frozen=True)
@@ -179,6 +196,9 @@ class PoseQuality:
         e = self.evidence
         if self.basis == "none":
             figure = "no overlapping frames to check the poses by"
+        elif e.loops and self.error_cm == e.loop_residual_cm:
+            figure = (f"estimated error {self.error_cm:.1f} cm: the loop closures lie that far from the optimised "
+                      f"poses (median), the loops and the odometry disagree")
         else:
             figure = (f"estimated error {self.error_cm:.1f} cm: surfaces of one frame up to that deep in space another "
                       f"saw empty, at {e.revisit_pairs} revisits and {e.neighbour_pairs} neighbour pairs")
@@ -186,6 +206,9 @@ class PoseQuality:
             figure += f"; {e.jumps} jump(s) between consecutive frames (up to {e.step_conflict_cm:.0f} cm)"
         if e.unlinked:
             figure += f"; {e.unlinked} consecutive frame pair(s) with no overlap: nothing ties their poses"
+        if e.unseen_run:
+            figure += (f"; {e.unseen_run} consecutive frame(s) whose depth saw only part of their motion (a bare "
+                       "wall?), the rest guessed")
         loops = f"; {e.loops} loop closures, moving keyframes up to {e.graph_moved_cm:.0f} cm" if e.loops else ""
         return f"pose quality {self.verdict.upper()} ({figure}{loops})"
 
@@ -198,9 +221,11 @@ class PoseQuality:
 def judge(evidence: PoseEvidence, thresholds: QualityThresholds = QualityThresholds()) -> PoseQuality:
     """The estimated error and the verdict. The error is the largest of the conflict depths: at the
     revisits (drift shows there; with at least `min_pairs` of them), between neighbours (a broken
-    registration) and the largest between consecutive frames (a jump). Consecutive frames that do
-    not overlap leave the poses on either side unrelated: at best doubtful. With no pair to check,
-    nothing contradicts the poses and nothing vouches for them: doubtful."""
+    registration) and the largest between consecutive frames (a jump), and the loop closures' median
+    residual after the graph's optimisation (loops and odometry that disagree). Consecutive frames
+    that do not overlap leave the poses on either side unrelated, and a run of frames whose motion
+    was partly guessed (`max_unseen_run`) leaves them unmeasured: at best doubtful. With no pair to
+    check, nothing contradicts the poses and nothing vouches for them: doubtful."""
     figures = [evidence.neighbour_conflict_cm, evidence.step_conflict_cm]
     basis = "neighbours"
     if evidence.revisit_pairs >= thresholds.min_pairs:
@@ -209,9 +234,11 @@ def judge(evidence: PoseEvidence, thresholds: QualityThresholds = QualityThresho
     figures = [figure for figure in figures if np.isfinite(figure)]
     if not figures:
         return PoseQuality(evidence, float("nan"), DOUBTFUL, "none")
-    error = max(figures)
+    # Loops the optimised graph leaves far from what they measured: the loops and the odometry
+    # disagree, so one of them is wrong (right sessions: under 0.5 cm).
+    error = max(figures + [evidence.loop_residual_cm] * bool(np.isfinite(evidence.loop_residual_cm)))
     verdict = UNUSABLE if error > thresholds.unusable_cm else DOUBTFUL if error > thresholds.doubtful_cm else GOOD
-    if evidence.unlinked and verdict == GOOD:
+    if (evidence.unlinked or evidence.unseen_run >= thresholds.max_unseen_run) and verdict == GOOD:
         verdict = DOUBTFUL
     return PoseQuality(evidence, error, verdict, basis)
 

@@ -101,11 +101,16 @@ class RgbdOdometry:
         # unseen_from_prediction).
         self._velocity = np.eye(4)
         self._unseen = False
-        self.unseen_frames = 0  # frames whose registration kept the prediction along some direction
+        self.unseen: list[bool] = []  # per frame, whether its registration kept the prediction along some direction
 
     @property
     def frames(self) -> int:
         return len(self._poses)
+
+    @property
+    def unseen_frames(self) -> int:
+        """Frames whose registration kept the prediction along some direction (rgbd_config)."""
+        return sum(self.unseen)
 
     @property
     def loop_closures(self) -> int:
@@ -131,6 +136,7 @@ class RgbdOdometry:
         self._poses.append(pose)
         self.terms.append(term)
         self.degenerate.append(degenerate)
+        self.unseen.append(self._unseen)
         self._keyframe_of.append(len(self.keyframes) - 1)
         self.seconds += time.perf_counter() - started
         return self._anchor @ pose
@@ -271,9 +277,7 @@ class RgbdOdometry:
         if result is not None and term in self.config.unseen_from_prediction:
             remapped = keep_prediction_where_unseen(result, predicted, view.smooth_plane_information, view.median_depth_m,
                                                     self.config.unseen_ratio)
-            if remapped is not result and not self._unseen:
-                self._unseen = True
-                self.unseen_frames += 1
+            self._unseen = self._unseen or remapped is not result
             result = remapped
         return result, fitness
 
