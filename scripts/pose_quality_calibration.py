@@ -22,7 +22,7 @@ from scipy.stats import spearmanr
 from ndfa.io.recording import RecordingReader
 from ndfa.trajectory.metrics import absolute_trajectory_error
 from ndfa.trajectory.quality import judge
-from ndfa.trajectory.session import choose_method, estimate_session_poses
+from ndfa.trajectory.session import choose_method, estimate_session_poses, rgbd_config_for
 
 
 def measure(path: Path, given_is_truth: bool, frame_step: int) -> dict:
@@ -35,7 +35,7 @@ def measure(path: Path, given_is_truth: bool, frame_step: int) -> dict:
 
     frames = reader.frames(step=frame_step)
     session = estimate_session_poses(frames, choose_method(next(iter(reader.frames(stop=1)), None)), path,
-                                     on_frame=keep_truth)
+                                     rgbd_config=rgbd_config_for(reader.meta), on_frame=keep_truth)
     row: dict = {"session": str(path), "frame_step": frame_step, "frames": len(session.poses)}
     if all(pose is not None for pose in truth) and len(truth) >= 3:
         ate = absolute_trajectory_error(session.poses, truth)

@@ -36,7 +36,7 @@ from ndfa.io.recording import RecordingReader
 from ndfa.trajectory.level import level_frame
 from ndfa.trajectory.metrics import absolute_trajectory_error, relative_pose_error
 from ndfa.trajectory.quality import PoseQuality, judge
-from ndfa.trajectory.session import UNTRACKED_POSES, choose_method, estimate_session_poses
+from ndfa.trajectory.session import UNTRACKED_POSES, choose_method, estimate_session_poses, rgbd_config_for
 from ndfa.trajectory.up import UpEstimate, angle_deg, estimate_up
 from ndfa.trajectory.up_imu import imu_gravity, up_from_imu
 
@@ -246,7 +246,7 @@ def _estimate_poses(reader: RecordingReader) -> tuple[dict[int, np.ndarray], str
             truth[frame.index] = frame.pose_world_camera_true
 
     session = estimate_session_poses(reader.frames(), choose_method(next(iter(reader.frames(stop=1)), None)),
-                                     reader.path, on_frame=keep_truth)
+                                     reader.path, rgbd_config=rgbd_config_for(reader.meta), on_frame=keep_truth)
     notes = session.input_report.warnings(untracked_poses=UNTRACKED_POSES) if session.poses else []
     quality = None if session.evidence is None else judge(session.evidence)
     return (dict(zip(session.indices, session.poses, strict=True)), f"estimated ({session.describe_method()})", notes,

@@ -33,7 +33,7 @@ from ndfa.trajectory.kiss import OdometryConfig
 from ndfa.trajectory.metrics import AbsoluteError, RelativeError, absolute_trajectory_error, relative_pose_error
 from ndfa.trajectory.quality import PoseQuality, judge
 from ndfa.trajectory.rgbd import RgbdOdometry, RgbdOdometryConfig
-from ndfa.trajectory.session import UNTRACKED_POSES, choose_method, estimate_session_poses
+from ndfa.trajectory.session import UNTRACKED_POSES, choose_method, estimate_session_poses, rgbd_config_for
 
 METHODS = ("estimate", "rgbd", "kiss-icp")
 
@@ -136,6 +136,7 @@ def rewrite_poses(recording_in: str | Path, recording_out: str | Path, method: s
         if on_progress is not None:
             on_progress(len(reference), total)
 
+    rgbd_config = rgbd_config_for(reader.meta, rgbd_config)
     session = estimate_session_poses(reader.frames(), method, recording_in, config, rgbd_config, on_frame=read)
     if check_input:
         for line in session.input_report.warnings(untracked_poses=UNTRACKED_POSES):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
+from ndfa.core.color_camera import ColorCamera
 from ndfa.core.conventions import MAX_DEPTH_M, MIN_DEPTH_M
 from ndfa.core.errors import TrajectoryError
 from ndfa.trajectory.features import FeatureConfig
@@ -68,6 +69,9 @@ class RgbdOdometryConfig:
         of its plane term, normals over a wider baseline, below `unseen_ratio` times the largest:
         a bare wall's slide and roll), and such a frame does not update the velocity;
         () turns this off (`degeneracy.keep_prediction_where_unseen`).
+    color_camera: the colour camera when the colour is not registered to the depth (a recording's
+        meta says so: `ndfa.core.color_camera`, `session.rgbd_config_for`); each frame's colour is then
+        carried onto its depth pixels before features and the intensity term use it. None: registered.
     velocity_in_world: the constant-velocity model repeats the last shift in the world's frame
         (a person walking straight while panning the camera) instead of the camera's (a vehicle
         that turns with its heading); the turn is repeated in the camera's frame either way.
@@ -110,6 +114,7 @@ class RgbdOdometryConfig:
     unseen_from_prediction: tuple[str, ...] = ()
     unseen_ratio: float = 0.005
     velocity_in_world: bool = False
+    color_camera: ColorCamera | None = None
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_depth_m < self.max_depth_m:

@@ -39,19 +39,22 @@ def prepare_view(frame: Frame, config: RgbdOdometryConfig) -> View:
     depth = frame.depth[::step, ::step].copy()
     depth[~(np.isfinite(depth) & (depth >= config.min_depth_m) & (depth <= config.max_depth_m))] = np.nan
     rows, cols = depth.shape
-    if frame.rgb is not None:
+    full_rgb = frame.rgb
+    if full_rgb is not None and config.color_camera is not None:
+        full_rgb = config.color_camera.register_to_depth(full_rgb, frame.depth, frame.K)
+    if full_rgb is not None:
         # Blurred, then every step-th pixel: intensity residuals need an image without aliasing,
         # and centred on the depth samples (a block mean is centred half a pixel off them, and
         # the intensity term then pulls every frame's rotation the same way).
-        rgb = frame.rgb if step == 1 else _smooth(frame.rgb, step)
+        rgb = full_rgb if step == 1 else _smooth(full_rgb, step)
         rgb = rgb[::step, ::step][:rows, :cols]
     else:
         rgb = np.zeros((rows, cols, 3), np.uint8)
     valid = np.isfinite(depth)
     features = no_features(frame.K)
-    if frame.rgb is not None and config.features is not None:
+    if full_rgb is not None and config.features is not None:
         full_depth = np.where(frame.depth >= config.min_depth_m, frame.depth, np.nan)
-        gray = frame.rgb.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
+        gray = full_rgb.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
         features = detect_features(gray.astype(np.uint8), full_depth, frame.K, config.features)
     K = frame.K.copy()
     K[:2] /= step  # pixel (step*i) becomes pixel i: centres at integer coordinates stay so

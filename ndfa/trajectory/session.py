@@ -18,11 +18,13 @@ Methods: "rgbd" (colour and depth, loop-closed over the whole session, rgbd.py) 
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import numpy as np
 
+from ndfa.core.color_camera import ColorCamera
 from ndfa.core.frame import Frame
 from ndfa.trajectory.checks import InputCheckConfig, InputMonitor, InputReport, fill_untracked
 from ndfa.trajectory.consistency import DepthSketch, sketch_depth
@@ -60,6 +62,13 @@ class SessionPoses:
 def choose_method(first_frame: Frame | None) -> str:
     """"rgbd" when the session's first frame has colour, otherwise "kiss-icp"."""
     return "rgbd" if first_frame is not None and first_frame.rgb is not None else "kiss-icp"
+
+
+def rgbd_config_for(meta: dict, config: RgbdOdometryConfig = RgbdOdometryConfig()) -> RgbdOdometryConfig:
+    """`config` for a recording of this `meta`: with its colour camera when its colour is not
+    registered to its depth (`ndfa.core.color_camera`)."""
+    camera = ColorCamera.from_meta(meta)
+    return config if camera is None else dataclasses.replace(config, color_camera=camera)
 
 
 def estimate_session_poses(frames: Iterable[Frame], method: str, source: object,

@@ -14,6 +14,7 @@ from ndfa.cli.app import console, progress_bar
 from ndfa.cli.checks import input_dir, non_empty, output_file, positive
 from ndfa.cli.ingest import ingest_app
 from ndfa.cli.ingest.estimated_poses import estimate_session_poses, input_warnings, pose_estimator
+from ndfa.core.color_camera import ColorCamera
 from ndfa.core.errors import NdfaError, OptionError
 from ndfa.io.ingest import MAX_DT_S
 from ndfa.io.ingest.tum_layout import DEFAULT_INTRINSICS, DEPTH_SCALE, INTRINSICS_PRESETS
@@ -52,6 +53,15 @@ def _parse_intrinsics(text: Optional[str]) -> object:
     return values
 
 
+def _parse_color_camera(text: Optional[str]) -> ColorCamera | None:
+    if text is None:
+        return None
+    try:
+        return ColorCamera.parse(text)
+    except ValueError as error:
+        raise OptionError(f"--color-intrinsics {error}") from None
+
+
 @ingest_app.command("tum")
 def ingest_tum_command(
     folder: Path = typer.Argument(..., help="A TUM RGB-D folder (rgb.txt, depth.txt, groundtruth.txt, rgb/, depth/)."),
@@ -70,6 +80,10 @@ def ingest_tum_command(
     session: Optional[str] = typer.Option(None, help="Session name (default: the folder's name).", callback=non_empty),
     frames: Optional[str] = typer.Option(None, help="START:STOP: import only these paired frames (from 0, STOP "
                                                     "excluded; e.g. 0:250 and 250: make two sessions of one walk)."),
+    color_intrinsics: Optional[str] = typer.Option(
+        None, help="fx,fy,cx,cy[,dx] of the colour camera when the colour images are not registered to the depth "
+        "(7-Scenes: 525,525,321,240,-0.025; dx its offset along the depth camera's x axis, metres): kept in the "
+        "recording, the RGB-D odometry registers the colour to the depth."),
 ) -> None:
     """Import a TUM RGB-D folder into one recording, and say what was dropped and why."""
     from ndfa.io.ingest.tum import TumWarning, ingest_tum  # lazy: PIL (a twentieth of a second)
@@ -77,6 +91,7 @@ def ingest_tum_command(
     estimator, monitor = pose_estimator(poses)
     camera = _parse_intrinsics(intrinsics)
     frame_range = _parse_frames(frames)
+    color_camera = _parse_color_camera(color_intrinsics)
     out.parent.mkdir(parents=True, exist_ok=True)  # as `detect --log`; removed again if the import fails
 
     with warnings.catch_warnings():
@@ -85,7 +100,7 @@ def ingest_tum_command(
             task = progress.add_task(f"writing {out.name}", total=None)
             summary = ingest_tum(folder, out, intrinsics=camera, depth_scale=depth_scale,
                                  masks=masks, max_dt=max_dt, session=session, estimate_poses=estimator,
-                                 frames=frame_range,
+                                 frames=frame_range, color_camera=color_camera,
                                  on_progress=lambda done, total: progress.update(task, completed=done, total=total))
     warnings_of_input = input_warnings(monitor, poses, folder, out)
 

@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 
 import ndfa
+from ndfa.core.color_camera import META_KEY as COLOR_CAMERA_KEY
+from ndfa.core.color_camera import ColorCamera
 from ndfa.core.errors import IngestError, NdfaError
 from ndfa.core.progress import Progress
 from ndfa.io.ingest import MAX_DT_S, PoseEstimator
@@ -67,6 +69,7 @@ def ingest_tum(
     session: str | None = None,
     estimate_poses: PoseEstimator | None = None,
     frames: tuple[int, int | None] | None = None,
+    color_camera: ColorCamera | None = None,
     on_progress: Progress | None = None,  # (frames written, frames to write)
 ) -> TumSummary:
     """Write the TUM RGB-D folder `folder` into the recording `out` (.mcap).
@@ -82,6 +85,8 @@ def ingest_tum(
         (meta "poses": "none", as a sensor records): `ndfa detect` estimates them (ndfa.run.world).
     frames: (start, stop) of the paired frames to write, as a Python slice (stop None: to the end), e.g.
         the first and the last part of one walk as two sessions. Poses are estimated on these frames only.
+    color_camera: the colour camera, when the colour images are not registered to the depth (7-Scenes);
+        kept in the meta (`ndfa.core.color_camera`), the images as they are.
     Problems the reader works around are warned about (TumWarning) and listed in the summary.
     """
     tum = TumFolder(Path(folder), intrinsics=intrinsics, depth_scale=depth_scale,
@@ -121,6 +126,7 @@ def ingest_tum(
         **({"poses_note": NO_POSES_NOTE.format(folder=tum.folder)} if poses == "none" else {}),
         "frames_indexed": indexed,
         "dropped": dict(tum.dropped),
+        **({COLOR_CAMERA_KEY: color_camera.to_meta()} if color_camera is not None else {}),
     }
     written = 0
     has_instances = False
