@@ -23,6 +23,7 @@ from ndfa.core.events import SESSIONS, Event, FrameEvent, ObservationEvent, Sess
 from ndfa.core.frame import Frame
 from ndfa.core.geometry import transform_points
 from ndfa.ndf.encoder import EncoderConfig, NDFEncoder, ObjectCode
+from ndfa.ndf.reuse import CodeReuse, ReuseConfig
 from ndfa.perception.observations import Observation, ObservationConfig, SkippedObservation, extract_observations
 from ndfa.perception.segmentation import segment_frame
 from ndfa.perception.segmentation_config import SegmentationConfig
@@ -42,7 +43,10 @@ class PipelineConfig:
         smaller decoder is less sure of everything (kitchen mug views 0.61-0.68+, median 0.68):
         at 0.6 a 3-view counter segment became an object and was reported "added" on the kitchen
         halves with given poses; 0.63 keeps it out, and each mug still one object (2026-12-02).
-        0: off."""
+        0: off.
+    reuse: whether an observation may take the code of a view of the same object encoded a frame
+        or two before, when its view has barely changed (`ndfa.ndf.reuse`; off by default: the
+        paper encodes every observation)."""
 
     observation: ObservationConfig = field(default_factory=ObservationConfig)
     encoder: EncoderConfig = field(default_factory=EncoderConfig)
@@ -50,6 +54,7 @@ class PipelineConfig:
     weights: Path | None = None      # NDF checkpoint; None: the shipped one
     segmentation: SegmentationConfig | None = field(default_factory=SegmentationConfig)
     min_segment_occupancy: float = 0.63
+    reuse: ReuseConfig = field(default_factory=ReuseConfig)
 
 
 @dataclass(frozen=True)
@@ -78,6 +83,11 @@ class ChangeDetectionPipeline:
         """A change detector with this pipeline's parameters: one per pair of sessions."""
         return ChangeDetector(self.config.detector)
 
+    def new_code_reuse(self) -> CodeReuse | None:
+        """What a session's pass hands to `encode` so that its observations may reuse codes (None:
+        reuse off, `PipelineConfig.reuse`): one per session, its frames in order."""
+        return CodeReuse(self.encoder, self.config.reuse) if self.config.reuse.enabled else None
+
     def process(self, session: Session, frame: Frame, detector: ChangeDetector,
                 full_reconstruction: bool = True) -> list[Event]:
         """One frame's events. full_reconstruction False (for a caller without sinks): each
@@ -101,15 +111,18 @@ class ChangeDetectionPipeline:
         stage_ms["perception"] = (time.perf_counter() - started) * 1e3
         return ObservedFrame(frame, segmented, observations, skipped, stage_ms)
 
-    def encode(self, observed: ObservedFrame, full_reconstruction: bool = True) -> ObservedFrame:
-        """Its observations' NDF codes (`process` says what `full_reconstruction` does)."""
+    def encode(self, observed: ObservedFrame, full_reconstruction: bool = True, reuse: CodeReuse | None = None) -> ObservedFrame:
+        """Its observations' NDF codes (`process` says what `full_reconstruction` does); `reuse`
+        (`new_code_reuse`, the session's frames in order): some may take earlier views' codes."""
         started = time.perf_counter()
         # The mean occupancy decides the objectness gate of segments and, with "best" fusion, which
         # measurement an object keeps; elsewhere only whether the reconstruction is empty decides.
         full = full_reconstruction or observed.segmented or self.config.detector.views.fusion == "best"
-        codes = self.encoder.encode_batch([o.points_camera for o in observed.observations],
-                                          [observed.frame.pose_world_camera] * len(observed.observations),
-                                          full_reconstruction=full)
+        clouds = [o.points_camera for o in observed.observations]
+        if reuse is not None:
+            codes = reuse.encode(clouds, observed.frame.pose_world_camera, full)
+        else:
+            codes = self.encoder.encode_batch(clouds, [observed.frame.pose_world_camera] * len(clouds), full_reconstruction=full)
         return replace(observed, codes=codes,
                        stage_ms=observed.stage_ms | {"encoding": (time.perf_counter() - started) * 1e3})
 

@@ -1,14 +1,17 @@
 """CPU time of the NDF's encoding on a recording's observations, variants alternating in one process.
 
-    python scripts/encoding_cpu.py TARGET.mcap [--repeat 3] [--points 224 --neighbours 10] [--before REV]
+    python scripts/encoding_cpu.py TARGET.mcap [--repeat 3] [--points 224 --neighbours 10] [--before REV] [--reuse-angle 5]
 
 The observations are perceived once (masks, as `ndfa detect` extracts them); then each variant
 runs `NDFEncoder.encode_batch` over all of them, frame by frame as the pipeline calls it (the
 reconstruction decoded only as far as decisions need), and prints this process's CPU ms per frame
 (`time.process_time`: another job's share of the cores does not count), split into the encoder
 network, the occupancy network and the rest. Variants: the shipped encoder; with --points /
---neighbours also that; with --before REV also the encode graph of `ndfa/ndf/export_onnx.py` as
-it was at git revision REV. The first variant is the reference of the codes' agreement printed.
+--neighbours also that; with --before REV also the encoding as it was at git revision REV (its
+`ndfa/ndf/encoder.py` and the encode graph of its `ndfa/ndf/export_onnx.py`); with --reuse-angle
+also the shipped encoder behind `ndfa.ndf.reuse.CodeReuse` (one per run: a session's pass). The
+first variant is the reference of the codes' agreement printed (the reuse variant's codes are
+not compared: they are other views' by design).
 """
 
 from __future__ import annotations
@@ -24,7 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from ndfa.io.recording import RecordingReader
-from ndfa.ndf.encoder import EncoderConfig, NDFEncoder
+from ndfa.ndf.encoder import DEFAULT_WEIGHTS, EncoderConfig, NDFEncoder
+from ndfa.ndf.reuse import CodeReuse, ReuseConfig
 from ndfa.ndf.runtime import OnnxRuntime
 from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
 
@@ -49,18 +53,25 @@ class TimedRuntime:
             self.seconds[part] += time.process_time() - started
 
 
-def before_encoder(revision: str) -> NDFEncoder:
-    """The shipped encoder with the encode graph of `revision`'s export_onnx.py."""
-    source = subprocess.run(["git", "show", f"{revision}:ndfa/ndf/export_onnx.py"], check=True,
-                            capture_output=True, text=True).stdout
+def module_at(revision: str, path_in_repo: str, name: str):  # noqa: ANN201
+    """The module `path_in_repo` as it was at git `revision` (its imports: this tree's)."""
+    source = subprocess.run(["git", "show", f"{revision}:{path_in_repo}"], check=True, capture_output=True, text=True).stdout
     with tempfile.TemporaryDirectory() as folder:
-        path = Path(folder) / "export_before.py"
+        path = Path(folder) / f"{name}.py"
         path.write_text(source)
-        spec = importlib.util.spec_from_file_location("export_before", path)
+        spec = importlib.util.spec_from_file_location(name, path)
         assert spec is not None and spec.loader is not None
         module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module  # its dataclasses look their module up
         spec.loader.exec_module(module)
-    encoder = NDFEncoder(config=EncoderConfig(runtime="onnxruntime"))
+    return module
+
+
+def before_encoder(revision: str) -> NDFEncoder:
+    """The shipped weights in `revision`'s encoder.py, with the encode graph of its export_onnx.py."""
+    module = module_at(revision, "ndfa/ndf/export_onnx.py", "export_before")
+    encoder_module = module_at(revision, "ndfa/ndf/encoder.py", "encoder_before")
+    encoder = encoder_module.NDFEncoder(DEFAULT_WEIGHTS, encoder_module.EncoderConfig(runtime="onnxruntime"))
     runtime = encoder.runtime
     assert isinstance(runtime, OnnxRuntime)
     import onnxruntime
@@ -77,22 +88,26 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--points", type=int)
     parser.add_argument("--neighbours", type=int)
-    parser.add_argument("--before", help="git revision whose encode graph to time too")
+    parser.add_argument("--before", help="git revision whose encoding (encoder.py and encode graph) to time too")
+    parser.add_argument("--reuse-angle", type=float, help="also the shipped encoder with codes reused within this many degrees")
     args = parser.parse_args()
 
     perceive = ChangeDetectionPipeline(PipelineConfig(), encoder=NDFEncoder()).perceive
-    frames, count = [], 0
+    frames, all_frames, count = [], [], 0
     for frame in RecordingReader(args.target).frames():
         count += 1
         observed = perceive(frame)
+        all_frames.append(([o.points_camera for o in observed.observations], frame.pose_world_camera))
         if observed.observations:
-            frames.append(([o.points_camera for o in observed.observations], frame.pose_world_camera))
+            frames.append(all_frames[-1])
     variants = {"shipped": NDFEncoder()}
     if args.before:
         variants = {f"graph of {args.before}": before_encoder(args.before)} | variants
     if args.points or args.neighbours:
         variants[f"points {args.points}, neighbours {args.neighbours}"] = NDFEncoder(
             config=EncoderConfig(n_points=args.points, knn=args.neighbours))
+    if args.reuse_angle:
+        variants[f"codes reused within {args.reuse_angle:g} deg"] = NDFEncoder()
     for encoder in variants.values():
         encoder.runtime = TimedRuntime(encoder.runtime)
     print(f"{args.target}: {count} frames, {sum(len(c) for c, _ in frames)} observations")
@@ -101,6 +116,14 @@ def main() -> None:
         for name, encoder in variants.items():
             encoder.runtime.seconds = dict.fromkeys(encoder.runtime.seconds, 0.0)
             started = time.process_time()
+            if name.startswith("codes reused"):
+                reuse = CodeReuse(encoder, ReuseConfig(angle_deg=args.reuse_angle))
+                for clouds, pose in all_frames:
+                    reuse.encode(clouds, pose, full_reconstruction=False)
+                total = (time.process_time() - started) * 1e3 / count
+                print(f"run {run + 1}, {name}: encoding {total:.2f} CPU ms per frame ({reuse.encoded} observations "
+                      f"encoded, {reuse.reused} reused)", flush=True)
+                continue
             codes[name] = [code for clouds, pose in frames
                            for code in encoder.encode_batch(clouds, [pose] * len(clouds), full_reconstruction=False)]
             total = (time.process_time() - started) * 1e3 / count

@@ -47,6 +47,9 @@ def bench_command(
                                                     "the checkpoint's).", callback=at_least(10)),
     neighbours: Optional[int] = typer.Option(None, help="detect: now, the NDF encoder's neighbours per point "
                                                         "(default: the checkpoint's).", callback=at_least_one),
+    reuse_angle: float = typer.Option(0.0, help="detect: now, observations whose view turned by less than this many "
+                                                "degrees since the object was encoded take that code "
+                                                "(`ndfa detect --reuse-angle`; 0: off).", min=0.0),
 ) -> None:
     """Time each stage of a pipeline and print milliseconds."""
     from ndfa.eval.bench import bench_detect_runs, bench_detection_scaling, bench_ndf, bench_sim
@@ -75,7 +78,7 @@ def bench_command(
         rows = bench_detect_runs(source, target, threads=threads, compare=compare, load=load, frame_step=frame_step,
                                  runtime=runtime, weights=weights, before_runtime=before_runtime,
                                  before_weights=before_weights, overlap=overlap, repeat=repeat,
-                                 n_points=points, knn=neighbours)
+                                 n_points=points, knn=neighbours, reuse_angle_deg=reuse_angle)
         first = rows[0]
         table = Table(title=f"ndfa bench detect: target pass of {target} (no sinks)",
                       caption=f"{first['frames']} frames, {threads} thread(s); {first['machine']}")
@@ -90,6 +93,8 @@ def bench_command(
         table.add_row("CPU s (both passes)", *(f"{row['cpu_s']:.1f}" for row in rows))
         table.add_row("reconstructions", *(row["reconstruction"] for row in rows))
         table.add_row("points / neighbours", *(f"{row['points']} / {row['neighbours']}" for row in rows))
+        table.add_row("codes reused within", *(f"{row['reuse_angle_deg']:g} deg" if row.get("reuse_angle_deg") else "off"
+                                               for row in rows))
         table.add_row("TP / FP / FN", *("-" if row["score"] is None else "/".join(map(str, row["score"])) for row in rows))
         console.print(table)
         now = next(row for row in rows if row["label"] == "now")

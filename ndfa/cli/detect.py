@@ -91,6 +91,10 @@ def detect_command(
                                                     "checkpoint's; fewer is faster, docs/speed.md).", callback=at_least(10)),
     neighbours: Optional[int] = typer.Option(None, help="The NDF encoder's neighbours per point (default: the "
                                                         "checkpoint's).", callback=at_least_one),
+    reuse_angle: float = typer.Option(0.0, help="Degrees: an observation whose view of an object turned by less "
+                                                "than this since that object was last encoded (centroid within 1 cm) "
+                                                "takes that code instead of being encoded (faster; 0: every "
+                                                "observation encoded, as the paper; docs/speed.md).", min=0.0),
 ) -> None:
     """Detect added, removed and moved objects between two recordings (the paper's method), or
     between each consecutive pair of more, with every object's history over them."""
@@ -110,6 +114,7 @@ def detect_command(
     # lazy: these import torch (seconds), which `ndfa --help` and option errors need not wait for
     from ndfa.eval.runs import score_detection
     from ndfa.ndf.encoder import EncoderConfig
+    from ndfa.ndf.reuse import ReuseConfig
     from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
     from ndfa.run.detect import RunOptions, run_detection
 
@@ -121,7 +126,8 @@ def detect_command(
     if tree_height is not None:
         detector = replace(detector, levels=LevelsConfig(tree_height_m=tree_height or None))
     config = PipelineConfig(detector=detector, weights=weights, encoder=EncoderConfig(runtime=runtime, threads=threads or 1,
-                                                                                       n_points=points, knn=neighbours))
+                                                                                       n_points=points, knn=neighbours),
+                            reuse=ReuseConfig(angle_deg=reuse_angle))
     pipeline = ChangeDetectionPipeline(config)
     runtime = pipeline.encoder.runtime.name
     err_console.print(f"NDF runtime: {runtime}" + (f", {threads or 1} thread(s)" if runtime == "onnxruntime" else ""),

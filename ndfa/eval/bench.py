@@ -121,23 +121,25 @@ def bench_ndf(weights: Path | None = None, repeats: int = 30, points: int = 1000
 
 def bench_detect(source: Path, target: Path, threads: int = 1, frame_step: int = 1, runtime: str = "auto",
                  weights: Path | None = None, full_reconstruction: bool = False, overlap: bool = True,
-                 n_points: int | None = None, knn: int | None = None) -> dict:
+                 n_points: int | None = None, knn: int | None = None, reuse_angle_deg: float = 0.0) -> dict:
     """The whole target pass without sinks: frames per second, and ms per frame of each stage.
     `threads`: torch's and ONNX Runtime's; `runtime`: the NDF's (`ndfa.ndf.runtime`); `weights`:
     the NDF's (default: the shipped ones); `full_reconstruction`: decode every reconstruction, as a
     run with sinks does; `overlap`: the stages run at the same time (`ndfa.run.detect.staged`): a
     stage's ms are then its own thread's time, and the frame's wall time is less than their sum
-    (reading is timed in the perception thread)."""
+    (reading is timed in the perception thread); `reuse_angle_deg`: `ReuseConfig.angle_deg` (0: off)."""
     import torch
 
     # torch, with the NDF: here and not at the top, so that `ndfa bench sim` and `scaling` run without it
     from ndfa.eval.runs import score_detection
     from ndfa.ndf.encoder import EncoderConfig
+    from ndfa.ndf.reuse import ReuseConfig
     from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
     from ndfa.run.detect import RunOptions, run_detection
 
     torch.set_num_threads(threads)
-    config = PipelineConfig(encoder=EncoderConfig(runtime=runtime, threads=threads, n_points=n_points, knn=knn), weights=weights)
+    config = PipelineConfig(encoder=EncoderConfig(runtime=runtime, threads=threads, n_points=n_points, knn=knn), weights=weights,
+                            reuse=ReuseConfig(angle_deg=reuse_angle_deg))
     pipeline = ChangeDetectionPipeline(config)
     cpu_started = time.process_time()
     result = score_detection(run_detection(source, target, config, sinks=[], options=RunOptions(frame_step=frame_step),
@@ -148,6 +150,7 @@ def bench_detect(source: Path, target: Path, threads: int = 1, frame_step: int =
             "stage_ms": stages, "threads": threads, "runtime": pipeline.encoder.runtime.name,
             "weights": "shipped" if weights is None else str(weights),
             "points": pipeline.encoder.n_points, "neighbours": pipeline.encoder.model.encoder.knn,
+            "reuse_angle_deg": reuse_angle_deg,
             "reconstruction": "full" if full_reconstruction else "as decisions need",
             "stages": "at the same time" if overlap else "one after the other",
             "cpu_s": time.process_time() - cpu_started,  # both passes, this process's CPU time
@@ -159,7 +162,7 @@ def bench_detect_runs(source: Path, target: Path, threads: int = 1, compare: boo
                       frame_step: int = 1, runtime: str = "auto", weights: Path | None = None,
                       before_runtime: str = "torch", before_weights: Path | None = None,
                       overlap: bool = True, repeat: int = 1, n_points: int | None = None,
-                      knn: int | None = None) -> list[dict]:
+                      knn: int | None = None, reuse_angle_deg: float = 0.0) -> list[dict]:
     """`bench_detect` back to back in one process, each row labelled: with `compare` first the
     "before" (`before_runtime` with `before_weights`, default the shipped ones, as the pass ran
     before: every reconstruction decoded, the stages one after the other), then "now"
@@ -167,13 +170,14 @@ def bench_detect_runs(source: Path, target: Path, threads: int = 1, compare: boo
     frames/s with every run's in `fps_runs` (the overlapping stages vary from run to run); with
     `load` "now" once more beside one busy process (`python -c 'while True: pass'`, started here
     and stopped after), the question being whether the pass keeps its speed when the machine is
-    shared. `n_points`, `knn`: the encoder's now (`EncoderConfig`; None: the checkpoint's)."""
+    shared. `n_points`, `knn`: the encoder's now (`EncoderConfig`; None: the checkpoint's);
+    `reuse_angle_deg`: now's `ReuseConfig.angle_deg`."""
     rows = []
     if compare:
         rows.append({"label": "before"} | bench_detect(source, target, threads, frame_step, before_runtime, before_weights,
                                                        full_reconstruction=True, overlap=False))
-    runs = [bench_detect(source, target, threads, frame_step, runtime, weights, overlap=overlap, n_points=n_points, knn=knn)
-            for _ in range(repeat)]
+    now = {"overlap": overlap, "n_points": n_points, "knn": knn, "reuse_angle_deg": reuse_angle_deg}
+    runs = [bench_detect(source, target, threads, frame_step, runtime, weights, **now) for _ in range(repeat)]
     median_run = sorted(runs, key=lambda run: run["fps"])[(len(runs) - 1) // 2]
     rows.append({"label": "now"} | median_run | {"fps_runs": [run["fps"] for run in runs]})
     if load:
@@ -182,8 +186,7 @@ def bench_detect_runs(source: Path, target: Path, threads: int = 1, compare: boo
 
         busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])
         try:
-            rows.append({"label": "beside one busy process"} | bench_detect(source, target, threads, frame_step, runtime, weights,
-                                                                            overlap=overlap, n_points=n_points, knn=knn))
+            rows.append({"label": "beside one busy process"} | bench_detect(source, target, threads, frame_step, runtime, weights, **now))
         finally:
             busy.kill()
             busy.wait()

@@ -10,6 +10,7 @@ frame with the camera pose. The network runs in ONNX Runtime when it is installe
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -128,6 +129,9 @@ class NDFEncoder:
         self._coarse = np.arange(n ** 3).reshape(n, n, n)[::2, ::2, ::2].ravel()  # every other point per axis
         probe = np.linalg.norm(self._grid[self._coarse], axis=1) <= config.probe_radius_m
         self._probe, self._coarse_rest = self._coarse[probe], self._coarse[~probe]
+        # Which points an observation keeps depends on its point count only (`resample`): drawn
+        # once per count instead of a generator per observation (docs/speed.md).
+        self._resample_index = lru_cache(maxsize=4096)(self._draw_resample_index)
 
     def encode(self, points_camera: np.ndarray, pose_world_camera: np.ndarray) -> ObjectCode:
         """One observation: points [N, 3] in the camera frame, camera-to-world pose [4, 4]."""
@@ -251,12 +255,16 @@ class NDFEncoder:
         rows = np.flatnonzero(counts)
         if len(rows) == 0:
             return
-        width = counts.max()
-        index = np.stack([np.pad(np.flatnonzero(chosen[b]), (0, width - counts[b]), mode="edge") for b in rows])
+        width, counts = counts.max(), counts[rows]
+        # Each row's chosen points in grid order, then its last one repeated up to the widest row's count
+        row_of, chosen_point = np.nonzero(chosen[rows])
+        ends = np.cumsum(counts)
+        index = np.repeat(chosen_point[ends - 1][:, None], width, axis=1)
+        index[row_of, np.arange(len(chosen_point)) - np.repeat(ends - counts, counts)] = chosen_point
         gathered = np.take_along_axis(queries[rows], index[:, :, None], axis=1)
         values = self.runtime.occupancy(np.ascontiguousarray(z[rows]), gathered, np.ascontiguousarray(points[rows]))
         for row, b in enumerate(rows):
-            occupancy[b, index[row, :counts[b]]] = values[row, :counts[b]]
+            occupancy[b, index[row, :counts[row]]] = values[row, :counts[row]]
 
     def _center(self, head: np.ndarray, queries: np.ndarray, occupancy: np.ndarray, inside: np.ndarray) -> np.ndarray:
         if self.config.center == "head" or not inside.any():
@@ -270,9 +278,14 @@ class NDFEncoder:
 
     def resample(self, cloud: np.ndarray) -> np.ndarray:
         """`cloud` [N, 3] resampled to the model's point count, the same way for the same N."""
-        rng = np.random.default_rng([self.config.seed, len(cloud)])
-        chosen = rng.choice(len(cloud), size=self.n_points, replace=len(cloud) < self.n_points)
-        return cloud[chosen].astype(np.float64)
+        resampled: np.ndarray = cloud[self._resample_index(len(cloud))].astype(np.float64)
+        return resampled
+
+    def _draw_resample_index(self, count: int) -> np.ndarray:
+        rng = np.random.default_rng([self.config.seed, count])
+        chosen: np.ndarray = rng.choice(count, size=self.n_points, replace=count < self.n_points)
+        chosen.flags.writeable = False  # shared by every observation of `count` points
+        return chosen
 
 
 def _checked_cloud(cloud: np.ndarray, index: int) -> np.ndarray:

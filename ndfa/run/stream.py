@@ -86,13 +86,15 @@ def staged(pipeline: ChangeDetectionPipeline, frames: Iterator[Frame], world: Se
            full_reconstruction: bool, overlap: bool = True) -> Iterator[ObservedFrame]:
     """The frames read, perceived and encoded for `pipeline.decide`, in frame order. `overlap`:
     reading and perception run ahead in one thread, encoding in another
-    (`ndfa.io.recording.prefetch`), while the caller decides. The stages hold no state and the
-    detector sees the frames in order, so the events are those of `pipeline.process`; the NDF's
+    (`ndfa.io.recording.prefetch`), while the caller decides. The stages hold no state (but the
+    session's recent codes, with `PipelineConfig.reuse`) and the detector sees the frames in
+    order, so the events are those of `pipeline.process`; the NDF's
     runtime and much of numpy's work release the GIL, so on two cores the stages run at the same
     time (docs/speed.md)."""
     depth = 4 if overlap else 0
     perceived = prefetched(_perceived(pipeline, frames, world), depth)
-    return prefetched((pipeline.encode(observed, full_reconstruction) for observed in perceived), depth)
+    reuse = pipeline.new_code_reuse()  # this session's (`PipelineConfig.reuse`); the encoding stage is one thread, in frame order
+    return prefetched((pipeline.encode(observed, full_reconstruction, reuse) for observed in perceived), depth)
 
 
 def _perceived(pipeline: ChangeDetectionPipeline, frames: Iterator[Frame], world: SessionWorld) -> Iterator[ObservedFrame]:
