@@ -30,6 +30,7 @@ from torch import nn
 from ndfa.ndf.checkpoint import load_model
 from ndfa.ndf.heads import GatedCenterHead
 from ndfa.ndf.vn import VNLeakyReLU, VNLinear, vn_invariant
+from ndfa.training.dataset import load_dataset
 from ndfa.training.validate import encode_views
 
 BATCH, LR = 512, 6e-4  # as `ndfa train --train-only center_refit --batch-mugs 128` (two views a mug)
@@ -97,7 +98,7 @@ def main() -> None:
     torch.set_num_threads(2)
     model, _ = load_model(args.weights)
     model.eval()
-    views = dict(np.load(args.views))
+    views = load_dataset(args.views)
     z = encode_views(model, views)
     scale, latent = model.config.input_scale, model.config.latent
     centroid = views["points"].mean(axis=1)
@@ -107,8 +108,8 @@ def main() -> None:
     plane = torch.from_numpy((((base - centroid) * up).sum(1) * scale).astype(np.float32))
     up_t = torch.from_numpy(up.astype(np.float32))
     near = np.linalg.norm(centroid, axis=1) <= 2.0
-    held_out = np.flatnonzero((views["mug_index"] >= args.held_out_from) & near)
-    fitted = np.flatnonzero(views["mug_index"] < args.held_out_from)
+    held_out = np.flatnonzero((views["object_index"] >= args.held_out_from) & near)
+    fitted = np.flatnonzero(views["object_index"] < args.held_out_from)
     zt = z.transpose(-1, -2)
 
     with torch.inference_mode():

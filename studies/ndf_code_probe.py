@@ -31,8 +31,8 @@ def main() -> None:
     val = load_dataset(sorted(data.glob("val-c47010f367.npz"))[0])
     fit_rows = np.flatnonzero(train["view_id"] < 4)
     fit_codes = _codes(model, {name: values[fit_rows] if values.ndim else values for name, values in train.items()})
-    fit_params = _params(train["mug_index"][fit_rows])
-    val_codes, val_params = _codes(model, val), _params(val["mug_index"])
+    fit_params = _params(train["object_index"][fit_rows])
+    val_codes, val_params = _codes(model, val), _params(val["object_index"])
 
     mean, std = fit_params.mean(0), fit_params.std(0) + 1e-9
     design = np.c_[fit_codes, np.ones(len(fit_codes))]

@@ -49,8 +49,8 @@ def main() -> None:
     pairs = largest_difference[np.triu_indices(MUGS, 1)]
 
     if len(sys.argv) > 1:
-        views = pl.read_parquet(sys.argv[1]).filter(~pl.col("retrieved_same_mug"))
-        wrong = largest_difference[views["mug_index"].to_numpy(), views["retrieved_mug_index"].to_numpy()]
+        views = pl.read_parquet(sys.argv[1]).filter(~pl.col("retrieved_same_object"))
+        wrong = largest_difference[views["object_id"].to_numpy(), views["retrieved_object_id"].to_numpy()]
         print(f"{len(views)} wrong retrievals: {np.mean(wrong < 0.01):.0%} found a mug within 1 cm in every box "
               f"dimension ({np.mean(pairs < 0.01):.0%} of all pairs are); median largest box difference "
               f"{np.median(wrong) * 100:.1f} cm ({np.median(pairs) * 100:.1f} over all pairs)")

@@ -39,8 +39,9 @@ def trained_looking(model: NDFModel, seed: int) -> NDFModel:
 @pytest.mark.parametrize(
     "config",
     [NDFConfig(), NDFConfig(pooling="max", decoder="frame", local_points=4), NDFConfig(code_head="norms", pooling="max"),
-     NDFConfig(up_cue=True, view_cue=True, center_head="gated", decoder="frame", local_points=4)],
-    ids=["default", "frame-local-max", "norms-max", "cues-gated-frame"],
+     NDFConfig(up_cue=True, view_cue=True, center_head="gated", decoder="frame", local_points=4),
+     NDFConfig(up_cue=True, view_cue=True, center_head="gated", decoder="frame", categories=("mug", "bowl", "box"))],
+    ids=["default", "frame-local-max", "norms-max", "cues-gated-frame", "categories"],
 )
 def test_rotating_the_view_rotates_z_and_center_and_keeps_code_and_occupancy(seed, config):
     model = trained_looking(NDFModel(config), seed)
@@ -61,6 +62,10 @@ def test_rotating_the_view_rotates_z_and_center_and_keeps_code_and_occupancy(see
     assert relative_error(rotated["center_offset"], out["center_offset"] @ rotation.T) <= 1e-4
     assert relative_error(rotated["shape_code"], out["shape_code"]) <= 1e-4
     assert relative_error(rotated["occupancy_logits"], out["occupancy_logits"]) <= 1e-4
+    assert ("category_logits" in out) == bool(config.categories)
+    if config.categories:  # the category is read from the code, so it is as invariant
+        assert out["category_logits"].shape == (2, len(config.categories))
+        assert relative_error(rotated["category_logits"], out["category_logits"]) <= 1e-4
 
 
 def test_the_callers_centring_removes_a_translation():
@@ -145,10 +150,17 @@ def test_bad_config_is_refused():
         NDFConfig(center_refits=-1)
     with pytest.raises(ModelError, match="direction cue"):
         NDFConfig(latent=2, up_cue=True, view_cue=True)
+    with pytest.raises(ModelError, match="categories"):
+        NDFConfig(categories=("mug",))
+    with pytest.raises(ModelError, match="categories"):
+        NDFConfig(categories=("mug", "mug"))
+    with pytest.raises(ModelError, match="no category head"):
+        NDFModel(SMALL).category_logits(torch.zeros(1, SMALL.code_dim))
 
 
-def test_checkpoint_round_trip(tmp_path):
-    config = dataclasses.replace(SMALL, code_head="norms")
+@pytest.mark.parametrize("categories", [(), ("mug", "box")])
+def test_checkpoint_round_trip(tmp_path, categories):
+    config = dataclasses.replace(SMALL, code_head="norms", categories=categories)
     model = trained_looking(NDFModel(config), 0)
     path = tmp_path / "run" / "ndf.pt"
     save_checkpoint(path, model, config, {"step": 7, "loss": [0.5, 0.25]})

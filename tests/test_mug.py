@@ -23,7 +23,7 @@ from ndfa.sim.mug import (
     outer_radius,
     sample_mug_params,
 )
-from ndfa.sim.splits import TEST_SEEDS, TRAIN_SEEDS, make_split_mug, mug_seed
+from ndfa.sim.splits import TEST_SEEDS, TRAIN_SEEDS, make_split_mug, split_seed
 
 SPLIT_INDICES = [("train", i) for i in range(40)] + [("test", i) for i in range(40)]
 
@@ -182,15 +182,15 @@ def test_occupancy_needs_a_watertight_mesh():
 
 def test_train_and_test_seeds_are_disjoint():
     assert set(TRAIN_SEEDS).isdisjoint(TEST_SEEDS)
-    assert mug_seed("train", 0) == TRAIN_SEEDS[0] and mug_seed("test", 0) == TEST_SEEDS[0]
-    assert mug_seed("test", len(TEST_SEEDS) - 1) == TEST_SEEDS[-1]
+    assert split_seed("train", 0) == TRAIN_SEEDS[0] and split_seed("test", 0) == TEST_SEEDS[0]
+    assert split_seed("test", len(TEST_SEEDS) - 1) == TEST_SEEDS[-1]
     assert make_split_mug("test", 3).model_id == f"mug-{TEST_SEEDS[3]:07d}"
 
 
 @pytest.mark.parametrize("split, index", [("val", 0), ("train", -1), ("test", len(TEST_SEEDS))])
 def test_bad_split_or_index_raises(split, index):
     with pytest.raises(SimError, match="split|range"):
-        mug_seed(split, index)
+        split_seed(split, index)
 
 
 # ---------------------------------------------------------------------------------------------

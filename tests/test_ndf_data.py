@@ -1,4 +1,4 @@
-"""NDF training data (`ndfa.training.views`, `mug_samples`, `dataset`, `batches`, `shape_parameters`):
+"""NDF training data (`ndfa.training.views`, `object_samples`, `dataset`, `batches`, `shape_parameters`):
 partial views of procedural mugs with occupancy labels."""
 
 import dataclasses
@@ -21,7 +21,7 @@ from ndfa.training.dataset import (
     load_dataset,
     write_dataset,
 )
-from ndfa.training.mug_samples import mug_center
+from ndfa.training.object_samples import object_center
 from ndfa.training.shape_parameters import NUMERIC_PARAMS, shape_parameters
 from ndfa.training.views import View, ViewConfig, render_view
 
@@ -85,8 +85,8 @@ def test_labels_are_the_mug_occupancy_of_the_queries(mugs, near_views):
 
 
 def test_center_is_the_cached_solid_centroid_in_the_camera_frame(mugs, near_views):
-    center = mug_center(mugs[0])
-    assert np.allclose(mug_center(mugs[0]), center)  # cached, and a copy
+    center = object_center(mugs[0])
+    assert np.allclose(object_center(mugs[0]), center)  # cached, and a copy
     assert abs(center[0]) < 0.03 and abs(center[1]) < 0.001  # handle on +x, symmetric about xz
     assert 0.0 < center[2] < mugs[0].mesh.bounds[1][2]
     for view in near_views:
@@ -100,10 +100,10 @@ def test_center_is_the_centroid_of_the_solid_volume(mugs):
     box_min, box_max = mug.mesh.bounds
     points = np.random.default_rng(0).uniform(box_min, box_max, size=(400_000, 3))
     brute_force = points[mug.occupancy(points)].mean(axis=0)
-    assert np.linalg.norm(mug_center(mug) - brute_force) < 0.0005
+    assert np.linalg.norm(object_center(mug) - brute_force) < 0.0005
     # Without a handle the mug is a solid of revolution: its center lies on the axis.
     plain = build_mug(MugParams(handle_shape="none"))
-    assert np.allclose(mug_center(plain)[:2], 0.0, atol=1e-9) and 0.0 < mug_center(plain)[2] < 0.095
+    assert np.allclose(object_center(plain)[:2], 0.0, atol=1e-9) and 0.0 < object_center(plain)[2] < 0.095
 
 
 def test_queries_cover_the_surface_band_and_the_padded_box(mugs, near_views):
@@ -140,10 +140,10 @@ def test_cameras_stand_around_the_table_and_look_at_the_mug():
 def test_generation_is_deterministic_and_independent_of_workers_and_order():
     one = generate_views("train", [0, 1, 2], 2, seed=11, config=SMALL, workers=1)
     two = generate_views("train", [2, 0, 1], 2, seed=11, config=SMALL, workers=2)
-    order = np.lexsort((two["view_id"], two["mug_index"]))
+    order = np.lexsort((two["view_id"], two["object_index"]))
     for name in DATASET_ARRAYS:
         assert np.array_equal(one[name], two[name][order]), name
-    assert list(one["mug_index"]) == [0, 0, 1, 1, 2, 2] and list(one["view_id"]) == [0, 1] * 3
+    assert list(one["object_index"]) == [0, 0, 1, 1, 2, 2] and list(one["view_id"]) == [0, 1] * 3
     other_seed = generate_views("train", [0], 2, seed=12, config=SMALL, workers=1)
     assert not np.array_equal(other_seed["points"], one["points"][:2])
 
@@ -199,7 +199,7 @@ def test_batches_hold_two_different_views_of_distinct_mugs():
         assert batch["points"].shape == (6, SMALL.n_points, 3)
         assert batch["queries"].shape == (6, SMALL.n_queries, 3)
         assert batch["occupancy"].shape == (6, SMALL.n_queries) and batch["center"].shape == (6, 3)
-        mugs = batch["mug_index"].numpy()
+        mugs = batch["object_id"].numpy()
         assert len(set(mugs[:3])) == 3 and np.array_equal(mugs[:3], mugs[3:])
         assert not any(np.array_equal(batch["points"][b], batch["points"][b + 3]) for b in range(3))
     with pytest.raises(DataError):

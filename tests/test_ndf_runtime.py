@@ -181,3 +181,31 @@ def test_fewer_points_and_neighbours_than_the_checkpoint(views):
     assert all(not np.allclose(a.z, b.z, atol=1e-4) for a, b in zip(shipped, fewer))
     with pytest.raises(ModelError, match="n_points"):
         NDFEncoder(config=EncoderConfig(runtime="torch", n_points=5))
+
+
+def test_a_model_with_categories_exports_their_probabilities():
+    import onnxruntime
+
+    from ndfa.ndf.config import NDFConfig
+    from ndfa.ndf.export_onnx import CATEGORY_OUTPUT, ENCODE_OUTPUTS, export_onnx
+    from ndfa.ndf.model import NDFModel
+
+    config = NDFConfig(hidden=8, latent=16, knn=8, encoder_blocks=1, decoder_width=16, decoder_blocks=1, code_dim=8,
+                       gram_channels=4, up_cue=True, view_cue=True, center_head="gated", decoder="frame", local_points=4,
+                       categories=("mug", "bowl", "box"))
+    torch.manual_seed(0)
+    model = NDFModel(config).eval()
+    rng = np.random.default_rng(0)
+    points = (rng.normal(size=(3, 64, 3)) * [0.03, 0.04, 0.05]).astype(np.float32)
+    up = np.array([[0.0, -1.0, 0.1], [0.3, -0.9, 0.0], [0.0, 0.0, 1.0]], dtype=np.float32)
+    view_ray = np.array([[0.1, 0.0, 1.0], [0.0, 0.5, 2.0], [1.0, 0.0, 0.2]], dtype=np.float32)
+    session = onnxruntime.InferenceSession(export_onnx(model, 64)[0], providers=["CPUExecutionProvider"])
+    assert [output.name for output in session.get_outputs()] == [*ENCODE_OUTPUTS, CATEGORY_OUTPUT]
+    probabilities = session.run([CATEGORY_OUTPUT], {"points": points, "up": up, "view_ray": view_ray})[0]
+    with torch.no_grad():
+        code = model.shape_code(model.encode(torch.from_numpy(points), torch.from_numpy(up), torch.from_numpy(view_ray)))
+        expected = torch.softmax(model.category_logits(code), dim=-1).numpy()
+    assert probabilities.shape == (3, 3) and np.allclose(probabilities.sum(axis=1), 1.0, atol=1e-5)
+    assert np.allclose(probabilities, expected, atol=1e-4)
+    z, _, _ = make_runtime(model, 64, "onnxruntime").encode(points, up, view_ray)  # the detector's three outputs
+    assert z.shape == (3, config.latent, 3)

@@ -181,7 +181,7 @@ def test_shipped_weights_load_and_encode():
 
 def test_proxies_of_a_trained_model_start_at_its_mean_codes():
     from ndfa.ndf.checkpoint import load_model
-    from ndfa.training.train import TrainingHeads
+    from ndfa.training.trained_parts import TrainingHeads
     from ndfa.training.validate import encode_views
 
     model, _ = load_model(DEFAULT_WEIGHTS)
@@ -189,7 +189,7 @@ def test_proxies_of_a_trained_model_start_at_its_mean_codes():
     heads = TrainingHeads(TrainConfig(train_mugs=4, proxy_weight=0.1), model, views)
     codes = model.shape_code(encode_views(model, views))  # with the views' up and view ray
     similarity = torch.nn.functional.normalize(codes, dim=1) @ torch.nn.functional.normalize(heads.proxies, dim=1).T
-    own = torch.from_numpy(views["mug_index"].astype(np.int64))
+    own = torch.from_numpy(views["object_index"].astype(np.int64))
     assert (similarity.argmax(dim=1) == own).float().mean() >= 0.75  # each view sits near its own mug's proxy
 
 
@@ -252,7 +252,7 @@ def test_headline_counts_the_detector_regime_and_box_twins(tiny_run):
     assert np.all(per_view["n_visible"].to_numpy()[regime] >= 300)
     assert summary["retrieval_top1_within_2m"] <= summary["retrieval_top1_within_2m_twins_merged"] <= 1.0
     assert "iou_mean" not in summary
-    twins = box_twins("test", np.array([0, 1, 2]))
+    twins = box_twins("test", views)
     assert twins.shape == (3, 3) and np.all(np.diag(twins)) and np.array_equal(twins, twins.T)
 
 

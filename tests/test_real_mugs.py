@@ -103,7 +103,7 @@ def _rendered_table(n_views: int = 25):
     from ndfa.sim.render import RenderObject, SceneRenderer
     from ndfa.sim.scene import Table
     from ndfa.sim.splits import make_split_mug
-    from ndfa.training.mug_samples import mug_center
+    from ndfa.training.object_samples import object_center
 
     table = Table(0, (0.0, 0.0), size_xy=(1.2, 0.8))
     objects = [RenderObject(table.mesh(), 0, (0.55, 0.4, 0.3))]
@@ -112,7 +112,7 @@ def _rendered_table(n_views: int = 25):
         mug = make_split_mug("test", instance)
         pose = table.pose_world_top @ make_pose(np.eye(3), np.array([x, 0.05, 0.0]))
         objects.append(RenderObject(mug.mesh.transformed(pose), instance, (colour, colour, colour)))
-        centers.append(transform_points(pose, mug_center(mug)[None])[0])
+        centers.append(transform_points(pose, object_center(mug)[None])[0])
     renderer = SceneRenderer(objects)
     camera = PinholeCamera()
     frames = []

@@ -87,6 +87,19 @@ def non_empty(param: typer.CallbackParam, value: str | None) -> str | None:
     return value
 
 
+def category_list(param: typer.CallbackParam, value: str) -> str:
+    """A callback for object categories, comma-separated ("mug,bowl,cup"): distinct, each one of
+    `ndfa.sim.categories.CATEGORIES` ("all": every one); returned in that canonical spelling."""
+    from ndfa.sim.categories import CATEGORIES  # lazy: the simulator's meshes import trimesh
+
+    names = list(CATEGORIES) if value.strip() == "all" else [name.strip() for name in value.split(",")]
+    unknown = [name for name in names if name not in CATEGORIES]
+    if unknown or not names or len(set(names)) != len(names):
+        raise OptionError(f"{option_name(param)} must be distinct names among {', '.join(CATEGORIES)} (or all), "
+                          f"got {value!r}")
+    return ",".join(names)
+
+
 def at_least(low: float) -> Callback:
     """`in_range(ge=low)`: counts, strides, seeds."""
     return in_range(ge=low)

@@ -1,4 +1,5 @@
-"""`ndfa train`: train the NDF on rendered partial views of procedural mugs."""
+"""`ndfa train`: train the NDF on rendered partial views of procedural mugs (or of several object
+categories: --categories, NDF v3)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from ndfa.cli.app import app, console, err_console
 from ndfa.cli.checks import (
     at_least,
     at_least_one,
+    category_list,
     checkpoint,
     fraction,
     in_range,
@@ -32,9 +34,16 @@ def train_command(
     out: Path = typer.Option(Path("out/ndf"), "--out", "-o", help="Run directory: checkpoint.pt, metrics.parquet, config.json.",
                              callback=output_dir),
     steps: int = typer.Option(8000, help="Optimizer steps.", callback=at_least_one),
-    train_mugs: int = typer.Option(400, help="Train-split mugs to render views of.", callback=at_least_one),
-    views_per_mug: int = typer.Option(24, help="Rendered views per training mug.", callback=at_least_one),
-    batch_mugs: int = typer.Option(16, help="Mugs per batch (two views each).", callback=at_least(2)),
+    checkpoint_every: int = typer.Option(250, help="Validate, write a metrics row and a checkpoint every this many steps.",
+                                         callback=at_least_one),
+    categories: str = typer.Option("mug", help="Object categories of the views, comma-separated (mug,bowl,cup,bottle,can,box "
+                                   "or all); two or more give the model a category head (NDF v3).", callback=category_list),
+    category_weight: float = typer.Option(0.1, help="Weight of the category head's cross-entropy.", callback=non_negative),
+    train_mugs: int = typer.Option(400, help="Train-split objects of each category to render views of.", callback=at_least_one),
+    views_per_mug: int = typer.Option(24, help="Rendered views per training object.", callback=at_least_one),
+    val_mugs: int = typer.Option(24, help="Validation objects of each category (train split, after the training ones), 8 views each.",
+                                 callback=at_least_one),
+    batch_mugs: int = typer.Option(16, help="Objects per batch (two views each), of any category.", callback=at_least(2)),
     alpha: float = typer.Option(0.01, help="Weight of the batch-hard shape loss (paper: 0.01).", callback=non_negative),
     shape_margin: Optional[float] = typer.Option(None, help="Hinge margin of the shape loss (default: the paper's form).",
                                                  callback=non_negative),
@@ -83,18 +92,20 @@ def train_command(
     log: Optional[Path] = typer.Option(None, help="Also log the metrics to this Rerun file (.rrd).",
                                        callback=output_file),
 ) -> None:
-    """Train the NDF on rendered partial views of train-split procedural mugs (CPU)."""
+    """Train the NDF on rendered partial views of train-split procedural mugs or other objects (CPU)."""
     # lazy: training imports torch and open3d (seconds)
     from ndfa.training.train import TrainConfig, train
     from ndfa.training.views import ViewConfig
 
+    names = tuple(categories.split(","))
     config = TrainConfig(
-        model=NDFConfig(code_head=code_head, pooling=pooling, decoder=decoder, local_points=local_points,
+        model=NDFConfig(categories=names if len(names) > 1 else (), code_head=code_head, pooling=pooling, decoder=decoder, local_points=local_points,
                         gram_eps=gram_eps, up_cue=up_cue, view_cue=view_cue, center_head=center_head, center_refits=center_refits,
                         decoder_width=decoder_width, decoder_blocks=decoder_blocks),
         view=ViewConfig(distance_range_m=(0.2, max_distance), n_points=points, min_points=min_points,
                         artifacts=SensorArtifacts() if sensor_artifacts else None),
-        train_mugs=train_mugs, views_per_mug=views_per_mug, batch_mugs=batch_mugs, steps=steps, lr=lr,
+        categories=names, category_weight=category_weight, steps_per_epoch=checkpoint_every,
+        train_mugs=train_mugs, views_per_mug=views_per_mug, val_mugs=val_mugs, batch_mugs=batch_mugs, steps=steps, lr=lr,
         lr_final_fraction=lr_final, alpha=alpha, shape_margin=shape_margin, proxy_weight=proxy_weight,
         param_weight=param_weight, up_tilt_deg=up_tilt,
         frame_weight=frame_weight, center_weight=center_weight, seed=seed, threads=threads, init_weights=str(init) if init else None,
@@ -115,13 +126,14 @@ def train_command(
         def on_epoch(row: dict) -> None:
             progress.console.print(
                 f"epoch {row['epoch']:3d} step {row['step']:6d} "
-                + "".join(f" {name} {row['train_' + name]:.3f}" for name in ("occ", "shape", "center", "proxy", "param")
+                + "".join(f" {name} {row['train_' + name]:.3f}" for name in ("occ", "shape", "center", "proxy", "param", "category")
                           if "train_" + name in row)
                 + f" | val acc {row['val_occ_accuracy']:.3f}"
                 f"  center {row['val_center_median_mm']:.1f}/{row['val_center_p90_mm']:.1f} mm"
                 f"  top1 {row['val_retrieval_top1']:.2f}  auc {row['val_auc']:.3f}"
                 + (f"  axis {row['val_axis_error_deg']:.0f} deg" if "val_axis_error_deg" in row else "")
-                + f"  ({row['elapsed_s'] / 60:.1f} min)")
+                + (f"  category {row['val_category_accuracy']:.3f}" if "val_category_accuracy" in row else "")
+                + f"  ({row['elapsed_s'] / 60:.1f} min, CPU {row['cpu_s'] / 60:.1f} min)")
             if recorder is not None:
                 import rerun as rr
 

@@ -66,6 +66,9 @@ class NDFConfig:
         their mean is the model's center (their errors are partly independent). The decoder keeps
         the center head it was trained with as its frame's origin (`NDFModel.frame_origin`), so
         refitting the center leaves every occupancy as it was. 0: the center head is the center.
+    categories: the object categories (names) a classification head on the shape code tells
+        apart (`heads.CategoryHead`, NDF v3; docs/ndf.md says why a head and not the nearest
+        category prototype); empty (the default, NDF v2): no head.
     input_scale: fixed factor on the zero-centred metric input (and queries): 10 turns a
         6-13 cm mug into about unit size, the scale the layers are initialised for.
     gram_eps: the epsilon of the batch norm that standardises the Gram invariants. z is small
@@ -92,6 +95,7 @@ class NDFConfig:
     view_cue: bool = False
     center_head: str = "linear"
     center_refits: int = 0
+    categories: tuple[str, ...] = ()
 
     @property
     def cues(self) -> int:
@@ -105,6 +109,10 @@ class NDFConfig:
         return self.code_dim if self.code_head == "gram" else self.latent - int(self.view_cue)
 
     def __post_init__(self) -> None:
+        # A checkpoint's config comes back from torch's loader with lists where tuples were.
+        object.__setattr__(self, "categories", tuple(self.categories))
+        if len(self.categories) == 1 or len(set(self.categories)) != len(self.categories):
+            raise ModelError(f"categories must be two or more distinct names (or none), got {self.categories}")
         if self.code_head not in CODE_HEADS:
             raise ModelError(f"unknown code_head {self.code_head!r}; expected one of {CODE_HEADS}")
         if self.decoder not in DECODERS:

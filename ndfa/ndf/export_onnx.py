@@ -1,7 +1,9 @@
 """The NDF's detection-time computation as two ONNX graphs, for ONNX Runtime (`ndfa.ndf.runtime`).
 
     encode graph      centred points [B, N, 3], up [B, 3], view ray [B, 3]
-                          -> z [B, k, 3], shape code [B, D], center offset [B, 3] (metres)
+                          -> z [B, k, 3], shape code [B, D], center offset [B, 3] (metres),
+                             and for a model with categories (NDF v3) their probabilities
+                             [B, len(NDFConfig.categories)] (softmax of `category_logits`)
     occupancy graph   z [B, k, 3], centred queries [B, Q, 3], centred points [B, N, 3]
                           -> occupancy [B, Q] (sigmoid of the decoder's logits)
 
@@ -45,6 +47,7 @@ from ndfa.ndf.vn import EPS, VNLeakyReLU, VNResnetBlock
 OPSET = 17
 ENCODE_INPUTS = ("points", "up", "view_ray")
 ENCODE_OUTPUTS = ("z", "shape_code", "center_offset")
+CATEGORY_OUTPUT = "category_probabilities"  # an encode graph's fourth output, with a category head
 OCCUPANCY_INPUTS = ("z", "queries", "points")
 OCCUPANCY_OUTPUTS = ("occupancy",)
 
@@ -75,7 +78,8 @@ def _cross_along_2(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
 
 
 class InferenceEncode(nn.Module):
-    """`NDFModel.encode` + `shape_code` + `center_offset`, for the export (see the module doc)."""
+    """`NDFModel.encode` + `shape_code` + `center_offset` (+ the category probabilities), for the
+    export (see the module doc)."""
 
     def __init__(self, model: NDFModel) -> None:
         super().__init__()
@@ -97,7 +101,10 @@ class InferenceEncode(nn.Module):
         if cues is not None:
             z_channels = torch.cat([z_channels, cues], dim=-1)
         z = z_channels.transpose(-1, -2)
-        return z, model.shape_code(z), model.center_offset(z)
+        code = model.shape_code(z)
+        if model.category_head is None:
+            return z, code, model.center_offset(z)
+        return z, code, model.center_offset(z), torch.softmax(model.category_logits(code), dim=-1)
 
     def _local(self, points: torch.Tensor) -> torch.Tensor:
         """`VNEdgeConv(knn_edge_features(points))` as `[B, 3, N, h]`, from the edges' four invariants
@@ -187,8 +194,9 @@ def export_onnx(model: NDFModel, n_points: int) -> tuple[bytes, bytes]:
     with torch.no_grad():
         z = model.encode(points, up, view_ray)
     queries = torch.randn(2, 50, 3) * 0.05
-    encode = _export(InferenceEncode(model), (points, up, view_ray), ENCODE_INPUTS, ENCODE_OUTPUTS,
-                     {name: {0: "batch"} for name in ENCODE_INPUTS + ENCODE_OUTPUTS})
+    encode_outputs = ENCODE_OUTPUTS + ((CATEGORY_OUTPUT,) if model.category_head is not None else ())
+    encode = _export(InferenceEncode(model), (points, up, view_ray), ENCODE_INPUTS, encode_outputs,
+                     {name: {0: "batch"} for name in ENCODE_INPUTS + encode_outputs})
     axes = {name: {0: "batch"} for name in ("z", "points")} | {name: {0: "batch", 1: "queries"} for name in ("queries", "occupancy")}
     occupancy = _export(InferenceOccupancy(model), (z, queries, points), OCCUPANCY_INPUTS, OCCUPANCY_OUTPUTS, axes)
     return encode, occupancy

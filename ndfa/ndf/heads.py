@@ -1,6 +1,7 @@
-"""The NDF's heads on z besides the decoder: the learned shape code (`GramCode`) and the gated
-center head (`GatedCenterHead`; several averaged: `CenterHeadEnsemble`). Both are equivariant in
-z: the code is invariant, the center offset rotates with z."""
+"""The NDF's heads on z besides the decoder: the learned shape code (`GramCode`), the gated center
+head (`GatedCenterHead`; several averaged: `CenterHeadEnsemble`) and the category head on the code
+(`CategoryHead`). All are equivariant in z: the code and the category are invariant, the center
+offset rotates with z."""
 
 from __future__ import annotations
 
@@ -82,3 +83,17 @@ class CenterHeadEnsemble(nn.Module):
 
     def forward(self, z: torch.Tensor) -> torch.Tensor:
         return self.each(z).mean(0)
+
+
+class CategoryHead(nn.Module):
+    """Category logits from the shape code, `[B, code_dim] -> [B, len(categories)]`: a small MLP
+    on the (rotation-invariant) code, so the category is as invariant as the code. Training's
+    cross-entropy also shapes the code, so that objects of one category share a region of it."""
+
+    def __init__(self, config: NDFConfig, width: int = 64) -> None:
+        super().__init__()
+        self.mlp = nn.Sequential(nn.Linear(config.code_dim_out, width), nn.ReLU(), nn.Linear(width, len(config.categories)))
+
+    def forward(self, code: torch.Tensor) -> torch.Tensor:
+        logits: torch.Tensor = self.mlp(code)
+        return logits

@@ -4,6 +4,7 @@
     decoder      Phi(x, z)             occupancy logit of query points x [B, Q, 3]
     shape code   s(z)                  rotation-invariant descriptor of the full shape [B, D]
     center head  t(z)                  offset of the full shape's center from the input's centroid
+    category     c(s)                  with `NDFConfig.categories`: category logits from the code
 
 Frames: the caller zero-centres a view (subtracts its centroid, which holds the translation) and
 gives the same centring to the queries; the model then works in that object-centred frame, in
@@ -32,7 +33,7 @@ from ndfa.core.errors import ModelError
 from ndfa.ndf.config import NDFConfig
 from ndfa.ndf.decoder import OccupancyDecoder
 from ndfa.ndf.encoder_net import Encoder
-from ndfa.ndf.heads import CenterHeadEnsemble, GatedCenterHead, GramCode
+from ndfa.ndf.heads import CategoryHead, CenterHeadEnsemble, GatedCenterHead, GramCode
 from ndfa.ndf.vn import VNLinear
 
 
@@ -51,6 +52,7 @@ class NDFModel(nn.Module):
         self.gram_code = GramCode(config) if config.code_head == "gram" else None
         self.center_head = VNLinear(config.latent, 1) if config.center_head == "linear" else GatedCenterHead(config)
         self.center_refit = CenterHeadEnsemble(config) if config.center_refits else None
+        self.category_head = CategoryHead(config) if config.categories else None
 
     def encode(self, points: torch.Tensor, up: torch.Tensor | None = None,
                view_ray: torch.Tensor | None = None) -> torch.Tensor:
@@ -98,6 +100,14 @@ class NDFModel(nn.Module):
             code = self.gram_code(z.transpose(-1, -2))
         return code
 
+    def category_logits(self, code: torch.Tensor) -> torch.Tensor:
+        """Shape code `[B, D]` -> logits `[B, len(config.categories)]` of the object's category;
+        ModelError for a model without categories (NDF v2)."""
+        if self.category_head is None:
+            raise ModelError("this model has no category head (NDFConfig.categories is empty)")
+        logits: torch.Tensor = self.category_head(code)
+        return logits
+
     def center_offset(self, z: torch.Tensor) -> torch.Tensor:
         """z `[B, k, 3]` -> predicted center of the full shape minus the input centroid `[B, 3]`, metres.
 
@@ -139,11 +149,16 @@ class NDFModel(nn.Module):
     def forward(self, points: torch.Tensor, queries: torch.Tensor, up: torch.Tensor | None = None,
                 view_ray: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         z = self.encode(points, up, view_ray)
+        code = self.shape_code(z)
         out = {
             "z": z,
-            "shape_code": self.shape_code(z),
+            "shape_code": code,
             "center_offset": self.center_offset(z),
             "occupancy_logits": self.occupancy_logits(z, queries, points),
         }
         frame_vectors = self.frame_vectors(z)
-        return out if frame_vectors is None else out | {"frame_vectors": frame_vectors}
+        if frame_vectors is not None:
+            out["frame_vectors"] = frame_vectors
+        if self.category_head is not None:
+            out["category_logits"] = self.category_logits(code)
+        return out

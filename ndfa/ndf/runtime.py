@@ -23,7 +23,7 @@ import numpy as np
 import torch
 
 from ndfa.core.errors import ModelError
-from ndfa.ndf.export_onnx import export_onnx
+from ndfa.ndf.export_onnx import ENCODE_OUTPUTS, export_onnx
 from ndfa.ndf.model import NDFModel
 
 RUNTIMES = ("auto", "onnxruntime", "torch")
@@ -85,7 +85,8 @@ class OnnxRuntime:
         self.threads = threads
 
     def encode(self, points: np.ndarray, up: np.ndarray, view_ray: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        z, code, offset = self._encode.run(None, {"points": points, "up": up, "view_ray": view_ray})
+        # By name: a model with categories has a fourth output, which the detector does not read yet.
+        z, code, offset = self._encode.run(list(ENCODE_OUTPUTS), {"points": points, "up": up, "view_ray": view_ray})
         return z, code, offset
 
     def occupancy(self, z: np.ndarray, queries: np.ndarray, points: np.ndarray) -> np.ndarray:

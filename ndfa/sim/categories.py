@@ -12,7 +12,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -21,6 +20,7 @@ from ndfa.sim.bottle import bottle_parts, can_parts, sample_bottle_params, sampl
 from ndfa.sim.box import box_parts, sample_box_params
 from ndfa.sim.mesh import Mesh
 from ndfa.sim.mug import make_mug
+from ndfa.sim.solid import PartsSolid
 from ndfa.sim.vessels import sample_bowl_params, sample_cup_params, vessel_parts
 
 CATEGORIES = ("mug", "bowl", "cup", "bottle", "can", "box")
@@ -47,19 +47,15 @@ _MAKERS: dict[str, tuple[Callable[[np.random.Generator], Any], Callable[[Any], l
 
 
 @dataclass
-class CategoryObject:
-    """One object model of a category: its shape parameters and closed meshes in the object frame."""
+class CategoryObject(PartsSolid):
+    """One object model of a category: its shape parameters and closed meshes in the object frame
+    (`mesh` to render it, `occupancy` of the union of its parts: `PartsSolid`)."""
 
     category: str
     model_id: str
     seed: int
     params: Any  # VesselParams (bowl, cup), BottleParams, CanParams, BoxParams, MugParams
     parts: list[Mesh]
-
-    @cached_property
-    def mesh(self) -> Mesh:
-        """All parts in one mesh, for rendering (overlaps are kept, there is no boolean union)."""
-        return Mesh.concatenate(self.parts)
 
 
 def make_object(category: str, seed: int) -> CategoryObject:

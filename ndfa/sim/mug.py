@@ -19,8 +19,7 @@ A mug is made of parts, each a closed watertight mesh, that may overlap:
   Both ends are capped and buried in the middle of the body's wall (never in the cavity), so
   body and handle together are one solid.
 
-Occupancy is the union of the parts' occupancies, each from its own Open3D `RaycastingScene`:
-ray-parity occupancy over one scene holding overlapping parts would call the overlap "outside".
+Occupancy is the union of the parts' occupancies (`ndfa.sim.solid.PartsSolid`).
 
 This module holds the mug itself (`Mug`, `make_mug`, `build_mug`) and re-exports the names of its
 parts: the parameters and their sampling (`ndfa.sim.mug_params`), the body (`ndfa.sim.mug_body`)
@@ -30,11 +29,9 @@ and the handle (`ndfa.sim.mug_handle`).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
 
 import numpy as np
 
-from ndfa.core.errors import SimError
 from ndfa.sim.mesh import Mesh
 from ndfa.sim.mug_body import (
     body_mesh,
@@ -52,6 +49,7 @@ from ndfa.sim.mug_params import (
     outer_radius,
     sample_mug_params,
 )
+from ndfa.sim.solid import PartsSolid
 
 __all__ = [
     "BASE_STYLES", "HANDLE_SHAPES", "PROFILES", "Mug", "MugParams", "body_mesh", "body_profile", "build_mug",
@@ -61,7 +59,7 @@ __all__ = [
 
 
 @dataclass
-class Mug:
+class Mug(PartsSolid):
     """One mug model. `parts` are closed meshes in the mug frame (body first, then the handle, if
     any) that may overlap. `params` is None for a mesh loaded from a file, `seed` is -1 then.
     `watertight` says every part is closed, so `occupancy` is exact."""
@@ -71,37 +69,6 @@ class Mug:
     params: MugParams | None
     parts: list[Mesh]
     watertight: bool = True
-
-    @cached_property
-    def mesh(self) -> Mesh:
-        """All parts in one mesh, for rendering (overlaps are kept, there is no boolean union)."""
-        return Mesh.concatenate(self.parts)
-
-    @cached_property
-    def _part_scenes(self) -> list:
-        """One `RaycastingScene` per part, built on first use."""
-        import open3d as o3d
-
-        scenes = []
-        for part in self.parts:
-            scene = o3d.t.geometry.RaycastingScene()
-            scene.add_triangles(part.to_open3d_tensor())
-            scenes.append(scene)
-        return scenes
-
-    def occupancy(self, points: np.ndarray) -> np.ndarray:
-        """Whether each of `points` (N, 3), in the mug frame, is inside the mug: bool (N,)."""
-        if not self.watertight:
-            raise SimError(f"{self.model_id}: exact occupancy is unavailable, its mesh is not watertight")
-        import open3d as o3d
-
-        query = o3d.core.Tensor(np.asarray(points, dtype=np.float32).reshape(-1, 3))
-        inside = np.zeros(len(query), dtype=bool)
-        for scene in self._part_scenes:
-            # Three rays per point and a majority vote: a single ray grazing an edge of the
-            # mesh would count the crossing twice (or not at all) and flip the answer.
-            inside |= scene.compute_occupancy(query, nsamples=3).numpy().astype(bool)
-        return inside
 
 
 def make_mug(seed: int) -> Mug:

@@ -34,6 +34,10 @@ from scipy.ndimage import binary_opening, zoom
 from ndfa.core.errors import SimError
 from ndfa.sim.noise import DepthNoise
 
+# The depth window (`SensorArtifacts.mask_depth_window_m`) holds objects up to the widest mug
+# (`ndfa.sim.categories.SIZE_RANGES`); a larger object widens it by what it exceeds this by.
+WINDOW_OBJECT_SIZE_M = 0.16
+
 
 @dataclass(frozen=True)
 class SensorArtifacts:
@@ -54,7 +58,8 @@ class SensorArtifacts:
         `mask_shift_px` pixels in each image axis.
     mask_depth_window_m: pixels of the (shifted) mask further than this from the median depth of
         the mug's own pixels are dropped, flying ones included: a segmentation that clusters the
-        mask's points would cut them off.
+        mask's points would cut them off. An object larger than `WINDOW_OBJECT_SIZE_M` widens it
+        by its excess (a 45 cm box seen at a slant spans more than the mug's 12 cm of depth).
     """
 
     disparity_step_range_per_m: tuple[float, float] = (0.001, 0.003)
@@ -89,12 +94,13 @@ class SensorArtifacts:
         return dataclasses.replace(noise, disparity_step_per_m=step, edge_dropout=self.edge_dropout)
 
     def apply(self, depth: np.ndarray, clean_depth: np.ndarray, mask: np.ndarray, cos_incidence: np.ndarray,
-              rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+              rng: np.random.Generator, object_size_m: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """The artifacts on one noisy view.
 
         depth: (H, W) noisy depth (0 = none); clean_depth: the rendered one (for the background
         behind silhouette pixels); mask: (H, W) bool, the mug's pixels; cos_incidence: (H, W)
-        |cos| of the angle between each pixel's ray and its normal.
+        |cos| of the angle between each pixel's ray and its normal; object_size_m: the object's
+        largest extent (widens the depth window beyond `WINDOW_OBJECT_SIZE_M`).
         Returns the new depth and the mask to take the mug's points from.
         """
         depth = depth.copy()
@@ -123,7 +129,8 @@ class SensorArtifacts:
         if shift < self.mask_shift_probability and np.any(offset):
             mask = _shifted(mask, offset)
         if own.size:
-            mask = mask & (np.abs(depth - np.median(own)) <= self.mask_depth_window_m)
+            window = self.mask_depth_window_m + max(object_size_m - WINDOW_OBJECT_SIZE_M, 0.0)
+            mask = mask & (np.abs(depth - np.median(own)) <= window)
         return depth, mask
 
     def _fly(self, depth: np.ndarray, clean_depth: np.ndarray, mask: np.ndarray, flying: np.ndarray,

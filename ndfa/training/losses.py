@@ -68,3 +68,9 @@ def frame_loss(frame_vectors: torch.Tensor, rotation_camera_object: torch.Tensor
     axis = F.cosine_similarity(frame_vectors[..., 0], rotation_camera_object[..., 2], dim=-1)
     handle = F.cosine_similarity(frame_vectors[..., 1], rotation_camera_object[..., 0], dim=-1)
     return (2.0 - axis - handle).mean() / 2.0
+
+
+def category_loss(logits: torch.Tensor, categories: torch.Tensor) -> torch.Tensor:
+    """Cross-entropy of the category head's logits [B, C] against the views' categories [B]
+    (indices into the model's `NDFConfig.categories`)."""
+    return F.cross_entropy(logits, categories)

@@ -1,4 +1,5 @@
-"""`ndfa ndf-eval`: the model-quality report on held-out test-split mugs.
+"""`ndfa ndf-eval`: the model-quality report on held-out test-split mugs (or objects of several
+categories, `ndfa.sim.categories`; "mug" below is whatever object a view shows).
 
 Each held-out view (test-split mugs, never seen in training, with occluders and depth noise) is
 encoded; the report gives
@@ -15,7 +16,10 @@ encoded; the report gives
 - the headline: the same figures for the views in the detector's regime, the mug within 2 m of
   the camera and at least `VISIBLE_PIXELS` points seen (the detector encodes no smaller mask):
   the head's center error and retrieval among those views, both by mug and with box twins
-  (mugs within 1 cm in every box dimension, which a view cannot tell apart by size) merged.
+  (mugs within 1 cm in every box dimension, which a view cannot tell apart by size) merged;
+- with several categories, the same headline per category (prefixed by its name): center
+  median and p90, retrieval top-1 (the nearest other view among all categories' views in the
+  regime shows the same object), and for a model with a category head its accuracy.
 """
 
 from __future__ import annotations
@@ -29,10 +33,11 @@ import torch
 from ndfa.core.conventions import VISIBLE_PIXELS
 from ndfa.core.geometry import invert_pose, transform_points
 from ndfa.ndf.encoder import CENTER_METHODS, FINE_GRID_RESOLUTION, EncoderConfig, NDFEncoder
-from ndfa.sim.mug import Mug
-from ndfa.sim.splits import make_split_mug
-from ndfa.training.dataset import generate_views
+from ndfa.sim.categories import CATEGORIES, CategoryObject
+from ndfa.sim.splits import make_split_object
+from ndfa.training.dataset import generate_views, object_ids
 from ndfa.training.metrics import center_errors_mm, iou, nearest_other, pair_separation
+from ndfa.training.validate import predicted_categories
 from ndfa.training.views import ViewConfig
 
 NEAR_M = 2.0  # views with the mug this close to the camera (and VISIBLE_PIXELS points) make the headline
@@ -49,15 +54,16 @@ def evaluate_ndf(
     iou_grid: int = 32,
     views: dict[str, np.ndarray] | None = None,
     v0: float = EncoderConfig.v0,
+    categories: tuple[str, ...] = ("mug",),
 ) -> tuple[dict[str, float], pl.DataFrame]:
     """Summary figures and a per-view table for the model at `weights` (default: shipped), with
     occupancy threshold `v0` for the reconstruction.
 
-    `views` replaces the rendered test views (e.g. a cached set, or a small one in tests).
+    `views` replaces the rendered test views of `categories` (e.g. a cached set, or a small one in tests).
     `iou_grid` 0 skips the reconstruction IoU (most of the time of an evaluation).
     """
     if views is None:
-        views = generate_views("test", list(range(mugs)), views_per_mug, seed, ViewConfig())
+        views = generate_views("test", list(range(mugs)), views_per_mug, seed, ViewConfig(), categories=categories)
     clouds = list(views["points"])
     # World = each view's mug frame, whose z is up (the mug stands on a level table): models with
     # the up cue get it from these poses, as the detector's from its camera poses.
@@ -69,10 +75,11 @@ def evaluate_ndf(
                 for method in CENTER_METHODS}
     codes = {method: encoder.encode_batch(clouds, poses) for method, encoder in encoders.items()}
     shape_codes = np.stack([c.shape_code for c in codes["head"]])
-    labels = views["mug_index"]
+    labels = object_ids(views)
 
     summary: dict[str, float] = {"views": float(len(clouds)), "mugs": float(len(np.unique(labels)))}
-    per_view = {"mug_index": labels, "view_id": views["view_id"], "n_visible": views["n_visible"]}
+    per_view = {"category": np.array(CATEGORIES)[views["category"]], "object_index": views["object_index"],
+                "object_id": labels, "view_id": views["view_id"], "n_visible": views["n_visible"]}
     centers = {method: np.stack([c.center_world for c in codes[method]]) for method in CENTER_METHODS}
     for method in CENTER_METHODS:
         errors = center_errors_mm(centers[method], true_centers)
@@ -90,15 +97,15 @@ def evaluate_ndf(
     summary |= {f"{key}_head_within_2m": value
                 for key, value in center_errors_mm(centers["head"][near], true_centers[near]).items()}
     split = str(views.get("split", "test"))
-    twins = box_twins(split, np.unique(labels))
+    twins = box_twins(split, views)
     if near.sum() > 1:
         near_retrieved = labels[near][nearest_other(shape_codes[near])]
         summary["retrieval_top1_within_2m"] = float(np.mean(near_retrieved == labels[near]))
         summary["retrieval_top1_within_2m_twins_merged"] = float(np.mean(
             [twins[a, b] for a, b in zip(near_retrieved, labels[near])]))
     retrieved = labels[nearest_other(shape_codes)]
-    per_view["retrieved_mug_index"] = retrieved  # which mug the nearest other view shows
-    per_view["retrieved_same_mug"] = hits = retrieved == labels
+    per_view["retrieved_object_id"] = retrieved  # which object the nearest other view shows
+    per_view["retrieved_same_object"] = hits = retrieved == labels
     summary["retrieval_top1"] = float(hits.mean())
     summary |= pair_separation(shape_codes, labels, shape_threshold)
     if iou_grid > 0:
@@ -111,19 +118,57 @@ def evaluate_ndf(
         per_view["iou"] = ious
         per_view["iou_true_shape_displaced"] = shifted
     per_view["mean_occupancy"] = np.array([c.mean_occupancy for c in codes["head"]])
+    model = encoders["head"].model
+    if model.category_head is not None:
+        with torch.inference_mode():
+            per_view["predicted_category"] = np.array(CATEGORIES)[predicted_categories(model, model.category_logits(
+                torch.from_numpy(shape_codes.astype(np.float32))))]
+    if len(np.unique(views["category"])) > 1 or model.category_head is not None:
+        summary |= per_category(per_view, centers["head"], true_centers, shape_codes)
     return summary, pl.DataFrame(per_view)
 
 
-def box_twins(split: str, mug_indices: np.ndarray) -> np.ndarray:
-    """[M, M] bool over mug indices 0..max(mug_indices): same mug, or boxes within `TWIN_M` in
-    every dimension (a view then shows the same size; `studies/ndf_limits.py`)."""
-    size = int(mug_indices.max()) + 1
-    extents = np.full((size, 3), np.inf)
-    for index in mug_indices:
-        low, high = make_split_mug(split, int(index)).mesh.bounds
-        extents[index] = high - low
+def per_category(per_view: dict[str, np.ndarray], centers: np.ndarray, true_centers: np.ndarray,
+                 shape_codes: np.ndarray) -> dict[str, float]:
+    """The detector-regime headline of each category among the views (`per_view`'s category,
+    object_id, detector_regime and predicted_category), keys prefixed by the category's name, and
+    the category accuracy over all categories. Retrieval is among the regime's views of every
+    category: a bowl's view retrieving a cup's is a miss."""
+    near = per_view["detector_regime"]
+    labels = per_view["object_id"]
+    summary: dict[str, float] = {}
+    retrieved = labels[near][nearest_other(shape_codes[near])] if near.sum() > 1 else None
+    if "predicted_category" in per_view:
+        summary["category_accuracy_within_2m"] = float(np.mean(per_view["predicted_category"][near] == per_view["category"][near]))
+    for category in CATEGORIES:
+        mine = per_view["category"] == category
+        if not mine.any():
+            continue
+        regime = mine & near
+        summary[f"{category}_views_within_2m"] = float(regime.sum())
+        if not regime.any():
+            continue
+        summary |= {f"{category}_{key}_within_2m": value
+                    for key, value in center_errors_mm(centers[regime], true_centers[regime]).items()}
+        if retrieved is not None:
+            summary[f"{category}_retrieval_top1_within_2m"] = float(np.mean((retrieved == labels[near])[mine[near]]))
+        if "predicted_category" in per_view:
+            summary[f"{category}_category_accuracy_within_2m"] = float(np.mean(per_view["predicted_category"][regime] == category))
+    return summary
+
+
+def box_twins(split: str, views: dict[str, np.ndarray]) -> np.ndarray:
+    """[O, O] bool over the views' objects (`object_ids`): same object, or of one category with
+    boxes within `TWIN_M` in every dimension (a view then shows the same size; `studies/ndf_limits.py`)."""
+    ids = object_ids(views)
+    extents, category = np.zeros((ids.max() + 1, 3)), np.zeros(ids.max() + 1, dtype=np.int64)
+    for object_id in np.unique(ids):
+        row = int(np.argmax(ids == object_id))
+        category[object_id] = views["category"][row]
+        low, high = _split_object(split, views, row).mesh.bounds
+        extents[object_id] = high - low
     difference = np.abs(extents[:, None] - extents[None]).max(axis=2)
-    twins: np.ndarray = difference < TWIN_M
+    twins: np.ndarray = (difference < TWIN_M) & (category[:, None] == category[None])
     np.fill_diagonal(twins, True)
     return twins
 
@@ -135,13 +180,14 @@ def reconstruction_iou(encoder: NDFEncoder, views: dict[str, np.ndarray], resolu
     of predicted (> the encoder's v0) and exact occupancy; the same at each of `IOU_THRESHOLDS`;
     and the IoU of the exact occupancy with itself displaced by the view's `center_errors` [V, 3]
     (mug frame, metres): what a perfect reconstruction placed at the predicted center would score."""
-    mugs: dict[int, tuple[Mug, np.ndarray, np.ndarray]] = {}
+    mugs: dict[int, tuple[CategoryObject, np.ndarray, np.ndarray]] = {}
+    ids = object_ids(views)
     result, shifted = np.empty(len(views["points"])), np.empty(len(views["points"]))
     swept = {threshold: np.empty(len(views["points"])) for threshold in IOU_THRESHOLDS}
     for i, (points, pose) in enumerate(zip(views["points"], views["pose_camera_object"])):
-        index = int(views["mug_index"][i])
+        index = int(ids[i])
         if index not in mugs:
-            mug = make_split_mug(str(views.get("split", "test")), index)
+            mug = _split_object(str(views.get("split", "test")), views, i)
             lo, hi = mug.mesh.bounds
             pad = 0.05 * (hi - lo)
             axes = [np.linspace(a, b, resolution) for a, b in zip(lo - pad, hi + pad)]
@@ -158,3 +204,8 @@ def reconstruction_iou(encoder: NDFEncoder, views: dict[str, np.ndarray], resolu
             values[i] = iou(occupancy > threshold, truth)
         shifted[i] = iou(mug.occupancy(grid - center_errors[i]), truth)
     return result, swept, shifted
+
+
+def _split_object(split: str, views: dict[str, np.ndarray], row: int) -> CategoryObject:
+    """The object view `row` of `views` shows."""
+    return make_split_object(CATEGORIES[int(views["category"][row])], split, int(views["object_index"][row]))

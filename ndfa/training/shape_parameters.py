@@ -11,7 +11,7 @@ from ndfa.sim.mug import (
     MugParams,
     sample_mug_params,
 )
-from ndfa.sim.splits import mug_seed
+from ndfa.sim.splits import split_seed
 
 # The MugParams fields that are numbers (metres or fractions), in their order: shape_parameters' first columns.
 NUMERIC_PARAMS = [name for name, kind in MugParams.__annotations__.items() if kind == "float"]
@@ -26,7 +26,7 @@ def shape_parameters(split: str, mug_indices: list[int]) -> np.ndarray:
     losses only say "this mug, not those". Handle fields of a handle-less mug are zero."""
     rows = []
     for index in mug_indices:
-        params = sample_mug_params(np.random.default_rng(mug_seed(split, index)))
+        params = sample_mug_params(np.random.default_rng(split_seed(split, index)))
         has_handle = params.handle_shape != "none"
         numbers = [getattr(params, name) * (has_handle or not name.startswith("handle_")) for name in NUMERIC_PARAMS]
         tags = [params.profile == p for p in PROFILES] + [params.base_style == b for b in BASE_STYLES]

@@ -1,5 +1,6 @@
-"""One training view of the NDF occupancy network: a partial view of a procedural mug, with
-occupancy labels.
+"""One training view of the NDF occupancy network: a partial view of a procedural object (a mug,
+or an object of another category: `ndfa.sim.categories`), with occupancy labels. "The mug" below
+is whatever object the view is of.
 
 The paper's recipe (Sec. III-C, Fig. 3 and V-C): a randomly posed mug stands on a table with 2-4
 other objects around it that may hide parts of it; a camera somewhere around the table, 0.2 to
@@ -11,8 +12,8 @@ One view (`View`); every array is in the CAMERA frame (OpenCV: x right, y down, 
 - points (n_points, 3): the mug's visible depth points, with sensor noise, resampled to exactly
   n_points (`n_visible` says how many there were);
 - queries (n_queries, 3) and occupancy (n_queries,): half near the mug's surface, half uniform in
-  its enlarged bounding box, labelled exactly by `Mug.occupancy`;
-- center_camera (3,): the true center of the full mug (`ndfa.training.mug_samples.mug_center`);
+  its enlarged bounding box, labelled exactly by `PartsSolid.occupancy`;
+- center_camera (3,): the true center of the full mug (`ndfa.training.object_samples.object_center`);
 - pose_camera_object (4, 4): mug frame -> camera frame.
 
 Speed: only the target mug's pixels are rendered. Rays are cast through a camera cropped to the
@@ -41,13 +42,13 @@ from ndfa.core.geometry import (
 )
 from ndfa.sim.camera import PinholeCamera
 from ndfa.sim.mesh import Mesh, box_mesh
-from ndfa.sim.mug import Mug
 from ndfa.sim.mug_body import revolve_profile
 from ndfa.sim.noise import DepthNoise
 from ndfa.sim.render import RenderObject, SceneRenderer
 from ndfa.sim.scene import Table
 from ndfa.sim.sensor_artifacts import SensorArtifacts
-from ndfa.training.mug_samples import MugSamples, mug_samples
+from ndfa.sim.solid import PartsSolid
+from ndfa.training.object_samples import ObjectSamples, object_samples
 
 TARGET_ID = 1  # instance id of the target mug in the rendered instance image; occluders get 2, 3, ...
 # Box and cylinder occluders have a mug's size: full extents in metres.
@@ -70,8 +71,8 @@ class ViewConfig:
     aim_jitter_rad: standard deviation of the angle by which the camera aims off the mug's
         center, so that the mug is not always in the middle of the image (or even all in it).
     occluder_count_range: how many other objects stand around the mug, inclusive.
-    occluder_mug_probability: chance that an occluder is another mug (when any are given) rather
-        than a box or a cylinder.
+    occluder_mug_probability: chance that an occluder is one of the other objects given (a mug, or
+        any category's object) rather than a box or a cylinder.
     occluder_gap_range_m: free space between the footprint circles of the mug and an occluder.
     noise: the depth sensor model.
     artifacts: a real sensor's artifacts on top of the noise (`ndfa.sim.sensor_artifacts`:
@@ -123,22 +124,22 @@ class View:
     points: np.ndarray              # (n_points, 3) visible mug points, noisy, resampled
     n_visible: int                  # mug points seen before resampling
     pose_camera_object: np.ndarray  # (4, 4) mug frame -> camera frame
-    center_camera: np.ndarray       # (3,) centroid of the mug's solid volume (`mug_center`)
+    center_camera: np.ndarray       # (3,) centroid of the mug's solid volume (`object_center`)
     queries: np.ndarray             # (n_queries, 3) near-surface half first, then the uniform half
     occupancy: np.ndarray           # (n_queries,) whether each query is inside the mug
-    mug_index: int = -1             # index of the mug within its split (-1: not given)
+    object_index: int = -1          # index of the object within its category's split (-1: not given)
     view_id: int = -1               # view number of that mug (-1: not given)
 
 
-def render_view(mug: Mug, others: list[Mug], rng: np.random.Generator, config: ViewConfig = ViewConfig(),
-                *, mug_index: int = -1, view_id: int = -1) -> View:
+def render_view(mug: PartsSolid, others: list[PartsSolid], rng: np.random.Generator, config: ViewConfig = ViewConfig(),
+                *, object_index: int = -1, view_id: int = -1) -> View:
     """A partial view of `mug` on a table among occluders, with labels (see the module doc).
 
-    others: mugs that may stand around it as occluders (may be empty: boxes and cylinders only).
-    rng: the only source of randomness. mug_index, view_id: copied into the view.
+    others: objects that may stand around it as occluders (may be empty: boxes and cylinders only).
+    rng: the only source of randomness. object_index, view_id: copied into the view.
     Raises DataError if `config.max_attempts` scenes in a row show the mug with too few points.
     """
-    samples = mug_samples(mug)
+    samples = object_samples(mug)
     for _ in range(config.max_attempts):
         objects, pose_world_object = _place_objects(mug, others, rng, config)
         center_world = transform_points(pose_world_object, samples.center[None])[0]
@@ -149,7 +150,8 @@ def render_view(mug: Mug, others: list[Mug], rng: np.random.Generator, config: V
                             margin=config.noise.edge_width_px + 2)
         if crop is None:
             continue
-        visible = _visible_points(SceneRenderer(objects), crop, pose_world_camera, rng, config.noise, config.artifacts)
+        visible = _visible_points(SceneRenderer(objects), crop, pose_world_camera, rng, config.noise, config.artifacts,
+                                  float(np.max(samples.box_max - samples.box_min)))
         if len(visible) >= config.min_points:
             break
     else:
@@ -166,12 +168,12 @@ def render_view(mug: Mug, others: list[Mug], rng: np.random.Generator, config: V
         center_camera=transform_points(pose_camera_object, samples.center[None])[0].astype(np.float32),
         queries=queries,
         occupancy=occupancy,
-        mug_index=mug_index,
+        object_index=object_index,
         view_id=view_id,
     )
 
 
-def _place_objects(mug: Mug, others: list[Mug], rng: np.random.Generator,
+def _place_objects(mug: PartsSolid, others: list[PartsSolid], rng: np.random.Generator,
                    config: ViewConfig) -> tuple[list[RenderObject], np.ndarray]:
     """The table, the mug (random yaw and position on the top) and occluders around it, all in
     the world frame, and the mug's pose_world_object (4, 4)."""
@@ -194,8 +196,8 @@ def _place_objects(mug: Mug, others: list[Mug], rng: np.random.Generator,
     return objects, pose_world_object
 
 
-def _occluder_mesh(others: list[Mug], rng: np.random.Generator, config: ViewConfig) -> Mesh:
-    """Another mug, or a box or a cylinder of a mug's size; in its own frame, base at z = 0."""
+def _occluder_mesh(others: list[PartsSolid], rng: np.random.Generator, config: ViewConfig) -> Mesh:
+    """One of `others`, or a box or a cylinder of a mug's size; in its own frame, base at z = 0."""
     if others and rng.random() < config.occluder_mug_probability:
         return others[rng.integers(len(others))].mesh
     height = rng.uniform(*PRIMITIVE_HEIGHT_M)
@@ -282,8 +284,9 @@ def _crop_camera(camera: PinholeCamera, pose_camera_object: np.ndarray, box_min:
 
 
 def _visible_points(renderer: SceneRenderer, camera: PinholeCamera, pose_world_camera: np.ndarray,
-                    rng: np.random.Generator, noise: DepthNoise, artifacts: SensorArtifacts | None = None) -> np.ndarray:
-    """(M, 3) float64 noisy depth points of the target mug, camera frame."""
+                    rng: np.random.Generator, noise: DepthNoise, artifacts: SensorArtifacts | None = None,
+                    object_size_m: float = 0.0) -> np.ndarray:
+    """(M, 3) float64 noisy depth points of the target mug (largest extent `object_size_m`), camera frame."""
     rendered = renderer.render(camera, pose_world_camera)
     mask = rendered.instance == TARGET_ID
     if artifacts is None:
@@ -291,12 +294,12 @@ def _visible_points(renderer: SceneRenderer, camera: PinholeCamera, pose_world_c
     else:
         depth = artifacts.noise_for_view(noise, rng).apply(rendered.depth, rendered.normals_camera, rng, camera)
         cos_incidence = np.abs(camera.ray_cosines(rendered.normals_camera))
-        depth, mask = artifacts.apply(depth, rendered.depth, mask, cos_incidence, rng)
+        depth, mask = artifacts.apply(depth, rendered.depth, mask, cos_incidence, rng, object_size_m)
     points, pixels = camera.backproject(depth)
     return points[mask[pixels[:, 0], pixels[:, 1]]]
 
 
-def _query_points(samples: MugSamples, rng: np.random.Generator, config: ViewConfig) -> np.ndarray:
+def _query_points(samples: ObjectSamples, rng: np.random.Generator, config: ViewConfig) -> np.ndarray:
     """(n_queries, 3) query points in the mug frame: near the surface first, then uniform in the box."""
     n_near = config.n_queries // 2
     sigmas = np.resize(np.asarray(config.near_surface_sigmas_m), n_near)  # equal shares, in turn
