@@ -51,6 +51,10 @@ BAD_OPTIONS = [
     (["train", "--out", "o", "--center-weight", "-1"], "--center-weight", "got -1.0"),
     (["ndf-eval", "--out", "o", "--v0", "1"], "--v0", "got 1.0"),
     (["ndf-eval", "--out", "o", "--mugs", "0"], "--mugs", "got 0"),
+    (["train", "--out", "o", "--categories", "mug,plate"], "--categories", "'mug,plate'"),
+    (["train", "--out", "o", "--categories", "mug,mug"], "--categories", "'mug,mug'"),
+    (["ndf-eval", "--out", "o", "--categories", ""], "--categories", "''"),
+    (["train", "--out", "o", "--checkpoint-every", "0"], "--checkpoint-every", "got 0"),
 ]
 
 
