@@ -5,6 +5,7 @@ verdict beside its true ATE. docs/pose_quality.md has the table this gives and t
     python scripts/pose_quality_calibration.py REC.mcap [REC.mcap ...] --out calibration.jsonl
         [--given-is-truth]    # score against the given poses when a recording has no true ones (7-Scenes)
         [--frame-step 2]      # every 2nd frame, as `ndfa detect --frame-step 2`
+        [--backward]          # and the second estimate from the frames in reverse order (its disagreement)
     python scripts/pose_quality_calibration.py --table calibration.jsonl   # the table and Spearman's rho
 
 A session already in the output file is not estimated again.
@@ -22,10 +23,10 @@ from scipy.stats import spearmanr
 from ndfa.io.recording import RecordingReader
 from ndfa.trajectory.metrics import absolute_trajectory_error
 from ndfa.trajectory.quality import judge
-from ndfa.trajectory.session import choose_method, estimate_session_poses, rgbd_config_for
+from ndfa.trajectory.session import choose_method, estimate_session_poses, frames_backwards, rgbd_config_for
 
 
-def measure(path: Path, given_is_truth: bool, frame_step: int) -> dict:
+def measure(path: Path, given_is_truth: bool, frame_step: int, backward: bool = False) -> dict:
     reader = RecordingReader(path)
     truth: list[np.ndarray | None] = []
 
@@ -35,7 +36,8 @@ def measure(path: Path, given_is_truth: bool, frame_step: int) -> dict:
 
     frames = reader.frames(step=frame_step)
     session = estimate_session_poses(frames, choose_method(next(iter(reader.frames(stop=1)), None)), path,
-                                     rgbd_config=rgbd_config_for(reader.meta), on_frame=keep_truth)
+                                     rgbd_config=rgbd_config_for(reader.meta), on_frame=keep_truth,
+                                     backward_frames=frames_backwards(reader, frame_step) if backward else None)
     row: dict = {"session": str(path), "frame_step": frame_step, "frames": len(session.poses)}
     if all(pose is not None for pose in truth) and len(truth) >= 3:
         ate = absolute_trajectory_error(session.poses, truth)
@@ -51,13 +53,13 @@ def table(rows: list[dict]) -> None:
     rows = [row for row in rows if "ate_cm" in row]
     rejudged = [judge_row(row) for row in rows]
     print("| session | frames | true ATE (cm) | estimated error (cm) | verdict | revisit pairs | revisit conflict (cm) | "
-          "neighbour conflict (cm) | step conflict max (cm) | jumps |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+          "neighbour conflict (cm) | step conflict max (cm) | jumps | backward disagreement (cm) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for row, (error, verdict) in sorted(zip(rows, rejudged, strict=True), key=lambda item: item[0]["ate_cm"]):
         e = row["evidence"]
         print(f"| {row['session']} | {row['frames']} | {row['ate_cm']:.1f} | {error:.1f} | {verdict} | {e['revisit_pairs']} | "
               f"{_f(e['revisit_conflict_cm'])} | {_f(e['neighbour_conflict_cm'])} | {_f(e['step_conflict_cm'])} | "
-              f"{e['jumps']} |")
+              f"{e['jumps']} | {_f(e.get('backward_disagreement_cm'), 2)} |")
     rho = spearmanr([row["ate_cm"] for row in rows], [error if np.isfinite(error) else np.inf for error, _ in rejudged]).statistic
     print(f"\n{len(rows)} sessions; Spearman rank correlation of the estimated error with the true ATE: {rho:.3f}")
 
@@ -81,6 +83,7 @@ def main() -> None:
     parser.add_argument("--table", type=Path, help="print the table of this JSON-lines file and stop")
     parser.add_argument("--given-is-truth", action="store_true")
     parser.add_argument("--frame-step", type=int, default=1)
+    parser.add_argument("--backward", action="store_true", help="run the backward estimate too (twice the time)")
     args = parser.parse_args()
     if args.table is not None:
         table([json.loads(line) for line in args.table.read_text().splitlines() if line.strip()])
@@ -92,7 +95,7 @@ def main() -> None:
     for path in args.recordings:
         if (str(path), args.frame_step) in done:
             continue
-        row = measure(path, args.given_is_truth, args.frame_step)
+        row = measure(path, args.given_is_truth, args.frame_step, args.backward)
         print(json.dumps(row), flush=True)
         if args.out is not None:
             with args.out.open("a") as file:

@@ -54,6 +54,9 @@ class PoseEvidence:
     unseen_run: the longest run of consecutive frames whose registration kept the motion model's
         guess along a direction their depth could not see (a bare wall's slide and roll:
         `RgbdOdometry.unseen`); 0 for kiss-icp.
+    backward_disagreement_cm: how far a second estimate, the same odometry over the frames in
+        reverse order, lies from the poses (RMSE after SE(3) alignment; `session.estimate_session_poses`
+        with `backward_frames`): its keyframes, and so its drift, are its own. NaN when not run.
     """
 
     frames: int
@@ -73,6 +76,7 @@ class PoseEvidence:
     loop_residual_cm: float
     unpinned_share: float
     unseen_run: int = 0
+    backward_disagreement_cm: float = float("nan")
 
     def to_dict(self) -> dict:
         return {key: (None if isinstance(value, float) and not np.isfinite(value) else value)
@@ -168,12 +172,17 @@ class QualityThresholds:
         (`PoseEvidence.unseen_run`: a bare wall in view) makes the poses doubtful at best: what
         happened along the wall is not in the images, and the conflict depths cannot see a slide
         along the only surface in view.
+    backward_factor: the estimated error is at least this many times the backward estimate's
+        disagreement (`PoseEvidence.backward_disagreement_cm`): the two share what the images get
+        wrong the same way either way (the simulator's sessions: a scale 0.2-0.7 % too large), so
+        the disagreement is a fraction of the true error (2.6-5.1 on the calibration's good sessions).
     """
 
     doubtful_cm: float = 10.0
     unusable_cm: float = 25.0
     min_pairs: int = 10
     max_unseen_run: int = 5
+    backward_factor: float = 4.0
 
 
 @dataclass(frozen=True)
@@ -221,8 +230,9 @@ class PoseQuality:
 def judge(evidence: PoseEvidence, thresholds: QualityThresholds = QualityThresholds()) -> PoseQuality:
     """The estimated error and the verdict. The error is the largest of the conflict depths: at the
     revisits (drift shows there; with at least `min_pairs` of them), between neighbours (a broken
-    registration) and the largest between consecutive frames (a jump), and the loop closures' median
-    residual after the graph's optimisation (loops and odometry that disagree). Consecutive frames
+    registration) and the largest between consecutive frames (a jump), the loop closures' median
+    residual after the graph's optimisation (loops and odometry that disagree), and, when it was
+    run, the backward estimate's disagreement times `backward_factor` (smooth drift). Consecutive frames
     that do not overlap leave the poses on either side unrelated, and a run of frames whose motion
     was partly guessed (`max_unseen_run`) leaves them unmeasured: at best doubtful. With no pair to
     check, nothing contradicts the poses and nothing vouches for them: doubtful."""
@@ -237,6 +247,8 @@ def judge(evidence: PoseEvidence, thresholds: QualityThresholds = QualityThresho
     # Loops the optimised graph leaves far from what they measured: the loops and the odometry
     # disagree, so one of them is wrong (right sessions: under 0.5 cm).
     error = max(figures + [evidence.loop_residual_cm] * bool(np.isfinite(evidence.loop_residual_cm)))
+    if np.isfinite(evidence.backward_disagreement_cm):  # drift: what the conflict depths cannot see
+        error = max(error, thresholds.backward_factor * evidence.backward_disagreement_cm)
     verdict = UNUSABLE if error > thresholds.unusable_cm else DOUBTFUL if error > thresholds.doubtful_cm else GOOD
     if (evidence.unlinked or evidence.unseen_run >= thresholds.max_unseen_run) and verdict == GOOD:
         verdict = DOUBTFUL

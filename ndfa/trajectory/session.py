@@ -19,16 +19,18 @@ Methods: "rgbd" (colour and depth, loop-closed over the whole session, rgbd.py) 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 
 import numpy as np
 
 from ndfa.core.color_camera import ColorCamera
 from ndfa.core.frame import Frame
+from ndfa.io.recording import RecordingReader
 from ndfa.trajectory.checks import InputCheckConfig, InputMonitor, InputReport, fill_untracked
 from ndfa.trajectory.consistency import DepthSketch, sketch_depth
 from ndfa.trajectory.kiss import DepthOdometry, OdometryConfig
+from ndfa.trajectory.metrics import absolute_trajectory_error
 from ndfa.trajectory.open3d_threads import open3d_threads
 from ndfa.trajectory.quality import PoseEvidence, gather_evidence
 from ndfa.trajectory.rgbd import RgbdOdometry, RgbdOdometryConfig
@@ -75,9 +77,13 @@ def estimate_session_poses(frames: Iterable[Frame], method: str, source: object,
                            kiss_config: OdometryConfig = OdometryConfig(),
                            rgbd_config: RgbdOdometryConfig = RgbdOdometryConfig(),
                            check_config: InputCheckConfig = InputCheckConfig(),
-                           on_frame: Callable[[Frame], None] | None = None) -> SessionPoses:
+                           on_frame: Callable[[Frame], None] | None = None,
+                           backward_frames: Iterable[Frame] | None = None) -> SessionPoses:
     """Estimate every frame's pose (see the module docstring). `source` names the session in the
-    one-line error when nothing can be tracked; `on_frame` sees each frame as it is read."""
+    one-line error when nothing can be tracked; `on_frame` sees each frame as it is read.
+    backward_frames: the same frames in reverse order (`frames_backwards`): with rgbd, a second
+    estimate from them, whose disagreement with the first is evidence of drift (`_backward_disagreement`;
+    it doubles the odometry's time)."""
     if method not in SESSION_METHODS:
         raise ValueError(f"method must be one of {SESSION_METHODS}, got {method!r}")
     monitor = InputMonitor(check_config)
@@ -118,4 +124,38 @@ def estimate_session_poses(frames: Iterable[Frame], method: str, source: object,
         poses[position] = pose if monitor.checks[position].has_depth else None
     filled = fill_untracked(timestamps, poses)
     evidence = gather_evidence(filled, sketches, odometry, fed)
+    if backward_frames is not None and method == "rgbd":
+        disagreement = _backward_disagreement(backward_frames, poses, timestamps, rgbd_config)
+        evidence = dataclasses.replace(evidence, backward_disagreement_cm=disagreement)
     return SessionPoses(method, filled, timestamps, indices, odometry, report, evidence)
+
+
+def frames_backwards(reader: RecordingReader, step: int = 1, chunk: int = 48) -> Iterator[Frame]:
+    """`reader.frames(step=step)` last first, `chunk` frames at a time in memory."""
+    positions = range(0, len(reader), step)
+    for end in range(len(positions), 0, -chunk):
+        start = max(0, end - chunk)
+        yield from reversed(list(reader.frames(start=positions[start], stop=positions[end - 1] + 1, step=step)))
+
+
+def _backward_disagreement(frames: Iterable[Frame], poses: list[np.ndarray | None], timestamps: list[float],
+                           config: RgbdOdometryConfig) -> float:
+    """RMSE (cm, after SE(3) alignment) between `poses` (forward, None where not tracked) and the
+    same odometry's estimate from `frames`, the session's frames last first. The reverse run chooses
+    its own keyframes, so its drift is its own: where the two part, at least one drifted. Time runs
+    forward for it too (mirrored timestamps), so its motion model sees no gap."""
+    odometry = RgbdOdometry(config)
+    end = timestamps[-1] if timestamps else 0.0
+    fed: list[int] = []
+    with open3d_threads():
+        for back, frame in enumerate(frames):
+            position = len(poses) - 1 - back
+            if position < 0 or poses[position] is None:
+                continue  # not tracked forward: nothing to compare
+            odometry.update(dataclasses.replace(frame, timestamp=end - frame.timestamp + timestamps[0]))
+            fed.append(position)
+        backward = odometry.finish() if fed else []
+    if len(fed) < 3:
+        return float("nan")
+    forward = [poses[position] for position in fed]
+    return 100.0 * absolute_trajectory_error(backward, forward).rmse_m
