@@ -102,7 +102,7 @@ def main() -> None:
             frames.append(all_frames[-1])
     variants = {"shipped": NDFEncoder()}
     if args.before:
-        variants = {f"graph of {args.before}": before_encoder(args.before)} | variants
+        variants = {f"encoding of {args.before}": before_encoder(args.before)} | variants
     if args.points or args.neighbours:
         variants[f"points {args.points}, neighbours {args.neighbours}"] = NDFEncoder(
             config=EncoderConfig(n_points=args.points, knn=args.neighbours))
