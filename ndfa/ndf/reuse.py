@@ -57,15 +57,17 @@ class CodeReuse:
         centroids = np.array([np.asarray(c).mean(axis=0) for c in clouds]).reshape(-1, 3) @ pose[:3, :3].T + pose[:3, 3]
         rays = centroids - pose[:3, 3]
         rays /= np.maximum(np.linalg.norm(rays, axis=1, keepdims=True), 1e-12)
-        codes: list[ObjectCode | None] = [None] * len(clouds)
+        codes: dict[int, ObjectCode] = {}
+        todo: list[int] = []
         taken: set[int] = set()
         for k, cloud in enumerate(clouds):
             match = self._match(centroids[k], rays[k], len(cloud), full_reconstruction, taken)
-            if match is not None:
-                taken.add(match)
-                self._views[match].last_frame = self._frame
-                codes[k] = self._views[match].code
-        todo = [k for k, code in enumerate(codes) if code is None]
+            if match is None:
+                todo.append(k)
+                continue
+            taken.add(match)
+            self._views[match].last_frame = self._frame
+            codes[k] = self._views[match].code
         fresh = self.encoder.encode_batch([clouds[k] for k in todo], [pose] * len(todo), full_reconstruction)
         for k, code in zip(todo, fresh):
             codes[k] = code
@@ -74,7 +76,7 @@ class CodeReuse:
             self._views.append(_EncodedView(centroids[k], rays[k], len(clouds[k]), full_reconstruction, code, self._frame))
         self.reused += len(clouds) - len(todo)
         self.encoded += len(todo)
-        return [code for code in codes if code is not None]
+        return [codes[k] for k in range(len(clouds))]
 
     def _match(self, centroid: np.ndarray, ray: np.ndarray, count: int, full: bool, taken: set[int]) -> int | None:
         config = self.config
