@@ -89,3 +89,22 @@ def test_two_observations_of_one_frame_do_not_share_a_code():
 
 def test_reuse_is_off_by_default():
     assert not ReuseConfig().enabled
+
+
+def test_a_pipeline_reuses_only_when_configured_and_one_frame_at_a_time_never():
+    from ndfa.core.frame import Frame
+    from ndfa.perception.observations import Observation
+    from ndfa.pipeline import ChangeDetectionPipeline, ObservedFrame, PipelineConfig
+
+    def observed(index):
+        frame = Frame(index, float(index), None, np.zeros((4, 4), np.float32), np.eye(3), camera_at(0.0), None)
+        return ObservedFrame(frame, False, [Observation(index, 1, mug([0, 0, 1.0]), 300, False)], [], {})
+
+    assert ChangeDetectionPipeline(PipelineConfig(), encoder=CountingEncoder()).new_code_reuse() is None
+    encoder = CountingEncoder()
+    pipeline = ChangeDetectionPipeline(PipelineConfig(reuse=CONFIG), encoder=encoder)
+    reuse = pipeline.new_code_reuse()
+    codes = [pipeline.encode(observed(index), False, reuse).codes[0] for index in range(2)]
+    assert codes[1] is codes[0] and encoder.encoded == [1, 0]
+    pipeline.encode(observed(2), False)  # no reuse handed over: encoded
+    assert encoder.encoded == [1, 0, 1]
