@@ -67,7 +67,7 @@ def ndf_eval_command(
     console.print(table)
     for row in rows:  # the headline: the detector's regime
         console.print(
-            f"[bold]{row['weights']}[/bold], {row['views_within_2m']:.0f} views with the mug within 2 m and >= 300 points: "
+            f"[bold]{row['weights']}[/bold], {row['views_within_2m']:.0f} views with the object within 2 m and >= 300 points: "
             f"center {row['center_median_mm_head_within_2m']:.1f} / {row['center_p90_mm_head_within_2m']:.1f} mm (median / p90), "
             f"retrieval top-1 {row.get('retrieval_top1_within_2m', float('nan')):.3f}, "
             f"box twins merged {row.get('retrieval_top1_within_2m_twins_merged', float('nan')):.3f}"
@@ -77,7 +77,8 @@ def ndf_eval_command(
                 console.print(
                     f"  {name}: {row[f'{name}_views_within_2m']:.0f} views, center {row[f'{name}_center_median_mm_within_2m']:.1f}"
                     f" / {row[f'{name}_center_p90_mm_within_2m']:.1f} mm, retrieval top-1 "
-                    f"{row.get(f'{name}_retrieval_top1_within_2m', float('nan')):.3f}, category accuracy "
-                    f"{row.get(f'{name}_category_accuracy_within_2m', float('nan')):.3f}")
+                    f"{row.get(f'{name}_retrieval_top1_within_2m', float('nan')):.3f}"
+                    + (f", category accuracy {row[f'{name}_category_accuracy_within_2m']:.3f}"
+                       if f"{name}_category_accuracy_within_2m" in row else ""))
     write_parquet(pl.DataFrame(rows), out / "summary.parquet")
     console.print(f"tables in {out}")
