@@ -6,6 +6,7 @@ verdict beside its true ATE. docs/pose_quality.md has the table this gives and t
         [--given-is-truth]    # score against the given poses when a recording has no true ones (7-Scenes)
         [--frame-step 2]      # every 2nd frame, as `ndfa detect --frame-step 2`
         [--backward]          # and the second estimate from the frames in reverse order (its disagreement)
+        [--config '{"velocity_in_world": False}']   # RgbdOdometryConfig fields, a Python dict literal
     python scripts/pose_quality_calibration.py --table calibration.jsonl   # the table and Spearman's rho
 
 A session already in the output file is not estimated again.
@@ -14,6 +15,8 @@ A session already in the output file is not estimated again.
 from __future__ import annotations
 
 import argparse
+import ast
+import dataclasses
 import json
 from pathlib import Path
 
@@ -23,10 +26,12 @@ from scipy.stats import spearmanr
 from ndfa.io.recording import RecordingReader
 from ndfa.trajectory.metrics import absolute_trajectory_error
 from ndfa.trajectory.quality import judge
+from ndfa.trajectory.rgbd import RgbdOdometryConfig
 from ndfa.trajectory.session import choose_method, estimate_session_poses, frames_backwards, rgbd_config_for
 
 
-def measure(path: Path, given_is_truth: bool, frame_step: int, backward: bool = False) -> dict:
+def measure(path: Path, given_is_truth: bool, frame_step: int, backward: bool = False,
+            rgbd_config: RgbdOdometryConfig = RgbdOdometryConfig()) -> dict:
     reader = RecordingReader(path)
     truth: list[np.ndarray | None] = []
 
@@ -36,7 +41,7 @@ def measure(path: Path, given_is_truth: bool, frame_step: int, backward: bool = 
 
     frames = reader.frames(step=frame_step)
     session = estimate_session_poses(frames, choose_method(next(iter(reader.frames(stop=1)), None)), path,
-                                     rgbd_config=rgbd_config_for(reader.meta), on_frame=keep_truth,
+                                     rgbd_config=rgbd_config_for(reader.meta, rgbd_config), on_frame=keep_truth,
                                      backward_frames=frames_backwards(reader, frame_step) if backward else None)
     row: dict = {"session": str(path), "frame_step": frame_step, "frames": len(session.poses)}
     if all(pose is not None for pose in truth) and len(truth) >= 3:
@@ -84,7 +89,9 @@ def main() -> None:
     parser.add_argument("--given-is-truth", action="store_true")
     parser.add_argument("--frame-step", type=int, default=1)
     parser.add_argument("--backward", action="store_true", help="run the backward estimate too (twice the time)")
+    parser.add_argument("--config", default="{}", help="RgbdOdometryConfig fields, a Python dict literal")
     args = parser.parse_args()
+    rgbd_config = dataclasses.replace(RgbdOdometryConfig(), **ast.literal_eval(args.config))
     if args.table is not None:
         table([json.loads(line) for line in args.table.read_text().splitlines() if line.strip()])
         return
@@ -95,7 +102,7 @@ def main() -> None:
     for path in args.recordings:
         if (str(path), args.frame_step) in done:
             continue
-        row = measure(path, args.given_is_truth, args.frame_step, args.backward)
+        row = measure(path, args.given_is_truth, args.frame_step, args.backward, rgbd_config)
         print(json.dumps(row), flush=True)
         if args.out is not None:
             with args.out.open("a") as file:

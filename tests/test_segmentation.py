@@ -142,3 +142,26 @@ def test_a_walls_foot_is_no_candidate_whatever_the_worlds_heading(yaw_deg, shift
     assert not candidate[foot].any()
     mug = ~floor & ~foot & (points[:, 2] < 0.2)
     assert candidate[mug].all()  # a free-standing object's points stay
+
+
+def _foot_below_a_band(above_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Depth of a 30 x 26 px cluster at 2.17 m whose top edge meets a 10-px band without depth
+    (an aligned RealSense's, at an occluding edge), above it a surface at `above_m`; the cluster's
+    pixel rows and columns."""
+    depth = np.full((480, 640), 2.4, dtype=np.float32)
+    depth[360:370, 420:460] = 0.0
+    depth[:360, 420:460] = above_m
+    depth[370:400, 426:452] = 2.17
+    rows, cols = np.mgrid[370:400, 426:452]
+    return depth, rows.ravel(), cols.ravel()
+
+
+def test_a_nearer_surface_behind_a_band_without_depth_still_hides_the_foot_below_it():
+    from ndfa.perception.segmentation import _hidden_above
+    from ndfa.perception.segmentation_config import SegmentationConfig
+
+    config = dataclasses.replace(SegmentationConfig(), occluder_band_px=24)
+    foot = _foot_below_a_band(1.1)      # the foot of a far table's leg below a nearer table top
+    assert _hidden_above(*foot, config)
+    assert not _hidden_above(*foot, SegmentationConfig())  # without: the band hid the table top
+    assert not _hidden_above(*_foot_below_a_band(3.0), config)  # farther background above: a mug

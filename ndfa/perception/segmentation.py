@@ -288,12 +288,14 @@ def _hidden_above(depth: np.ndarray, rows: np.ndarray, cols: np.ndarray, config:
     tops = rows[order][first]
     own = depth[tops, columns]
     above = np.full(len(columns), np.inf)
-    for step in range(1, config.occluder_look_px + 1):  # the nearest valid depth a few pixels up
+    looked = np.zeros(len(columns), dtype=int)  # valid pixels looked at so far, per column
+    # The nearest of the first few valid depths up the column, past a band without depth.
+    for step in range(1, config.occluder_look_px + config.occluder_band_px + 1):
         row = tops - step
-        inside = row >= 0
-        values = np.where(inside, depth[np.maximum(row, 0), columns], 0.0)
-        values = np.where(values > 0, values, np.inf)
-        above = np.minimum(above, values)
+        values = np.where(row >= 0, depth[np.maximum(row, 0), columns], 0.0)
+        counted = (values > 0) & (looked < config.occluder_look_px)
+        above = np.where(counted, np.minimum(above, values), above)
+        looked += counted
     hidden = above < own - config.occluder_gap_m
     return bool(hidden.mean() > 0.5)
 
