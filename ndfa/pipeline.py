@@ -44,9 +44,11 @@ class PipelineConfig:
         at 0.6 a 3-view counter segment became an object and was reported "added" on the kitchen
         halves with given poses; 0.63 keeps it out, and each mug still one object (2026-12-02).
         0: off.
-    reuse: whether an observation may take the code of a view of the same object encoded a frame
-        or two before, when its view has barely changed (`ndfa.ndf.reuse`; off by default: the
-        paper encodes every observation)."""
+    reuse: whether an observation of a masked frame may take the code of a view of the same object
+        encoded a frame or two before, when its view has barely changed (`ndfa.ndf.reuse`; off by
+        default: the paper encodes every observation). Segmented frames are always encoded: a
+        segment's points change with the clustering from frame to frame, and on `paper --raw
+        --textures` reuse moved decisions (docs/speed.md)."""
 
     observation: ObservationConfig = field(default_factory=ObservationConfig)
     encoder: EncoderConfig = field(default_factory=EncoderConfig)
@@ -113,13 +115,14 @@ class ChangeDetectionPipeline:
 
     def encode(self, observed: ObservedFrame, full_reconstruction: bool = True, reuse: CodeReuse | None = None) -> ObservedFrame:
         """Its observations' NDF codes (`process` says what `full_reconstruction` does); `reuse`
-        (`new_code_reuse`, the session's frames in order): some may take earlier views' codes."""
+        (`new_code_reuse`, the session's frames in order): a masked frame's observations may take
+        earlier views' codes (`PipelineConfig.reuse`)."""
         started = time.perf_counter()
         # The mean occupancy decides the objectness gate of segments and, with "best" fusion, which
         # measurement an object keeps; elsewhere only whether the reconstruction is empty decides.
         full = full_reconstruction or observed.segmented or self.config.detector.views.fusion == "best"
         clouds = [o.points_camera for o in observed.observations]
-        if reuse is not None:
+        if reuse is not None and not observed.segmented:
             codes = reuse.encode(clouds, observed.frame.pose_world_camera, full)
         else:
             codes = self.encoder.encode_batch(clouds, [observed.frame.pose_world_camera] * len(clouds), full_reconstruction=full)

@@ -3,6 +3,8 @@ changed, and a pass with reuse off encodes every observation."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -91,7 +93,7 @@ def test_reuse_is_off_by_default():
     assert not ReuseConfig().enabled
 
 
-def test_a_pipeline_reuses_only_when_configured_and_one_frame_at_a_time_never():
+def test_a_pipeline_reuses_only_when_configured_and_only_in_masked_frames():
     from ndfa.core.frame import Frame
     from ndfa.perception.observations import Observation
     from ndfa.pipeline import ChangeDetectionPipeline, ObservedFrame, PipelineConfig
@@ -108,3 +110,5 @@ def test_a_pipeline_reuses_only_when_configured_and_one_frame_at_a_time_never():
     assert codes[1] is codes[0] and encoder.encoded == [1, 0]
     pipeline.encode(observed(2), False)  # no reuse handed over: encoded
     assert encoder.encoded == [1, 0, 1]
+    segmented = replace(observed(3), segmented=True)  # its segments change with the clustering: always encoded
+    assert pipeline.encode(segmented, False, reuse).codes[0] is not codes[0] and encoder.encoded == [1, 0, 1, 1]

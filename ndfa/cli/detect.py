@@ -91,10 +91,11 @@ def detect_command(
                                                     "checkpoint's; fewer is faster, docs/speed.md).", callback=at_least(10)),
     neighbours: Optional[int] = typer.Option(None, help="The NDF encoder's neighbours per point (default: the "
                                                         "checkpoint's).", callback=at_least_one),
-    reuse_angle: float = typer.Option(0.0, help="Degrees: an observation whose view of an object turned by less "
-                                                "than this since that object was last encoded (centroid within 1 cm) "
-                                                "takes that code instead of being encoded (faster; 0: every "
-                                                "observation encoded, as the paper; docs/speed.md).", min=0.0),
+    reuse_angle: float = typer.Option(0.0, help="Degrees: in frames with instance masks, an observation whose view "
+                                                "of an object turned by less than this since that object was last "
+                                                "encoded (centroid within 1 cm) takes that code instead of being "
+                                                "encoded (faster; 0: every observation encoded, as the paper; "
+                                                "docs/speed.md).", min=0.0),
 ) -> None:
     """Detect added, removed and moved objects between two recordings (the paper's method), or
     between each consecutive pair of more, with every object's history over them."""

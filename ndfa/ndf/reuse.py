@@ -11,7 +11,8 @@ takes that view's `ObjectCode` (world frame) instead of being encoded: the detec
 measurement per observation, but fewer independent ones. Matching is always against the view
 that was encoded, so a view that drifts slowly is encoded again once the drift adds up.
 
-The paper encodes every observation; with `angle_deg` 0 (the default) so does `CodeReuse`.
+The paper encodes every observation; with `angle_deg` 0 (the default) so does the pipeline, which
+hands a session's masked frames to `CodeReuse` otherwise (`PipelineConfig.reuse`).
 """
 
 from __future__ import annotations
