@@ -96,10 +96,10 @@ def test_loops_the_optimised_graph_leaves_far_off_raise_the_estimated_error():
 def test_the_backward_estimates_disagreement_raises_the_estimated_error():
     right = _evidence(_circling(), _circling())
     assert judge(right).error_cm < 1.0
-    agreeing = judge(dataclasses.replace(right, backward_disagreement_cm=0.5))
-    assert agreeing.verdict == GOOD and agreeing.error_cm == pytest.approx(2.0)  # 4 times: they share some error
-    drifted = judge(dataclasses.replace(right, backward_disagreement_cm=5.0))
-    assert drifted.verdict == DOUBTFUL and drifted.error_cm == pytest.approx(20.0)
+    agreeing = judge(dataclasses.replace(right, backward_disagreement_cm=1.0))
+    assert agreeing.verdict == GOOD and agreeing.error_cm == pytest.approx(2.0)  # twice: they share some error
+    drifted = judge(dataclasses.replace(right, backward_disagreement_cm=8.0))
+    assert drifted.verdict == DOUBTFUL and drifted.error_cm == pytest.approx(16.0)
 
 
 def test_a_run_of_frames_whose_motion_was_partly_guessed_is_doubtful_at_best():
