@@ -126,6 +126,12 @@ def test_eval_prints_table_one_and_writes_it_with_precision_recall_curves(tmp_pa
     assert {k["kind"] for k in kinds["ndfa"]} >= {"added", "moved"}
     assert all(0 <= k["right"] <= k["reports"] for k in kinds["ndfa"])
     assert "kinds right" in result.output and "kinds right" in (tmp_path / "table.md").read_text()
+    # ... and per true change, its mugs named by a report of a right kind (the kinds' recall)
+    found = dict(zip(table["method"].to_list(), table["kinds_found"].to_list()))
+    assert found["NN"] == found["PMT"] == [] and found["ndfa"]
+    assert all(0 <= k["found"] <= k["mugs"] for k in found["ndfa"])
+    assert sum(k["mugs"] for k in found["ndfa"]) == 5  # the sample's five changed mugs, each counted once
+    assert "kinds found" in result.output and "kinds found" in (tmp_path / "table.md").read_text()
     # --pr-curve: each method's threshold swept; at its default threshold each curve is its table row
     curves = pl.read_parquet(tmp_path / "pr_curve.parquet")
     assert curves.columns == ["method", "threshold", "default", "tp", "fp", "fn", "precision", "recall"]

@@ -164,6 +164,28 @@ def test_an_object_seen_again_after_drift_takes_the_measurement_unless_seen_in_t
     assert s.update(Measurement(50, 1, _code(1), np.array([0.09, 0.0, 0.8]), 0.5)).created
 
 
+def test_an_object_followed_while_the_drift_carries_it_away_stays_one_object():
+    """Seen again 10 cm off after a tour (a revisit), then frame after frame 1 cm further each: the
+    views leave `revisit_m` from their median but never the latest view's `same_place_m` (regression:
+    the planted kitchen's moved mug became two objects 11 cm apart, one reported "added")."""
+    def run(follow_latest):
+        s = SessionMap(DetectorConfig(drift=DriftConfig(follow_latest=follow_latest)))
+        for k in range(10):
+            s.update(Measurement(k, 1, _code(1), np.array([0.0, 0.0, 0.8]), 0.5))
+        return [s.update(Measurement(100 + k, 1, _code(1), np.array([0.10 + 0.01 * k, 0.0, 0.8]), 0.5))
+                for k in range(10)]
+
+    assert {a.object_id for a in run(follow_latest=True)} == {0}
+    assert any(a.created for a in run(follow_latest=False))  # the median alone: a second object
+    # A neighbouring mug 11.6 cm from where the first was last seen, seen after it: its own object
+    # (the sim's closest mugs), whether or not the codes agree.
+    for code in (_code(1), _code(2)):
+        s = SessionMap(DetectorConfig())
+        for k in range(10):
+            s.update(Measurement(k, 1, _code(1), np.array([0.01 * k, 0.0, 0.8]), 0.5))
+        assert s.update(Measurement(10, 2, code, np.array([0.09 + 0.116, 0.0, 0.8]), 0.5)).created
+
+
 def test_center_scatter_is_the_rms_horizontal_spread_of_the_measurements():
     s = SessionMap(DetectorConfig(association=AssociationConfig(distance_m=0.05)))
     for k, x in enumerate([0.0, 0.02, -0.02, 0.0]):
@@ -374,8 +396,9 @@ def test_the_default_config_is_ndfas_tuning_and_paper_gives_the_papers_parameter
     assert (paper.waiting.min_measurements, paper.waiting.confirm_measurements, paper.waiting.neighbours) == (1, 1, False)
     assert paper.ransac == RansacConfig(candidates=1, min_inliers=0, enough_inliers=0, retry_frames=1, small_maps=False)
     assert not paper.priors.enabled and paper.rotation.threshold_deg is None
-    # ... and no allowance for drift: the cell only, no revisits, fixed distances
-    assert paper.drift == DriftConfig(revisit_m=0.0, across_cells=False, scatter_factor=0.0, cell_margin_m=0.0)
+    # ... and no allowance for drift: the cell only, no revisits, fixed distances, the center only
+    assert paper.drift == DriftConfig(revisit_m=0.0, across_cells=False, scatter_factor=0.0, cell_margin_m=0.0,
+                                      follow_latest=False)
     # each addition off on its own, the rest as they were
     assert DetectorConfig().without("drift") == dataclasses.replace(DetectorConfig(), drift=paper.drift)
     with pytest.raises(ValueError, match="unknown additions"):

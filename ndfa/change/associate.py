@@ -12,7 +12,10 @@ the most confident measurement's, and a measurement within `same_place_m` of an 
 horizontally; with the height tree T_z, `LevelsConfig`, also within half its interval in height, so
 that a mug never joins the one on the shelf above) joins it whatever the codes say. A measurement that joins no object by these rules
 joins the nearest object within `revisit_m` that was not measured in the same frame: the odometry
-drifts between two visits of a place, more than `distance_m` on real sequences.
+drifts between two visits of a place, more than `distance_m` on real sequences. And with
+`follow_latest`, the distances of the first two rules are also measured to where the object was
+last measured: the odometry drifts little from one frame to the next, so an object followed frame
+after frame while the drift carries its views away from their median stays one object.
 """
 
 from __future__ import annotations
@@ -67,8 +70,11 @@ class SessionObject:
     centers: list[np.ndarray] | None = None  # centers of its measurements ("mean" fusion)
     # (heading, strength) of every measurement it took: `ndfa.change.rotation` fuses the reliable ones
     headings: list[tuple[float, float]] = field(default_factory=list)
-    # `centers` and `headings` keep every `history_stride`-th measurement (`keep_in_history`)
+    # the frame of each measurement in `headings` (and in `centers`): which frames saw it
+    frames: list[int] = field(default_factory=list)
+    # `centers`, `headings` and `frames` keep every `history_stride`-th measurement (`keep_in_history`)
     history_stride: int = 1
+    latest_center: np.ndarray | None = None  # its latest measurement's center (None: its center)
 
     @property
     def center_scatter_m(self) -> float:
@@ -118,6 +124,14 @@ class SessionMap:
         downstream is deterministic)."""
         return sorted(self.tree.neighbourhood(point, margin))
 
+    def _same_place(self, offsets: np.ndarray) -> np.ndarray:
+        """Which (N, 3) offsets from a measurement are within `same_place_m` horizontally (and, on
+        shelves, within the same level: `LevelsConfig`)."""
+        same_place: np.ndarray = np.linalg.norm(horizontal(offsets), axis=1) < self.config.views.same_place_m
+        if self.config.levels.tree_height_m is not None:  # on shelves, one place is one level
+            same_place &= np.abs(offsets[:, UP_AXIS]) < self.config.levels.tree_height_m / 2
+        return same_place
+
     def update(self, m: Measurement) -> Association:
         c, views, drift = self.config.association, self.config.views, self.config.drift
         # Every object that could take the measurement, also across a cell's edge.
@@ -133,10 +147,12 @@ class SessionMap:
             similarity = cosine_similarity(m.shape_code, np.array([o.shape_code for o in objects]))
             horizontal_distance = np.linalg.norm(horizontal(offsets), axis=1)
             alike = similarity > c.shape_similarity
-            same_place = horizontal_distance < views.same_place_m
-            if self.config.levels.tree_height_m is not None:  # on shelves, one place is one level (`LevelsConfig`)
-                same_place &= np.abs(offsets[:, UP_AXIS]) < self.config.levels.tree_height_m / 2
-            same = same_place | ((distance < c.distance_m) & alike)
+            same = self._same_place(offsets) | ((distance < c.distance_m) & alike)
+            near = distance
+            if drift.follow_latest:  # or near where it was last measured (the drift since is small)
+                latest = np.array([o.center_world if o.latest_center is None else o.latest_center for o in objects])
+                near = np.minimum(distance, np.linalg.norm(latest - m.center_world, axis=1))
+                same |= self._same_place(latest - m.center_world) | ((near < c.distance_m) & alike)
             # The same object seen again after the odometry drifted: near, and not seen in this frame
             # (two objects measured in one frame are two objects). Not "alike": a place seen again
             # is mostly seen from elsewhere, and one mug's codes from opposite sides are 0.0-0.6
@@ -144,7 +160,7 @@ class SessionMap:
             seen_again = ((horizontal_distance < drift.revisit_m) & (np.abs(offsets[:, UP_AXIS]) < drift.revisit_m)
                           & np.array([o.last_frame != m.frame_index for o in objects]))
             if same.any():  # the nearest (the first of equals, in id order)
-                k = int(np.flatnonzero(same)[np.argmin(distance[same])])
+                k = int(np.flatnonzero(same)[np.argmin(near[same])])
                 best, best_distance, best_similarity = objects[k], float(distance[k]), float(similarity[k])
             if seen_again.any():
                 k = int(np.flatnonzero(seen_again)[np.argmin(distance[seen_again])])
@@ -156,14 +172,16 @@ class SessionMap:
             self.objects[object_id] = SessionObject(
                 object_id, m.shape_code, m.center_world, m.mean_occupancy, m.frame_index, m.frame_index,
                 instance_ids=(m.instance_id,), code_sum=_unit(m.shape_code), centers=[m.center_world],
-                headings=[(m.heading_rad, m.heading_strength)])
+                headings=[(m.heading_rad, m.heading_strength)], frames=[m.frame_index])
             self.tree.insert(object_id, m.center_world)
             return Association(object_id, True, False, float("nan"), float("nan"), len(candidates))
         best.n_measurements += 1
         best.last_frame = m.frame_index
+        best.latest_center = m.center_world
         kept = keep_in_history(best)
         if kept:
             best.headings.append((m.heading_rad, m.heading_strength))
+            best.frames.append(m.frame_index)
         if m.instance_id not in best.instance_ids:
             best.instance_ids += (m.instance_id,)
         if views.fusion == "mean":
@@ -196,6 +214,7 @@ def keep_in_history(obj: SessionObject) -> bool:
     history first when it is full."""
     if len(obj.headings) >= MAX_HISTORY:
         obj.headings = obj.headings[::2]
+        obj.frames = obj.frames[::2]
         if obj.centers is not None:
             obj.centers = obj.centers[::2]
         obj.history_stride *= 2

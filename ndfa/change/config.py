@@ -89,6 +89,11 @@ class DriftConfig:
     # A target object registered this close to a source cell's edge is compared with the objects
     # across it too (T_rel errs by centimetres where the odometry drifted). Off: 0 (the cell it lands in).
     cell_margin_m: float = 0.05
+    # A measurement near where an object was last measured (by the association's own distances,
+    # `same_place_m` or `distance_m` with alike codes) joins it as one near its center does: the
+    # odometry drifts little from one frame to the next, and an object followed while the drift
+    # carries its views past `revisit_m` from their median stays one object. Off: False (the center only)
+    follow_latest: bool = True
 
 
 @dataclass(frozen=True)
@@ -201,7 +206,8 @@ class DetectorConfig:
             raise ValueError(f"unknown additions {sorted(unknown)}; they are {', '.join(ADDITIONS)}")
         off = {"levels": LevelsConfig(tree_height_m=None),
                "views": ViewsConfig(same_place_m=0.0, fusion="best"),
-               "drift": DriftConfig(revisit_m=0.0, across_cells=False, scatter_factor=0.0, cell_margin_m=0.0),
+               "drift": DriftConfig(revisit_m=0.0, across_cells=False, scatter_factor=0.0, cell_margin_m=0.0,
+                                     follow_latest=False),
                "ransac": RansacConfig(candidates=1, min_inliers=0, enough_inliers=0, retry_frames=1, small_maps=False),
                "priors": PriorConfig(enabled=False),
                "waiting": WaitingConfig(min_measurements=1, confirm_measurements=1, neighbours=False),

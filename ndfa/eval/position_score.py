@@ -2,12 +2,15 @@
 
 A segmented object has no ground-truth instance id, so its report is named by the item standing at
 its center (`ndfa.eval.position_match`). This module gathers what that needs from the run and the
-recordings: the objects' final centers, each session's camera poses as the run used them against
-the frames' true ones (for the map into the true world), and the visible instances each
-recording's ground truth lists for its session.
+recordings: the objects' final centers, the frames that saw each of them, each session's camera
+poses as the run used them against the frames' true ones (for the maps into the true world: one
+per reported object, fitted on the cameras that saw it, and one per session), and the visible
+instances each recording's ground truth lists for its session.
 """
 
 from __future__ import annotations
+
+from dataclasses import replace
 
 import numpy as np
 
@@ -17,8 +20,8 @@ from ndfa.eval.position_match import PositionScore, ReportedObject, align_worlds
 from ndfa.io.recording import RecordingReader
 from ndfa.run.world import SessionWorld
 
-# Camera poses per session for the alignment, spread over the session: a rigid fit of 6 degrees of
-# freedom is settled long before; reading every frame would decode every image again.
+# Camera poses per session for the session-wide alignment, spread over the session: a rigid fit of
+# 6 degrees of freedom is settled long before.
 ALIGN_FRAMES = 100
 
 
@@ -27,33 +30,47 @@ def score_segmented_run(changes: list[DecisionEvent], detector: ChangeDetector,
                         notes: list[str]) -> PositionScore | None:
     """The position score of `changes`, or None (a note says why) when a session's world cannot
     be aligned to the truth; appends a note on how it was scored."""
-    pose_true_run, rmse = {}, {}
+    maps = {"source": detector.source, "target": detector.target}
+    named = [(c.session, c.object_id) for c in changes] + [
+        ("source", c.partner_id) for c in changes if c.kind == "moved" and c.partner_id is not None]
+    seen_in = {session: {f for s, i in named if s == session and i in maps[session].objects
+                         for f in maps[session].objects[i].frames} for session in readers}
+    pose_true_run, rmse, cameras = {}, {}, {}
     for session, reader in readers.items():
-        run_poses, true_poses = [], []
-        for frame in reader.frames(step=max(1, len(reader) // ALIGN_FRAMES)):
+        sampled = range(0, len(reader), max(1, len(reader) // ALIGN_FRAMES))
+        run_poses, true_poses, cameras[session] = [], [], {}
+        # Every frame is read (only poses are kept) when a reported object was seen in it.
+        step = 1 if seen_in[session] else sampled.step
+        for position, frame in zip(range(0, len(reader), step), reader.frames(step=step)):
             true = frame.pose_world_camera_true if frame.pose_world_camera_true is not None else \
                 frame.pose_world_camera if reader.has_poses else None
             if true is None:
                 notes.append(f"not scored: {reader.path} has no true camera poses (frame {frame.index}) to find "
                              "its objects in the ground truth's world")
                 return None
-            run_poses.append(worlds[session].apply(frame).pose_world_camera)
-            true_poses.append(true)
+            run = worlds[session].apply(frame).pose_world_camera
+            if frame.index in seen_in[session]:
+                cameras[session][frame.index] = (run, true)
+            if position in sampled:
+                run_poses.append(run)
+                true_poses.append(true)
         pose_true_run[session], rmse[session] = align_worlds(run_poses, true_poses)
 
-    maps = {"source": detector.source, "target": detector.target}
-
     def reported(session: str, object_id: int, fallback: np.ndarray) -> ReportedObject:
-        # The object's last center (as the objects table has it), not the one at decision time.
+        # The object's last center (as the objects table has it), not the one at decision time,
+        # mapped by the cameras of the frames that saw it.
         obj = maps[session].objects.get(object_id)
-        return ReportedObject(session, object_id, fallback if obj is None else obj.center_world)
+        if obj is None:
+            return ReportedObject(session, object_id, fallback)
+        seen = [cameras[session][f] for f in obj.frames if f in cameras[session]]
+        local = align_worlds([run for run, _ in seen], [true for _, true in seen])[0] if seen else None
+        return ReportedObject(session, object_id, obj.center_world, local)
 
     reports = []
     for change in changes:
         report = [reported(change.session, change.object_id, change.center_world)]
         if change.kind == "moved" and change.partner_id is not None:
-            partner = maps["source"].objects[change.partner_id]
-            report.append(ReportedObject("source", change.partner_id, partner.center_world))
+            report.append(reported("source", change.partner_id, maps["source"].objects[change.partner_id].center_world))
         reports.append(report)
     truth = dict(readers["target"].ground_truth or {})
     # Each recording lists the sessions rendered up to it; the target's normally has both.
@@ -63,5 +80,8 @@ def score_segmented_run(changes: list[DecisionEvent], detector: ChangeDetector,
         visible |= listed if isinstance(listed, dict) else {}
     truth["visible"] = visible or None
     result, _ = score_by_position(reports, truth, pose_true_run, rmse, kinds=[c.kind for c in changes])
+    session_wide, _ = score_by_position([[replace(o, pose_true_run=None) for o in report] for report in reports],
+                                        truth, pose_true_run, rmse, kinds=[c.kind for c in changes])
+    result = replace(result, session_wide=(session_wide.tp, session_wide.fp, session_wide.fn))
     notes.append(result.describe())
     return result

@@ -50,10 +50,18 @@ class MethodRow:
     # kind -> (reports of it on scored mugs, of the right kind) (`Score.kinds`); ndfa's only: the
     # baselines say "changed", not which change
     kinds: dict[str, tuple[int, int]] = field(default_factory=dict)
+    # true change -> (mugs with it, named by a report of a right kind) (`Score.kinds_found`); ndfa's only
+    kinds_found: dict[str, tuple[int, int]] = field(default_factory=dict)
 
     def describe_kinds(self) -> str:
-        """"added 3/3, moved 4/5": right / reports per kind; "-" for a method without kinds."""
+        """"added 3/3, moved 4/5": right / reports per kind (the kinds' precision); "-" for a method
+        without kinds."""
         return ", ".join(f"{kind} {right}/{n}" for kind, (n, right) in sorted(self.kinds.items())) or "-"
+
+    def describe_kinds_found(self) -> str:
+        """"added 3/4, switched 4/4": per true change, its mugs found with a right kind / its mugs
+        (the kinds' recall); "-" for a method without kinds."""
+        return ", ".join(f"{change} {found}/{n}" for change, (n, found) in sorted(self.kinds_found.items())) or "-"
 
 
 @dataclass
@@ -72,19 +80,24 @@ class EvalResult:
             "precision": r.precision, "recall": r.recall, "seconds": r.seconds,
             "false_positive_ids": list(r.false_positive_ids), "false_negative_ids": list(r.false_negative_ids),
             "reported_ids": list(r.reported_ids),
-            "kinds": [{"kind": kind, "reports": n, "right": right} for kind, (n, right) in sorted(r.kinds.items())]}
+            "kinds": [{"kind": kind, "reports": n, "right": right} for kind, (n, right) in sorted(r.kinds.items())],
+            "kinds_found": [{"change": change, "mugs": n, "found": found}
+                            for change, (n, found) in sorted(r.kinds_found.items())]}
             for r in self.rows],
             schema_overrides={"false_positive_ids": pl.List(pl.Int64), "false_negative_ids": pl.List(pl.Int64),
                               "reported_ids": pl.List(pl.Int64), "kinds": pl.List(pl.Struct(
-                                  {"kind": pl.String, "reports": pl.Int64, "right": pl.Int64}))})
+                                  {"kind": pl.String, "reports": pl.Int64, "right": pl.Int64})),
+                              "kinds_found": pl.List(pl.Struct(
+                                  {"change": pl.String, "mugs": pl.Int64, "found": pl.Int64}))})
 
     def markdown(self) -> str:
-        lines = ["| method | poses | TP | FP | FN | precision | recall | kinds right | seconds | false positives | missed |",
-                 "|---|---|---|---|---|---|---|---|---|---|---|"]
+        lines = ["| method | poses | TP | FP | FN | precision | recall | kinds right | kinds found | seconds "
+                 "| false positives | missed |",
+                 "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in self.rows:
             ids = lambda values: ", ".join(map(str, values)) or "—"  # noqa: E731
             lines.append(f"| {r.method} | {r.poses} | {r.tp} | {r.fp} | {r.fn} | {r.precision:.1%} | {r.recall:.1%} "
-                         f"| {r.describe_kinds()} | {r.seconds:.1f} | {ids(r.false_positive_ids)} | {ids(r.false_negative_ids)} |")
+                         f"| {r.describe_kinds()} | {r.describe_kinds_found()} | {r.seconds:.1f} | {ids(r.false_positive_ids)} | {ids(r.false_negative_ids)} |")
         return "\n".join(lines) + "\n"
 
 
@@ -147,7 +160,7 @@ def evaluate_methods(source: Path, target: Path, nn: NNConfig = NNConfig(), tsdf
         unscored = s.unscored_ids
         rows.append(MethodRow(method, poses, s.tp, s.fp, s.fn, s.precision, s.recall, seconds[method],
                               s.false_positive_ids, s.false_negative_ids, tuple(sorted(set(reported[method]))),
-                              s.kinds))
+                              s.kinds, s.kinds_found))
     turned = score(reported["ndfa"], truth, visible, rotated_reports(detection.changes))
     if turned.rotated_ids:
         notes.append(f"ndfa reported {len(turned.rotated_found_ids)} of the {len(turned.rotated_ids)} mugs turned in "
