@@ -6,8 +6,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from ndfa.change.associate import Measurement
+from ndfa.change.associate import Measurement, SessionMap
 from ndfa.change.config import DetectorConfig, LevelsConfig, RegistrationConfig
+from ndfa.change.describe import tree_event
 from ndfa.change.detector import ChangeDetector
 from ndfa.change.register import apply
 from ndfa.change.tree import ObjectTree
@@ -15,6 +16,7 @@ from ndfa.core.conventions import is_visible
 from ndfa.core.errors import SimError
 from ndfa.core.geometry import make_pose, rotation_z
 from ndfa.io.ingest.synthetic import render_objects
+from ndfa.log.table_sink import TableSink
 from ndfa.sim.presets import make_config
 from ndfa.sim.render import SceneRenderer
 from ndfa.sim.shelves import shelf_camera_poses
@@ -56,6 +58,20 @@ def test_a_levels_config_needs_a_positive_height_and_paper_has_none():
         LevelsConfig(tree_height_m=0.0)
     assert DetectorConfig.paper().levels.tree_height_m is None
     assert DetectorConfig().without("levels") == dataclasses.replace(DetectorConfig(), levels=LevelsConfig(None))
+
+
+def test_the_tree_event_and_the_tables_carry_the_height_tree(tmp_path):
+    session = SessionMap(DetectorConfig())
+    for frame, center in enumerate(([0.1, 0.2, 0.35], [0.12, 0.18, 0.65], [0.4, 0.1, 0.36])):
+        session.update(Measurement(frame, frame + 1, np.random.default_rng(frame).normal(size=16), np.array(center), 0.9))
+    event = tree_event("source", 2, session)
+    assert [tuple(objects) for objects in event.z_objects] == [(0, 2), (1,)]
+    assert np.all(event.z_intervals[:, 1] - event.z_intervals[:, 0] <= 0.2 + 1e-12)
+    assert tree_event("source", 2, SessionMap(DetectorConfig().without("levels"))).z_intervals.shape == (0, 2)
+    sink = TableSink(tmp_path)
+    sink.log(event)
+    nodes = sink.tables()["tree_nodes"]
+    assert sorted(nodes.filter(nodes["axis"] == "z")["objects"].to_list()) == [[0, 2], [1]]
 
 
 # -- the detector on stacked mugs -----------------------------------------------------------------

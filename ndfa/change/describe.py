@@ -18,9 +18,12 @@ def tree_event(session: Session, frame_index: int, session_map: SessionMap) -> T
             shared = nx.objects & ny.objects
             if shared:
                 cells.append((i, j, tuple(sorted(shared))))
+    z_nodes = [] if tree.z is None else tree.z.nodes
     return TreeEvent(session=session, frame_index=frame_index,
                      x_intervals=np.array([[n.low, n.high] for n in x_nodes]).reshape(-1, 2),
-                     y_intervals=np.array([[n.low, n.high] for n in y_nodes]).reshape(-1, 2), cells=cells)
+                     y_intervals=np.array([[n.low, n.high] for n in y_nodes]).reshape(-1, 2), cells=cells,
+                     z_intervals=np.array([[n.low, n.high] for n in z_nodes]).reshape(-1, 2),
+                     z_objects=[tuple(sorted(n.objects)) for n in z_nodes])
 
 
 def graph_event(frame_index: int, comparison: Comparison, center_source: np.ndarray, partner_center: np.ndarray,

@@ -128,14 +128,14 @@ class ChangeDetector:
     # -- steps ----------------------------------------------------------------------------------
 
     def _associate(self, session: Session, session_map: SessionMap, m: Measurement) -> tuple[Association, list[Event]]:
-        nodes_before = (len(session_map.tree.x), len(session_map.tree.y))
+        nodes_before = session_map.tree.node_counts()
         a = session_map.update(m)
         obj = session_map.objects[a.object_id]
         events: list[Event] = [AssociationEvent(
             session=session, frame_index=m.frame_index, instance_id=m.instance_id, object_id=a.object_id,
             created=a.created, replaced=a.replaced, distance_m=a.distance_m, similarity=a.similarity,
             candidates=a.candidates, center_world=obj.center_world, shape_code=obj.shape_code)]
-        if a.created or nodes_before != (len(session_map.tree.x), len(session_map.tree.y)):
+        if a.created or nodes_before != session_map.tree.node_counts():
             events.append(tree_event(session, m.frame_index, session_map))
         return a, events
 

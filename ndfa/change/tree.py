@@ -147,6 +147,10 @@ class ObjectTree:
     def __len__(self) -> int:
         return len(self._cells)
 
+    def node_counts(self) -> tuple[int, ...]:
+        """The nodes of each tree (T_x, T_y[, T_z])."""
+        return (len(self.x), len(self.y)) + (() if self.z is None else (len(self.z),))
+
     def insert(self, object_id: int, center: np.ndarray) -> None:
         """Place (or move) `object_id` at `center` (x, y, z): in the nodes its coordinates land in."""
         self.remove(object_id)

@@ -82,6 +82,10 @@ class TreeEvent:
     x_intervals: np.ndarray                  # (Nx, 2) low, high
     y_intervals: np.ndarray                  # (Ny, 2)
     cells: list[tuple[int, int, tuple[int, ...]]] = field(default_factory=list)  # (x node, y node, object ids)
+    # With the height tree T_z (`ndfa.change.config.LevelsConfig`): its nodes (Nz, 2) and each
+    # node's object ids; a cell is then a column cell's objects in one T_z node. Empty: no T_z.
+    z_intervals: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    z_objects: list[tuple[int, ...]] = field(default_factory=list)
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -233,10 +233,15 @@ class RerunSink:
         mins, sizes, labels = [], [], []
         for i, j, ids in e.cells:
             (x0, x1), (y0, y1) = e.x_intervals[i], e.y_intervals[j]
-            mins.append([x0, y0, 0.0])
-            sizes.append([x1 - x0, y1 - y0, TABLE_HEIGHT_BOX_M])
-            labels.append(f"{len(ids)} objects")
-        # Cells sit on the floor of the session's frame; their height is only for display.
+            # A column (the paper's tree) sits on the floor, its height only for display; with T_z,
+            # one box per T_z node that holds some of the column's objects.
+            slabs = [((0.0, TABLE_HEIGHT_BOX_M), ids)] if not e.z_objects else [
+                ((z0, z1), shared) for (z0, z1), in_z in zip(e.z_intervals, e.z_objects)
+                if (shared := tuple(sorted(set(ids) & set(in_z))))]
+            for (z0, z1), objects in slabs:
+                mins.append([x0, y0, z0])
+                sizes.append([x1 - x0, y1 - y0, z1 - z0])
+                labels.append(f"{len(objects)} objects")
         self.rec.log(f"{e.session}/tree/cells", rr.Boxes3D(mins=mins, sizes=sizes, labels=labels,
                                                            colors=self._color(e.session), show_labels=False))
 

@@ -161,6 +161,9 @@ class TableSink:
                     objects = sorted({o for i, j, ids in tree.cells if (i if axis == "x" else j) == index for o in ids})
                     nodes.append({"session": session, "axis": axis, "node": index, "low": float(low),
                                   "high": float(high), "objects": objects})
+            for index, ((low, high), objects) in enumerate(zip(tree.z_intervals, tree.z_objects)):  # T_z's nodes
+                nodes.append({"session": session, "axis": "z", "node": index, "low": float(low), "high": float(high),
+                              "objects": list(objects)})
         tables["tree_nodes"] = pl.DataFrame(nodes, infer_schema_length=None)
         if self._history is not None:
             tables["history"] = pl.DataFrame(self._history, schema=HISTORY_SCHEMA)
