@@ -141,6 +141,11 @@ class EvidenceConfig:
     # trees are horizontal (without `LevelsConfig`'s T_z), so without it testing a mug on a table "observes" a piece of floor under the
     # table, which the target may never have seen. Off: 0 (any height).
     observed_height_m: float = 0.3
+    # ... or when a tested target object stands within this distance of it horizontally, in another
+    # cell: a cell's edge may cut a board or a table between two mugs the same views saw, and the
+    # smaller cells of T_z (`LevelsConfig`) leave a mug alone in its cell more often (docs/shelves.md).
+    # Off: 0 (the cell only).
+    observed_reach_m: float = 0.3
     # A changed target object is reported "moved" from a removed source object only when their codes
     # agree this well: a move needs the same object at both ends, and delta_s (0.35) lets different
     # mugs pair. Every same-mug pair of the seven masked scenes is above 0.859 (docs/registration.md,
@@ -211,7 +216,7 @@ class DetectorConfig:
                "ransac": RansacConfig(candidates=1, min_inliers=0, enough_inliers=0, retry_frames=1, small_maps=False),
                "priors": PriorConfig(enabled=False),
                "waiting": WaitingConfig(min_measurements=1, confirm_measurements=1, neighbours=False),
-               "evidence": EvidenceConfig(in_place_m=0.0, observed_height_m=0.0, move_similarity=None),
+               "evidence": EvidenceConfig(in_place_m=0.0, observed_height_m=0.0, observed_reach_m=0.0, move_similarity=None),
                "rotation": RotationConfig(threshold_deg=None)}
         values = {name: getattr(self, name) for name in ("association", "registration", "decision") + ADDITIONS}
         return DetectorConfig(**(values | {name: off[name] for name in additions}))

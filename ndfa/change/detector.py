@@ -36,6 +36,7 @@ from ndfa.change.register import Registration, RegistrationPrior, apply
 from ndfa.change.registrar import Registrar
 from ndfa.change.rotation import rotation_of
 from ndfa.change.verdict import Verdict, decision_score, graph_verdict, removal_score, shape_verdict
+from ndfa.core.conventions import horizontal
 from ndfa.core.events import AssociationEvent, DecisionEvent, DecisionKind, Event, Session
 
 __all__ = ["ChangeDetector", "DetectorConfig", "reported_changes"]
@@ -140,12 +141,16 @@ class ChangeDetector:
         return a, events
 
     def _looked_at(self, center_source: np.ndarray, source_ids: list[int]) -> list[int]:
-        """The neighbours a test at `center_source` counts as observed by the target (see
-        `EvidenceConfig.observed_height_m`)."""
-        height = self.config.evidence.observed_height_m
-        if height <= 0:
+        """The source objects a test at `center_source` counts as observed by the target: its
+        neighbours and those within `EvidenceConfig.observed_reach_m` of it, within `observed_height_m`."""
+        evidence = self.config.evidence
+        if evidence.observed_reach_m > 0:
+            near = [s for s in self.source.neighbourhood(center_source, evidence.observed_reach_m)
+                    if np.linalg.norm(horizontal(self.source.objects[s].center_world - center_source)) <= evidence.observed_reach_m]
+            source_ids = sorted(set(source_ids) | set(near))
+        if evidence.observed_height_m <= 0:
             return source_ids
-        return [s for s in source_ids if abs(self.source.objects[s].center_world[2] - center_source[2]) <= height]
+        return [s for s in source_ids if abs(self.source.objects[s].center_world[2] - center_source[2]) <= evidence.observed_height_m]
 
     def _test(self, object_id: int, frame_index: int, final: bool = False) -> list[Event]:
         """The change test of target object O at T_rel t_O, unless O is already marked changed."""
