@@ -68,9 +68,10 @@ class RgbdOdometryConfig:
         terms keeps the prediction along the directions the frame's depth cannot see (eigenvalues
         of its plane term, normals over a wider baseline, below `unseen_ratio` times the largest:
         a bare wall's slide and roll), and such a frame does not update the velocity;
-        () turns this off (`degeneracy.keep_prediction_where_unseen`). Point-to-plane only: the
-        term an untextured frame is registered with; hybrid's intensity residuals still carry
-        some of the slide on a wall's faint texture (docs/odometry.md).
+        () turns this off (`degeneracy.keep_prediction_where_unseen`), the default: on a 160 x 120
+        recording it flags most frames (docs/odometry.md). ("point-to-plane",): the term an
+        untextured frame is registered with; hybrid's intensity residuals still carry some of the
+        slide on a wall's faint texture.
     color_camera: the colour camera when the colour is not registered to the depth (a recording's
         meta says so: `ndfa.core.color_camera`, `session.rgbd_config_for`); each frame's colour is then
         carried onto its depth pixels before features and the intensity term use it. None: registered.
@@ -113,9 +114,9 @@ class RgbdOdometryConfig:
     prediction_overlap_ratio: float = 2.0
     feature_agreement_m: float = 0.05
     feature_agreement_deg: float = 3.0
-    unseen_from_prediction: tuple[str, ...] = (POINT_TO_PLANE,)
+    unseen_from_prediction: tuple[str, ...] = ()
     unseen_ratio: float = 0.005
-    velocity_in_world: bool = True
+    velocity_in_world: bool = False
     color_camera: ColorCamera | None = None
 
     def __post_init__(self) -> None:
