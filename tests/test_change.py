@@ -583,3 +583,23 @@ def test_a_target_object_registered_across_a_cell_edge_meets_its_source_self(mar
     assert detector.registration is not None
     changed = {e.instance_ids[0] for e in events if getattr(e, "kind", "unchanged") in ("added", "moved")}
     assert changed == reported
+
+
+@pytest.mark.parametrize("reach, found", [(0.6, True), (0.3, False), (0.0, False)])
+def test_a_removal_across_a_cell_edge_is_observed_from_a_tested_object_within_reach(reach, found):
+    """Removed mug R stands 35 cm from the added mug N, the one changed target object near it, in the
+    next x-interval of the source tree (its cell begins at 0.6; N's test looks 5 cm past its own)."""
+    from ndfa.change.register import RegistrationPrior
+
+    config = dataclasses.replace(DetectorConfig(), evidence=dataclasses.replace(DetectorConfig().evidence, observed_reach_m=reach))
+    detector = ChangeDetector(config)
+    detector.add_registration_prior(RegistrationPrior("shared world", np.eye(4)))
+    codes = {name: _code(seed) for name, seed in (("A", 1), ("B", 2), ("R", 3), ("N", 4))}
+    source = {"A": [0.0, 0.0], "B": [0.0, 0.3], "R": [0.65, 0.0]}
+    target = {"A": [0.0, 0.0], "B": [0.0, 0.3], "N": [0.30, 0.0]}
+    for k in range(10):
+        detector.add_source([Measurement(k, i, codes[n], np.r_[xy, 0.8], 0.7) for i, (n, xy) in enumerate(source.items())])
+    for k in range(10, 20):
+        detector.add_target([Measurement(k, i, codes[n], np.r_[xy, 0.8], 0.7) for i, (n, xy) in enumerate(target.items())])
+    removed = [e for e in detector.finish() if getattr(e, "kind", None) == "removed"]
+    assert [e.object_id for e in removed] == ([2] if found else [])
