@@ -147,3 +147,24 @@ def test_a_synthetic_recording_with_estimated_poses_has_its_up_estimated(tmp_pat
     world = prepare_session(RecordingReader(short), "source", poses="estimate")
     assert world.poses is not None and world.up is not None and world.up_source == "estimated"
     assert prepare_session(RecordingReader(short), "source").up_source.startswith("z (a synthetic")
+
+
+
+@pytest.mark.slow
+def test_estimated_poses_are_checked_backwards_only_when_asked(tmp_path, monkeypatch):
+    # What the backward estimate measures is tested in test_pose_quality; here: that detect's
+    # option reaches the odometry, with the session's frames last first, and only when asked.
+    import ndfa.run.world as world_module
+
+    short = _rewritten(SAMPLE / "source.mcap", tmp_path / "short.mcap", np.eye(4), {}, stop=6)
+    seen: list[list[int] | None] = []
+    estimate = world_module.estimate_session_poses
+
+    def spy(*args, backward_frames=None, **kwargs):
+        seen.append(None if backward_frames is None else [frame.index for frame in backward_frames])
+        return estimate(*args, **kwargs)
+
+    monkeypatch.setattr(world_module, "estimate_session_poses", spy)
+    prepare_session(RecordingReader(short), "source", poses="estimate")
+    prepare_session(RecordingReader(short), "source", poses="estimate", check_poses_backward=True)
+    assert seen == [None, [5, 4, 3, 2, 1, 0]]

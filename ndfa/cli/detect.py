@@ -75,6 +75,10 @@ def detect_command(
     poses: str = typer.Option("auto", help="Camera poses: auto (the recording's; estimated by odometry when it has "
                                            "none) | given (never estimate) | estimate (always) | truth (a "
                                            "simulated recording's true poses: to score segmentation alone)."),
+    check_poses_backward: bool = typer.Option(False, "--check-poses-backward", help="Estimated poses are "
+                                              "estimated again over the frames last first; the two estimates' "
+                                              "disagreement joins the pose-quality figure (twice the odometry's "
+                                              "time; docs/pose_quality.md)."),
     registration: str = typer.Option("auto", help="T_rel between the sessions: auto (shape-matched object pairs, "
                                      "plus a hypothesis they verify: the shared world when both sessions' poses "
                                      "are given and their scene clouds agree, the alignment of the scene clouds "
@@ -144,7 +148,8 @@ def detect_command(
                                  f"--registration {registration}")
     if paper_parameters:
         registration = "objects"
-    options = RunOptions(frame_step=frame_step, up=up, poses=poses, registration=registration)
+    options = RunOptions(frame_step=frame_step, up=up, poses=poses, registration=registration,
+                         check_poses_backward=check_poses_backward)
     if len(recordings) > 2:
         _detect_sessions(recordings, config, pipeline, runtime, log, tables, json_out, no_images, options)
         return

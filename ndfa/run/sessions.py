@@ -170,7 +170,8 @@ def session_pass(
     readers, notes = open_recordings(paths, names, segment=config.segmentation is not None)
     worlds: dict[str, SessionWorld] = {}
     for name, reader in zip(names, readers):
-        worlds[name] = prepare_session(reader, name, up=options.up, poses=options.poses)
+        worlds[name] = prepare_session(reader, name, up=options.up, poses=options.poses,
+                                       check_poses_backward=options.check_poses_backward)
         if on_world is not None:
             on_world(worlds[name])
         if worlds[name].pose_quality is not None:

@@ -39,6 +39,8 @@ class RunOptions:
 
     frame_step: every n-th frame of each recording.
     up, poses: what each session's world gets when it lacks it (`ndfa.run.world.prepare_session`).
+    check_poses_backward: estimated poses are checked by a second estimate over the frames last
+        first (`prepare_session`): a better quality figure for twice the odometry's time.
     registration, align: the scene-level hypothesis of T_rel offered to each pair's detector
         (`ndfa.run.align.registration_prior`).
     """
@@ -46,6 +48,7 @@ class RunOptions:
     frame_step: int = 1
     up: UpMode = "auto"
     poses: PoseMode = "auto"
+    check_poses_backward: bool = False
     registration: RegistrationMode = "auto"
     align: AlignConfig = field(default_factory=AlignConfig)
 

@@ -36,7 +36,13 @@ from ndfa.io.recording import RecordingReader
 from ndfa.trajectory.level import level_frame
 from ndfa.trajectory.metrics import absolute_trajectory_error, relative_pose_error
 from ndfa.trajectory.quality import PoseQuality, judge
-from ndfa.trajectory.session import UNTRACKED_POSES, choose_method, estimate_session_poses, rgbd_config_for
+from ndfa.trajectory.session import (
+    UNTRACKED_POSES,
+    choose_method,
+    estimate_session_poses,
+    frames_backwards,
+    rgbd_config_for,
+)
 from ndfa.trajectory.up import UpEstimate, angle_deg, estimate_up
 from ndfa.trajectory.up_imu import imu_gravity, up_from_imu
 
@@ -125,8 +131,10 @@ class SessionWorld:
 
 
 def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
-                    poses: PoseMode = "auto") -> SessionWorld:
-    """Estimate what `reader`'s recording lacks (see the module docstring)."""
+                    poses: PoseMode = "auto", check_poses_backward: bool = False) -> SessionWorld:
+    """Estimate what `reader`'s recording lacks (see the module docstring). check_poses_backward:
+    estimated poses are estimated a second time over the frames last first, and the two estimates'
+    disagreement joins their quality figure (`ndfa.trajectory.quality`; twice the odometry's time)."""
     if up not in UP_MODES:
         raise ValueError(f"up must be one of {UP_MODES}, got {up!r}")
     if poses not in POSE_MODES:
@@ -136,7 +144,7 @@ def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
         world.poses, world.pose_source = _true_poses(reader), "true (the ground-truth channel)"
     elif poses == "estimate" or (poses == "auto" and not reader.has_poses):
         started = time.perf_counter()
-        world.poses, world.pose_source, input_notes, truth, world.pose_quality = _estimate_poses(reader)
+        world.poses, world.pose_source, input_notes, truth, world.pose_quality = _estimate_poses(reader, check_poses_backward)
         world.seconds["odometry"] = time.perf_counter() - started
         world.notes.extend(input_notes)
         world.pose_error = _pose_error(world.poses, truth)
@@ -234,7 +242,7 @@ def _pose_error(estimate: dict[int, np.ndarray], truth: dict[int, np.ndarray]) -
             "rpe_translation_m": rpe.translation_rmse_m, "rpe_rotation_deg": rpe.rotation_rmse_deg}
 
 
-def _estimate_poses(reader: RecordingReader) -> tuple[dict[int, np.ndarray], str, list[str], dict[int, np.ndarray],
+def _estimate_poses(reader: RecordingReader, backward: bool = False) -> tuple[dict[int, np.ndarray], str, list[str], dict[int, np.ndarray],
                                                       PoseQuality | None]:
     """Every frame's pose by odometry over the whole session (`ndfa.trajectory.session`), how they
     were estimated, warnings about the input, the frames' true poses (those it has) and the poses'
@@ -246,7 +254,8 @@ def _estimate_poses(reader: RecordingReader) -> tuple[dict[int, np.ndarray], str
             truth[frame.index] = frame.pose_world_camera_true
 
     session = estimate_session_poses(reader.frames(), choose_method(next(iter(reader.frames(stop=1)), None)),
-                                     reader.path, rgbd_config=rgbd_config_for(reader.meta), on_frame=keep_truth)
+                                     reader.path, rgbd_config=rgbd_config_for(reader.meta), on_frame=keep_truth,
+                                     backward_frames=frames_backwards(reader) if backward else None)
     notes = session.input_report.warnings(untracked_poses=UNTRACKED_POSES) if session.poses else []
     quality = None if session.evidence is None else judge(session.evidence)
     return (dict(zip(session.indices, session.poses, strict=True)), f"estimated ({session.describe_method()})", notes,
