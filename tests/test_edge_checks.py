@@ -55,6 +55,7 @@ BAD_OPTIONS = [
     (["train", "--out", "o", "--categories", "mug,mug"], "--categories", "'mug,mug'"),
     (["ndf-eval", "--out", "o", "--categories", ""], "--categories", "''"),
     (["train", "--out", "o", "--checkpoint-every", "0"], "--checkpoint-every", "got 0"),
+    (["ingest", "sim", "--out", "o", "--categories", "mug,saucer"], "--categories", "'mug,saucer'"),
 ]
 
 

@@ -157,8 +157,8 @@ def test_shelf_routes_only_with_shelves():
         make_config("shelves", 1, target_route="corridor")
     with pytest.raises(SimError, match="tables"):
         make_config("random", 1, target_route="back")
-    with pytest.raises(SimError, match="mugs alone"):
-        make_config("shelves", 1, categories=("bowl",))
+    with pytest.raises(SimError, match="distinct names"):
+        make_config("shelves", 1, categories=("plate",))
 
 
 def test_each_route_sees_every_mug_on_every_level_past_the_boards():

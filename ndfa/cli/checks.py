@@ -87,11 +87,14 @@ def non_empty(param: typer.CallbackParam, value: str | None) -> str | None:
     return value
 
 
-def category_list(param: typer.CallbackParam, value: str) -> str:
+def category_list(param: typer.CallbackParam, value: str | None) -> str | None:
     """A callback for object categories, comma-separated ("mug,bowl,cup"): distinct, each one of
-    `ndfa.sim.categories.CATEGORIES` ("all": every one); returned in that canonical spelling."""
+    `ndfa.sim.categories.CATEGORIES` ("all": every one); returned in that canonical spelling
+    (None, an option left unset, passes)."""
     from ndfa.sim.categories import CATEGORIES  # lazy: the simulator's meshes import trimesh
 
+    if value is None:
+        return None
     names = list(CATEGORIES) if value.strip() == "all" else [name.strip() for name in value.split(",")]
     unknown = [name for name in names if name not in CATEGORIES]
     if unknown or not names or len(set(names)) != len(names):

@@ -198,6 +198,8 @@ def detect_command(
         if s.kinds_found:
             console.print("true changes found with a right kind: " + ", ".join(
                 f"{change} {found}/{n}" for change, (n, found) in sorted(s.kinds_found.items())), highlight=False)
+        if s.categories:
+            console.print(f"per true category, TP/FP/FN: {s.describe_categories()}", highlight=False)
     for note in result.notes:
         console.print(f"note: {note}")
     if json_out is not None:

@@ -108,6 +108,8 @@ def eval_command(
                       f"missed {', '.join(map(str, r.false_negative_ids)) or '-'}")
         if r.kinds_found:  # the table's column is the kinds' precision; their recall here (and in table.md)
             console.print(f"{r.method}: kinds found (true changes found with a right kind): {r.describe_kinds_found()}")
+        if r.categories:
+            console.print(f"{r.method}: per true category, TP/FP/FN: {r.describe_categories()}", highlight=False)
     console.print(f"NN: d = {nn.distance_m * 1000:g} mm, r = {nn.changed_fraction:g}; "
                   f"PMT: {tsdf.voxel_m * 100:g} cm voxels; the baselines get the true poses and the masks' ids")
     for note in result.notes:

@@ -204,7 +204,7 @@ def score_by_position(reports: Sequence[Sequence[ReportedObject]], ground_truth:
     result = PositionScore(
         mugs.tp, mugs.fp + len(extra), mugs.fn, mugs.true_positive_ids, mugs.false_positive_ids + extra,
         mugs.false_negative_ids, mugs.unscored_ids, clutter_ids=clutter, unmatched=unmatched,
-        kinds=mugs.kinds, kinds_found=mugs.kinds_found, alignment_rmse_m=dict(alignment_rmse_m or {}),
+        kinds=mugs.kinds, kinds_found=mugs.kinds_found, categories=mugs.categories, alignment_rmse_m=dict(alignment_rmse_m or {}),
         visibility_known=visible is not None, radius_m=radius_m,
         local_alignment=any(o.pose_true_run is not None for report in reports for o in report))
     return result, matches

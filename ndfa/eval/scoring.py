@@ -67,6 +67,10 @@ class Score:
     # the kinds. A moved mug counts when a "moved" report has it at both ends, or an "added" or
     # "removed" report names it (each describes a move rightly); with `kinds` only.
     kinds_found: dict[str, tuple[int, int]] = field(default_factory=dict, compare=False)
+    # true category -> (TP, FP, FN) among the scored objects of that category (`category_counts`),
+    # when the ground truth holds more than one category; a report is counted by the true category
+    # of the object it names, not by the category the detector gave it.
+    categories: dict[str, tuple[int, int, int]] = field(default_factory=dict, compare=False)
 
     def kind_recall(self, change: str) -> float:
         """The share of the mugs with the true `change` named by a report of a right kind (1.0 when none)."""
@@ -80,11 +84,15 @@ class Score:
 
     @property
     def precision(self) -> float:
-        return self.tp / (self.tp + self.fp) if self.tp + self.fp else 1.0
+        return _ratio(self.tp, self.tp + self.fp)
 
     @property
     def recall(self) -> float:
-        return self.tp / (self.tp + self.fn) if self.tp + self.fn else 1.0
+        return _ratio(self.tp, self.tp + self.fn)
+
+    def describe_categories(self) -> str:
+        """"bowl 2/0/1, mug 5/1/0": TP/FP/FN per true category ("" with one category)."""
+        return ", ".join(f"{name} {tp}/{fp}/{fn}" for name, (tp, fp, fn) in sorted(self.categories.items()))
 
     @property
     def rotated_recall(self) -> float:
@@ -100,10 +108,37 @@ class Score:
         if self.kinds:
             out["kinds"] = {kind: {"reports": n, "right": right, "precision": self.kind_precision(kind)}
                             for kind, (n, right) in sorted(self.kinds.items())}
+        if self.categories:
+            out["categories"] = {name: {"tp": tp, "fp": fp, "fn": fn, "precision": _ratio(tp, tp + fp),
+                                        "recall": _ratio(tp, tp + fn)}
+                                 for name, (tp, fp, fn) in sorted(self.categories.items())}
         if self.kinds_found:
             out["kinds_found"] = {change: {"mugs": n, "found": found, "recall": self.kind_recall(change)}
                                   for change, (n, found) in sorted(self.kinds_found.items())}
         return out
+
+
+def _ratio(part: int, whole: int) -> float:
+    return part / whole if whole else 1.0
+
+
+def instance_categories(ground_truth: dict) -> dict[int, str]:
+    """Instance id -> its true category (a ground truth written before the categories: "mug")."""
+    return {int(o["instance_id"]): str(o.get("category", "mug")) for o in ground_truth.get("objects", [])}
+
+
+def category_counts(ground_truth: dict, tp: Sequence[int], fp: Sequence[int], fn: Sequence[int]) -> dict[str, tuple[int, int, int]]:
+    """True category -> (TP, FP, FN) of the scored instance ids `tp`, `fp`, `fn`; empty when the
+    ground truth holds one category (the overall score is then that category's)."""
+    category = instance_categories(ground_truth)
+    if len(set(category.values())) < 2:
+        return {}
+    counts = {name: [0, 0, 0] for name in sorted(set(category.values()))}
+    for column, ids in enumerate((tp, fp, fn)):
+        for instance_id in ids:
+            if instance_id in category:
+                counts[category[instance_id]][column] += 1
+    return {name: (tp_, fp_, fn_) for name, (tp_, fp_, fn_) in counts.items()}
 
 
 def scorable_instances(ground_truth: dict, visible: dict[str, set[int]]) -> set[int]:
@@ -147,7 +182,7 @@ def score(reported_instances: list[int], ground_truth: dict, visible: dict[str, 
         n, right = per_change.get(change, (0, 0))
         per_change[change] = (n + 1, right + int(instance_id in found_rightly))
     return Score(len(tp), len(fp), len(fn), tuple(tp), tuple(fp), tuple(fn), tuple(sorted(everything - scored)),
-                 tuple(turned), tuple(found), per_kind, per_change)
+                 tuple(turned), tuple(found), per_kind, per_change, category_counts(ground_truth, tp, fp, fn))
 
 
 def kind_reports(changes: list) -> list[KindReport]:

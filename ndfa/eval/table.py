@@ -52,6 +52,12 @@ class MethodRow:
     kinds: dict[str, tuple[int, int]] = field(default_factory=dict)
     # true change -> (mugs with it, named by a report of a right kind) (`Score.kinds_found`); ndfa's only
     kinds_found: dict[str, tuple[int, int]] = field(default_factory=dict)
+    # true category -> (TP, FP, FN) (`Score.categories`; empty with one category)
+    categories: dict[str, tuple[int, int, int]] = field(default_factory=dict)
+
+    def describe_categories(self) -> str:
+        """"bowl 2/0/1, mug 5/1/0": TP/FP/FN per true category; "-" with one category."""
+        return ", ".join(f"{name} {tp}/{fp}/{fn}" for name, (tp, fp, fn) in sorted(self.categories.items())) or "-"
 
     def describe_kinds(self) -> str:
         """"added 3/3, moved 4/5": right / reports per kind (the kinds' precision); "-" for a method
@@ -82,13 +88,17 @@ class EvalResult:
             "reported_ids": list(r.reported_ids),
             "kinds": [{"kind": kind, "reports": n, "right": right} for kind, (n, right) in sorted(r.kinds.items())],
             "kinds_found": [{"change": change, "mugs": n, "found": found}
-                            for change, (n, found) in sorted(r.kinds_found.items())]}
+                            for change, (n, found) in sorted(r.kinds_found.items())],
+            "categories": [{"category": name, "tp": tp, "fp": fp, "fn": fn}
+                           for name, (tp, fp, fn) in sorted(r.categories.items())]}
             for r in self.rows],
             schema_overrides={"false_positive_ids": pl.List(pl.Int64), "false_negative_ids": pl.List(pl.Int64),
                               "reported_ids": pl.List(pl.Int64), "kinds": pl.List(pl.Struct(
                                   {"kind": pl.String, "reports": pl.Int64, "right": pl.Int64})),
                               "kinds_found": pl.List(pl.Struct(
-                                  {"change": pl.String, "mugs": pl.Int64, "found": pl.Int64}))})
+                                  {"change": pl.String, "mugs": pl.Int64, "found": pl.Int64})),
+                              "categories": pl.List(pl.Struct(
+                                  {"category": pl.String, "tp": pl.Int64, "fp": pl.Int64, "fn": pl.Int64}))})
 
     def markdown(self) -> str:
         lines = ["| method | poses | TP | FP | FN | precision | recall | kinds right | kinds found | seconds "
@@ -98,7 +108,9 @@ class EvalResult:
             ids = lambda values: ", ".join(map(str, values)) or "—"  # noqa: E731
             lines.append(f"| {r.method} | {r.poses} | {r.tp} | {r.fp} | {r.fn} | {r.precision:.1%} | {r.recall:.1%} "
                          f"| {r.describe_kinds()} | {r.describe_kinds_found()} | {r.seconds:.1f} | {ids(r.false_positive_ids)} | {ids(r.false_negative_ids)} |")
-        return "\n".join(lines) + "\n"
+        per_category = [f"- {r.method}, per true category (TP/FP/FN): {r.describe_categories()}"
+                        for r in self.rows if r.categories]
+        return "\n".join(lines + ([""] + per_category if per_category else [])) + "\n"
 
 
 def open_for_baselines(source: Path, target: Path) -> tuple[RecordingReader, RecordingReader, dict]:
@@ -160,7 +172,7 @@ def evaluate_methods(source: Path, target: Path, nn: NNConfig = NNConfig(), tsdf
         unscored = s.unscored_ids
         rows.append(MethodRow(method, poses, s.tp, s.fp, s.fn, s.precision, s.recall, seconds[method],
                               s.false_positive_ids, s.false_negative_ids, tuple(sorted(set(reported[method]))),
-                              s.kinds, s.kinds_found))
+                              s.kinds, s.kinds_found, s.categories))
     turned = score(reported["ndfa"], truth, visible, rotated_reports(detection.changes))
     if turned.rotated_ids:
         notes.append(f"ndfa reported {len(turned.rotated_found_ids)} of the {len(turned.rotated_ids)} mugs turned in "

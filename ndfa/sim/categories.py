@@ -19,7 +19,7 @@ import numpy as np
 from ndfa.sim.bottle import bottle_parts, can_parts, sample_bottle_params, sample_can_params
 from ndfa.sim.box import box_parts, sample_box_params
 from ndfa.sim.mesh import Mesh
-from ndfa.sim.mug import make_mug
+from ndfa.sim.mug import Mug, make_mug
 from ndfa.sim.solid import PartsSolid
 from ndfa.sim.vessels import sample_bowl_params, sample_cup_params, vessel_parts
 
@@ -56,6 +56,10 @@ class CategoryObject(PartsSolid):
     seed: int
     params: Any  # VesselParams (bowl, cup), BottleParams, CanParams, BoxParams, MugParams
     parts: list[Mesh]
+
+
+# What a scene places: a mug (procedural or a mesh from a file) or an object of another category.
+SceneModel = Mug | CategoryObject
 
 
 def make_object(category: str, seed: int) -> CategoryObject:

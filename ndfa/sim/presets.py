@@ -26,15 +26,13 @@ import numpy as np
 
 from ndfa.core.errors import SimError
 from ndfa.sim.camera import PinholeCamera
+from ndfa.sim.categories import CATEGORIES
 from ndfa.sim.noise import DepthNoise
 from ndfa.sim.pose_error import PoseError
 from ndfa.sim.shelves import SHELF_ROUTES, ShelfConfig
 from ndfa.sim.trajectory import ROUTES, TrajectoryConfig
 
 PRESETS = ("paper", "sample", "random", "office", "shelves")
-# The object categories a scene may place (`ndfa.sim.categories`). Mugs alone for now: the shipped
-# NDF knows no other category (issue 33 item 2, NDF v3, adds the others).
-SCENE_CATEGORIES = ("mug",)
 
 
 @dataclass(frozen=True)
@@ -76,7 +74,8 @@ class SimConfig:
     # Shelf units instead of the grid of tables (`ndfa.sim.shelves`): their levels are the tables
     # (`table_rows`, `table_cols` then play no part) and the routes are `SHELF_ROUTES`.
     shelves: ShelfConfig | None = None
-    # What stands on the tables: the categories the scene's models are drawn from.
+    # What stands on the tables: the categories the scene's models are drawn from (mugs alone: the
+    # scenes as they were; several: `ndfa.sim.world.procedural_models`).
     categories: tuple[str, ...] = ("mug",)
 
     def __post_init__(self) -> None:
@@ -88,10 +87,10 @@ class SimConfig:
             if route not in routes:
                 raise SimError(f"unknown camera route {route!r} for {'tables' if self.shelves is None else 'shelves'}; "
                                f"expected one of {routes}")
-        unknown = [c for c in self.categories if c not in SCENE_CATEGORIES]
-        if not self.categories or unknown:
-            raise SimError(f"scene categories must be some of {', '.join(SCENE_CATEGORIES)} (the shipped NDF knows "
-                           f"mugs alone), got {', '.join(self.categories) or 'none'}")
+        unknown = [c for c in self.categories if c not in CATEGORIES]
+        if not self.categories or unknown or len(set(self.categories)) != len(self.categories):
+            raise SimError(f"scene categories must be distinct names among {', '.join(CATEGORIES)}, "
+                           f"got {', '.join(self.categories) or 'none'}")
         if self.table_rows < 1 or self.table_cols < 1:
             raise SimError("a scene needs at least one table")
         if self.clutter_per_table < 0:

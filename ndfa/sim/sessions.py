@@ -18,9 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from ndfa.core.errors import SimError
-from ndfa.sim.mug import Mug
+from ndfa.sim.categories import SceneModel
 from ndfa.sim.presets import SimConfig
-from ndfa.sim.world import Change, Placement, World, apply_changes, build_world, place_clutter
+from ndfa.sim.world import Change, Placement, World, apply_changes, build_world, model_category, place_clutter
 
 MAX_SESSIONS = 100  # far more visits than a scene's tables hold changes for; a typo guard
 
@@ -47,7 +47,7 @@ def session_names(n: int) -> list[str]:
     return ["source", "target"] if n == 2 else [f"session_{k}" for k in range(n)]
 
 
-def build_sessions(config: SimConfig, models: list[Mug], n: int) -> SessionWorlds:
+def build_sessions(config: SimConfig, models: list[SceneModel], n: int) -> SessionWorlds:
     """N layouts of `config`'s scene; deterministic in `config.seed`."""
     if not 2 <= n <= MAX_SESSIONS:
         raise SimError(f"a scene has 2 to {MAX_SESSIONS} sessions, got {n}")
@@ -108,7 +108,8 @@ def history_truth(worlds: SessionWorlds, pose_world_level: np.ndarray) -> list[d
             where.append(None if placement is None else {
                 "table_id": placement.table_id,
                 "pose_world_object": (pose_world_level @ worlds.base.object_pose(placement)).tolist()})
-        out.append({"instance_id": instance_id, "model_id": model, "sessions": where,
+        out.append({"instance_id": instance_id, "model_id": model,
+                    "category": model_category(worlds.base.mugs[model]), "sessions": where,
                     "changes": [pair.get(instance_id) for pair in kinds]})
     return out
 

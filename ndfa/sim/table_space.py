@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ndfa.core.geometry import make_pose, rotation_z
-from ndfa.sim.mug import Mug
+from ndfa.sim.categories import SceneModel
 from ndfa.sim.scene import Table
 
 
@@ -30,7 +30,7 @@ class Placement:
         return table.pose_world_top @ make_pose(rotation_z(self.yaw), np.array([*self.xy, 0.0]))
 
 
-def footprint_radius(mug: Mug) -> float:
+def footprint_radius(mug: SceneModel) -> float:
     """Radius of the circle about the mug's axis that contains it seen from above (handle included)."""
     return float(np.linalg.norm(mug.mesh.vertices[:, :2], axis=1).max())
 
@@ -38,7 +38,7 @@ def footprint_radius(mug: Mug) -> float:
 class TableSpace:
     """Free space on table tops, with mugs as circles: finds collision-free spots."""
 
-    def __init__(self, tables: list[Table], mugs: dict[str, Mug], clearance: float = 0.01, edge_margin: float = 0.03):
+    def __init__(self, tables: list[Table], mugs: dict[str, SceneModel], clearance: float = 0.01, edge_margin: float = 0.03):
         self.tables = tables
         self.radius = {model_id: footprint_radius(m) for model_id, m in mugs.items()}
         self.clearance = clearance

@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ndfa.core.errors import SimError
+from ndfa.sim.categories import SceneModel
 from ndfa.sim.clutter import (
     CLUTTER_FIRST_ID,
     CLUTTER_KINDS,
@@ -25,12 +26,11 @@ from ndfa.sim.clutter import (
 )
 from ndfa.sim.clutter import footprint_radius as mesh_footprint_radius
 from ndfa.sim.furniture import FurniturePiece, wall_furniture
-from ndfa.sim.mug import Mug
 from ndfa.sim.presets import SimConfig
 from ndfa.sim.scene import Room, Table, room_around, table_grid
 from ndfa.sim.shelves import ShelfLevel, ShelfUnit, shelf_units
-from ndfa.sim.splits import TEST_SEEDS, make_split_mug
-from ndfa.sim.table_space import Placement, TableSpace
+from ndfa.sim.splits import TEST_SEEDS, make_split_mug, make_split_object
+from ndfa.sim.table_space import Placement, TableSpace, footprint_radius
 
 CHANGE_KINDS = ("added", "removed", "moved", "switched")
 ROTATED = "rotated"  # a mug turned in place about up (`turn_in_place`; not one of the change script's kinds)
@@ -51,7 +51,7 @@ class Change:
 class World:
     tables: list[Table]
     room: Room
-    mugs: dict[str, Mug]
+    mugs: dict[str, SceneModel]
     source: dict[int, Placement]
     target: dict[int, Placement]
     changes: list[Change]
@@ -80,14 +80,43 @@ class World:
         return {kind: sum(c.kind == kind for c in self.changes) for kind in kinds}
 
 
-def procedural_models(config: SimConfig) -> list[Mug]:
-    """`config.mug_models` distinct procedural mugs from the test split, chosen by the seed."""
+# The widest object a scene's table or shelf board takes (footprint radius about its axis, handle
+# included): a 45 cm shoebox leaves a 1.2 x 0.8 m table no room for three more objects. Mugs reach 8 cm.
+MAX_SCENE_RADIUS_M = 0.15
+# The tallest object a shelf scene takes: boards stand 25 cm apart or more, the camera passes 20 cm over a board.
+MAX_SHELF_HEIGHT_M = 0.2
+
+
+def procedural_models(config: SimConfig) -> list[SceneModel]:
+    """`config.mug_models` distinct procedural models from the test split, chosen by the seed.
+    Mugs alone (`config.categories == ("mug",)`): the seed's mugs as always. With several
+    categories each model's category is drawn from a stream of its own, every category at least
+    once when there are as many models, and an object too wide for a table (`MAX_SCENE_RADIUS_M`)
+    or too tall for a shelf (`MAX_SHELF_HEIGHT_M`) gives way to the category's next test object."""
     rng = np.random.default_rng([config.seed, 1])
     indices = rng.choice(len(TEST_SEEDS), size=config.mug_models, replace=False)
-    return [make_split_mug("test", int(i)) for i in sorted(indices)]
+    if config.categories == ("mug",):
+        return [make_split_mug("test", int(i)) for i in sorted(indices)]
+    cycle = [config.categories[k % len(config.categories)] for k in range(config.mug_models)]
+    drawn = np.random.default_rng([config.seed, 8]).permutation(cycle)
+    max_height = MAX_SHELF_HEIGHT_M if config.shelves is not None else np.inf
+    models: list[SceneModel] = []
+    for index, category in zip(sorted(int(i) for i in indices), drawn):
+        for attempt in range(1000):
+            model = make_split_object(str(category), "test", (index + attempt) % len(TEST_SEEDS))
+            bounds = model.mesh.vertices
+            if footprint_radius(model) <= MAX_SCENE_RADIUS_M and np.ptp(bounds[:, 2]) <= max_height:
+                break
+        models.append(model)
+    return models
 
 
-def build_world(config: SimConfig, models: list[Mug]) -> World:
+def model_category(model: SceneModel) -> str:
+    """The category of a scene's model: a `CategoryObject`'s, "mug" for a `Mug` (procedural or from a file)."""
+    return getattr(model, "category", "mug")
+
+
+def build_world(config: SimConfig, models: list[SceneModel]) -> World:
     """Tables, room, source layout and the changed target layout for `config`, with `models` as
     the mug models to place. Deterministic in `config.seed`."""
     if not models:
@@ -142,7 +171,7 @@ def _mugs_per_table(n_tables: int, per_table: tuple[int, int], total: tuple[int,
 
 def place_source(
     tables: list[Table],
-    mugs: dict[str, Mug],
+    mugs: dict[str, SceneModel],
     counts_per_table: list[int],
     rng: np.random.Generator,
 ) -> dict[int, Placement]:
@@ -168,7 +197,7 @@ def place_source(
 
 def apply_changes(
     tables: list[Table],
-    mugs: dict[str, Mug],
+    mugs: dict[str, SceneModel],
     source: dict[int, Placement],
     counts: dict[str, int],
     rng: np.random.Generator,
@@ -230,7 +259,7 @@ def apply_changes(
     return target, changes
 
 
-def turn_in_place(target: dict[int, Placement], changes: list[Change], mugs: dict[str, Mug], count: int,
+def turn_in_place(target: dict[int, Placement], changes: list[Change], mugs: dict[str, SceneModel], count: int,
                   degrees: tuple[float, float], rng: np.random.Generator) -> tuple[dict[int, Placement], list[Change]]:
     """`count` mugs that `changes` left alone turned in place about their axis, each by an angle
     drawn uniformly from `degrees` (inclusive range) in a random sense: the target layout and the
@@ -251,8 +280,9 @@ def turn_in_place(target: dict[int, Placement], changes: list[Change], mugs: dic
     return target, turned
 
 
-def _has_handle(mug: Mug) -> bool:
-    return mug.params is None or mug.params.handle_shape != "none"
+def _has_handle(model: SceneModel) -> bool:
+    """A mug's handle (a mesh from a file is taken to have one); the other categories have none."""
+    return model.params is None or getattr(model.params, "handle_shape", "none") != "none"
 
 
 def _switch_pairs(source: dict[int, Placement], candidates: list[int], n_pairs: int, within_table: bool,
@@ -310,7 +340,7 @@ def _place_somewhere(space: TableSpace, tables: list[Table], instance_id: int, m
     raise SimError(f"no free spot left on any table for mug {instance_id}")
 
 
-def place_clutter(tables: list[Table], mugs: dict[str, Mug], layouts: list[dict[int, Placement]],
+def place_clutter(tables: list[Table], mugs: dict[str, SceneModel], layouts: list[dict[int, Placement]],
                   per_table: int, rng: np.random.Generator) -> list[ClutterItem]:
     """`per_table` pieces of clutter on every table, clear of every mug of every layout (so of
     both sessions: clutter stands still while mugs move) and of each other. A piece that finds

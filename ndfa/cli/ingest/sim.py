@@ -10,13 +10,13 @@ import typer
 from rich.table import Table
 
 from ndfa.cli.app import bar_per_label, console, err_console, progress_bar
-from ndfa.cli.checks import in_range, input_dir, output_dir, positive, seed_range
+from ndfa.cli.checks import category_list, in_range, input_dir, output_dir, positive, seed_range
 from ndfa.cli.ingest import ingest_app
 from ndfa.sim.furniture import MAX_FURNITURE
 from ndfa.sim.handheld import MOTIONS
 from ndfa.sim.mesh_io import load_mug_dir
 from ndfa.sim.noise import DepthNoise
-from ndfa.sim.presets import SCENE_CATEGORIES, make_config
+from ndfa.sim.presets import make_config
 from ndfa.sim.trajectory import RAW_MAX_TURN_DEG
 
 # Upper bounds of the scene's sizes and counts: past them a scene only takes memory and time (a
@@ -104,8 +104,9 @@ def ingest_sim_command(
                                                         f"(default: {RAW_MAX_TURN_DEG:g} with --raw, else unlimited).",
                                             callback=in_range(ge=0, le=180)),
     categories: Optional[str] = typer.Option(None, help="Object categories the scene places, comma-separated "
-                                             f"(default: mug; for now only {', '.join(SCENE_CATEGORIES)}: the "
-                                             "shipped NDF knows mugs alone)."),
+                                             "(mug,bowl,cup,bottle,can,box or all; default: mug). The shipped NDF "
+                                             "(v2) knows mugs alone: its objects' category is reported unknown.",
+                                             callback=category_list),
     rotated: int = typer.Option(0, help="Mugs turned in place about up in the target (unchanged mugs with a handle).",
                                 callback=mug_count),
     rotated_deg: tuple[float, float] = typer.Option((45.0, 180.0), help="MIN MAX: the range (degrees) each "
@@ -161,7 +162,7 @@ def ingest_sim_command(
     if clutter is not None:
         overrides["clutter_per_table"] = clutter
     if categories is not None:
-        overrides["categories"] = tuple(c.strip() for c in categories.split(",") if c.strip())
+        overrides["categories"] = tuple(categories.split(","))
     config = make_config(preset, seed, **overrides)
 
     check_output_dir(out)

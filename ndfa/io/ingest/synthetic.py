@@ -44,7 +44,7 @@ from ndfa.sim.sessions import build_sessions, history_truth, session_names
 from ndfa.sim.shelves import shelf_camera_poses
 from ndfa.sim.texture import RoomTextures, room_textures
 from ndfa.sim.trajectory import camera_poses
-from ndfa.sim.world import World, procedural_models
+from ndfa.sim.world import World, model_category, procedural_models
 from ndfa.sim.world_tilt import tilt_pose
 
 # Sessions start on fixed, distinct days so that the two recordings read as two traversals.
@@ -266,12 +266,15 @@ def render_objects(world: World, session: str, textures: RoomTextures | None = N
 
 def world_ground_truth(world: World, config: SimConfig) -> dict:
     """The scene as JSON-ready data: tables, models, every instance in each session, change labels;
-    with the options on, the clutter and the world tilt.
+    with the options on, the categories, the clutter and the world tilt.
 
     Object poses are in the recorded world frame (tilted, with `world_tilt_deg`); the room and the
     tables are described in the level world, which `world_tilt.pose_world_level` maps into it."""
     change_of = {c.instance_id: c for c in world.changes}
     pose_world_level = world_tilt(config)
+    # Each object's and model's category, beside mugs; a mugs-only scene's ground truth stays as it
+    # was (read as mugs: `ndfa.eval.scoring.instance_categories`).
+    categories = config.categories != ("mug",)
 
     def where(session: str, instance_id: int) -> dict | None:
         placement = world.layout(session).get(instance_id)
@@ -286,6 +289,7 @@ def world_ground_truth(world: World, config: SimConfig) -> dict:
         objects.append({
             "instance_id": instance_id,
             "model_id": placement.model_id,
+            **({"category": model_category(world.mugs[placement.model_id])} if categories else {}),
             "source": where("source", instance_id),
             "target": where("target", instance_id),
             "change": change.kind if change else "unchanged",
@@ -299,7 +303,8 @@ def world_ground_truth(world: World, config: SimConfig) -> dict:
         "seed": config.seed,
         "room": {"size_xy": list(world.room.size_xy), "wall_height": world.room.wall_height},
         "tables": [dataclasses.asdict(t) for t in world.tables],
-        "models": [{"model_id": m.model_id, "seed": m.seed, "watertight": m.watertight} for m in world.mugs.values()],
+        "models": [{"model_id": m.model_id, **({"category": model_category(m)} if categories else {}), "seed": m.seed,
+                    "watertight": m.watertight} for m in world.mugs.values()],
         "objects": objects,
         "changes": dict(counts, total=sum(counts.values())),
     }
