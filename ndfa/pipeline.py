@@ -174,7 +174,8 @@ class ChangeDetectionPipeline:
                 points_world=transform_points(frame.pose_world_camera, observation.points_camera),
                 shape_code=code.shape_code, center_world=code.center_world, mean_occupancy=code.mean_occupancy,
                 reconstruction_world=code.reconstruction, heading_rad=code.heading_rad,
-                heading_strength=code.heading_strength)
+                heading_strength=code.heading_strength, category=code.category,
+                category_probability=code.category_probability)
             events.append(event)
             if skip is None:
                 measurements.append(Measurement.of(event))

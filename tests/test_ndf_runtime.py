@@ -120,7 +120,8 @@ class _BallsRuntime:
 
     def encode(self, points, up, view_ray):
         batch = len(points)
-        return np.zeros((batch, self.latent, 3), np.float32), np.ones((batch, 8), np.float32), np.zeros((batch, 3), np.float32)
+        return (np.zeros((batch, self.latent, 3), np.float32), np.ones((batch, 8), np.float32),
+                np.zeros((batch, 3), np.float32), None)
 
     def occupancy(self, z, queries, points):
         return np.max([peak * np.exp(-((queries - center) ** 2).sum(-1) / width) for center, peak, width in self.balls],
@@ -207,5 +208,7 @@ def test_a_model_with_categories_exports_their_probabilities():
         expected = torch.softmax(model.category_logits(code), dim=-1).numpy()
     assert probabilities.shape == (3, 3) and np.allclose(probabilities.sum(axis=1), 1.0, atol=1e-5)
     assert np.allclose(probabilities, expected, atol=1e-4)
-    z, _, _ = make_runtime(model, 64, "onnxruntime").encode(points, up, view_ray)  # the detector's three outputs
-    assert z.shape == (3, config.latent, 3)
+    for runtime in ("onnxruntime", "torch"):  # the detector's four outputs
+        z, _, _, detected = make_runtime(model, 64, runtime).encode(points, up, view_ray)
+        assert z.shape == (3, config.latent, 3)
+        assert np.allclose(detected, expected, atol=1e-4)

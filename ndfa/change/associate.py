@@ -26,7 +26,7 @@ import numpy as np
 
 from ndfa.change.config import DetectorConfig
 from ndfa.change.tree import ObjectTree
-from ndfa.core.conventions import UP_AXIS, horizontal
+from ndfa.core.conventions import UNKNOWN_CATEGORY, UP_AXIS, horizontal
 from ndfa.core.events import ObservationEvent
 
 
@@ -41,6 +41,8 @@ class Measurement:
     mean_occupancy: float
     heading_rad: float = float("nan")  # the handle's azimuth about up, and how sure (`ndfa.ndf.heading`)
     heading_strength: float = 0.0
+    category: str = UNKNOWN_CATEGORY  # the NDF's likeliest category, and its probability
+    category_probability: float = float("nan")
 
     @classmethod
     def of(cls, observation: ObservationEvent) -> Measurement:
@@ -51,7 +53,7 @@ class Measurement:
                              f"a skipped or unencoded observation is no measurement ({observation.skipped})")
         return cls(observation.frame_index, observation.instance_id, observation.shape_code,
                    observation.center_world, observation.mean_occupancy, observation.heading_rad,
-                   observation.heading_strength)
+                   observation.heading_strength, observation.category, observation.category_probability)
 
 
 @dataclass
@@ -75,6 +77,26 @@ class SessionObject:
     # `centers`, `headings` and `frames` keep every `history_stride`-th measurement (`keep_in_history`)
     history_stride: int = 1
     latest_center: np.ndarray | None = None  # its latest measurement's center (None: its center)
+    # category -> the summed probability of its measurements that found it the likeliest (`category`)
+    category_votes: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def category(self) -> str:
+        """The category most of its measurements' probability went to; `UNKNOWN_CATEGORY` when none
+        had one (a model without a category head)."""
+        return max(self.category_votes, key=lambda name: (self.category_votes[name], name)) \
+            if self.category_votes else UNKNOWN_CATEGORY
+
+    @property
+    def category_share(self) -> float:
+        """How much of its measurements' category probability went to `category` (0..1; NaN: none)."""
+        total = sum(self.category_votes.values())
+        return self.category_votes[self.category] / total if total else float("nan")
+
+    def vote(self, m: Measurement) -> None:
+        """Count a measurement's category (one without any counts nothing)."""
+        if m.category != UNKNOWN_CATEGORY and np.isfinite(m.category_probability):
+            self.category_votes[m.category] = self.category_votes.get(m.category, 0.0) + m.category_probability
 
     @property
     def center_scatter_m(self) -> float:
@@ -173,9 +195,11 @@ class SessionMap:
                 object_id, m.shape_code, m.center_world, m.mean_occupancy, m.frame_index, m.frame_index,
                 instance_ids=(m.instance_id,), code_sum=_unit(m.shape_code), centers=[m.center_world],
                 headings=[(m.heading_rad, m.heading_strength)], frames=[m.frame_index])
+            self.objects[object_id].vote(m)
             self.tree.insert(object_id, m.center_world)
             return Association(object_id, True, False, float("nan"), float("nan"), len(candidates))
         best.n_measurements += 1
+        best.vote(m)
         best.last_frame = m.frame_index
         best.latest_center = m.center_world
         kept = keep_in_history(best)

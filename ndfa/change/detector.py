@@ -115,7 +115,7 @@ class ChangeDetector:
                 reason=f"changed, and shape-matches removed source object {source_id}",
                 center_world=before.center_world, center_source=before.center_source, partner_id=source_id,
                 instance_ids=before.instance_ids, partner_instance_ids=self.source.objects[source_id].instance_ids,
-                score=before.score))
+                score=before.score, category=self.target.objects[target_id].category))
         for source_id in removed:
             if source_id in moved_from.values():
                 continue
@@ -123,7 +123,8 @@ class ChangeDetector:
             events.append(DecisionEvent(
                 frame_index=self._last_frame, session="source", object_id=source_id, kind="removed",
                 reason="observed but never matched", center_world=obj.center_world, center_source=obj.center_world,
-                instance_ids=obj.instance_ids, score=removal_score(len(self.observers[source_id]))))
+                instance_ids=obj.instance_ids, score=removal_score(len(self.observers[source_id])),
+                category=obj.category))
         return events + self._rotations()
 
     # -- steps ----------------------------------------------------------------------------------
@@ -135,7 +136,7 @@ class ChangeDetector:
         events: list[Event] = [AssociationEvent(
             session=session, frame_index=m.frame_index, instance_id=m.instance_id, object_id=a.object_id,
             created=a.created, replaced=a.replaced, distance_m=a.distance_m, similarity=a.similarity,
-            candidates=a.candidates, center_world=obj.center_world, shape_code=obj.shape_code)]
+            candidates=a.candidates, center_world=obj.center_world, shape_code=obj.shape_code, category=obj.category)]
         if a.created or nodes_before != session_map.tree.node_counts():
             events.append(tree_event(session, m.frame_index, session_map))
         return a, events
@@ -213,7 +214,8 @@ class ChangeDetector:
                 reason=(f"turned {turned.angle_deg:+.0f} deg about up against source object {partner_id} "
                         f"(headings from {turned.target.views} and {turned.source.views} views)"),
                 center_world=obj.center_world, center_source=apply(self.registration.transform, obj.center_world[None])[0],
-                partner_id=partner_id, instance_ids=obj.instance_ids, score=turned.score, angle_deg=turned.angle_deg))
+                partner_id=partner_id, instance_ids=obj.instance_ids, score=turned.score, angle_deg=turned.angle_deg,
+                category=obj.category))
         return events
 
     def _decision(self, frame_index: int, object_id: int, kind: DecisionKind, verdict: Verdict,
@@ -222,7 +224,7 @@ class ChangeDetector:
         return DecisionEvent(frame_index=frame_index, session="target", object_id=object_id, kind=kind,
                              reason=verdict.reason, center_world=obj.center_world, center_source=center_source,
                              partner_id=verdict.partner_id, instance_ids=obj.instance_ids,
-                             score=decision_score(verdict))
+                             score=decision_score(verdict), category=obj.category)
 
 
 def reported_changes(decisions: list[DecisionEvent]) -> list[DecisionEvent]:

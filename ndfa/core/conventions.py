@@ -33,6 +33,9 @@ WORLD_UP = (0.0, 0.0, 1.0)   # the world's up direction (z): see the module docs
 HORIZONTAL_AXES = (0, 1)     # the world axes that span the ground plane (x, y)
 UP_AXIS = 2                  # the world axis along WORLD_UP
 
+# The category of an object whose NDF has no category head (NDF v2, trained on mugs alone): not
+# "mug", which the model cannot tell from a bowl or a box the segmentation let through.
+UNKNOWN_CATEGORY = "unknown"
 VISIBLE_PIXELS = 300
 MIN_DEPTH_M = 0.1
 MAX_DEPTH_M = 4.0

@@ -12,6 +12,7 @@ from typing import Literal
 
 import numpy as np
 
+from ndfa.core.conventions import UNKNOWN_CATEGORY
 from ndfa.core.frame import Frame
 
 Session = Literal["source", "target"]
@@ -54,6 +55,8 @@ class ObservationEvent:
     reconstruction_world: np.ndarray | None = None  # (M, 3) grid points the NDF calls occupied
     heading_rad: float = float("nan")        # the handle's azimuth about up (ndfa.ndf.heading)
     heading_strength: float = 0.0            # how sure the NDF is of it
+    category: str = UNKNOWN_CATEGORY         # the NDF's likeliest category ("unknown": a model without categories)
+    category_probability: float = float("nan")  # and its probability
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -71,6 +74,7 @@ class AssociationEvent:
     candidates: int
     center_world: np.ndarray                 # the object's center after the update
     shape_code: np.ndarray                   # the object's code after the update
+    category: str = UNKNOWN_CATEGORY         # the object's category after the update
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -151,6 +155,7 @@ class DecisionEvent:
     partner_instance_ids: tuple[int, ...] = ()  # a move's source object's mask ids (it is reported with it)
     score: float = float("nan")
     angle_deg: float | None = None           # "rotated": the turn about up, degrees (source world, source -> target)
+    category: str = UNKNOWN_CATEGORY         # the object's category (`SessionObject.category`)
 
     @property
     def reported_instances(self) -> tuple[int, ...]:

@@ -219,7 +219,7 @@ class RerunSink:
         if e.session == self._sessions[0]:
             self._places[entity] = np.asarray(e.center_world, dtype=float)
         self.rec.log(entity, rr.Points3D([e.center_world], colors=self._color(e.session), radii=0.01,
-                                         labels=[f"{e.session[0]}{e.object_id}"], show_labels=False))
+                                         labels=[f"{e.session[0]}{e.object_id} {e.category}"], show_labels=False))
         self.rec.log(f"{entity}/shape_code", rr.BarChart(np.asarray(e.shape_code, dtype=np.float32)))
         cloud = self._frame_clouds.get((e.session, e.instance_id))
         if cloud is not None and len(cloud) > self._object_view_size.get((e.session, e.object_id), 0):
@@ -277,9 +277,10 @@ class RerunSink:
             self._places[f"decisions/{e.session}_{e.object_id}"] = np.asarray(position, dtype=float)
             self.rec.log(f"decisions/{e.session}_{e.object_id}", rr.Points3D(
                 [position], colors=KIND_COLORS[e.kind], radii=0.03,
-                labels=[f"{e.kind} {e.session[0]}{e.object_id} {e.score:.2f}{_turn(e)}"]))
+                labels=[f"{e.kind} {e.category} {e.session[0]}{e.object_id} {e.score:.2f}{_turn(e)}"]))
         self.rec.log("decisions/log", rr.TextLog(
-            f"frame {e.frame_index}: {e.session} object {e.object_id} {e.kind}{_turn(e)} (score {e.score:.2f}): {e.reason}",
+            f"frame {e.frame_index}: {e.session} object {e.object_id} ({e.category}) {e.kind}{_turn(e)} "
+            f"(score {e.score:.2f}): {e.reason}",
             level="INFO" if e.kind == "unchanged" else "WARN"))
 
     def _PoseQualityEvent(self, e: PoseQualityEvent) -> None:

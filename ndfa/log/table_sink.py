@@ -1,9 +1,11 @@
 """Events -> Polars tables, written as parquet into one directory, for analysis in notebooks.
 
     observations.parquet   one row per instance per frame: pixels, points, skip reason, code, center,
-                           handle heading about up and its strength (docs/rotation.md)
+                           handle heading about up and its strength (docs/rotation.md), the NDF's
+                           likeliest category and its probability ("unknown", NaN: a model without
+                           categories; docs/categories.md)
     associations.parquet   the intra-session update of each measurement
-    objects.parquet        each session's objects at the end (last state of every object)
+    objects.parquet        each session's objects at the end (last state of every object, its category)
     tree_nodes.parquet     each session's interval-tree nodes at the end
     registration.parquet   every registration attempt, with T_rel when found
     graphs.parquet         every local-graph comparison, one row per compared edge pair (or one
@@ -13,7 +15,7 @@
                            mask when the recordings carry it, and whether a change's kind is right
                            for it (`kind_right`; a move from another mask is not); `reported`: the
                            changes the run reports (an "added" later found "moved" is reported as
-                           the move); a rotation's turn in `angle_deg`
+                           the move); a rotation's turn in `angle_deg`; the object's `category`
     timings.parquet        ms per stage per frame
     pose_quality.parquet   one row per session whose poses were estimated: the verdict (good /
                            doubtful / unusable), the estimated error and the figures behind it
@@ -101,6 +103,7 @@ class TableSink:
                 "touches_border": event.touches_border, "mean_occupancy": event.mean_occupancy,
                 **_xyz("center", event.center_world), "shape_code": _list(event.shape_code),
                 "heading_deg": float(np.degrees(event.heading_rad)), "heading_strength": event.heading_strength,
+                "category": event.category, "category_probability": event.category_probability,
                 "truth": self._truth(event.instance_id)})
         elif isinstance(event, AssociationEvent):
             row = {"session": event.session, "frame": event.frame_index, "instance_id": event.instance_id,
@@ -113,7 +116,7 @@ class TableSink:
                 "session": event.session, "object_id": event.object_id, "first_frame": previous["first_frame"],
                 "last_frame": event.frame_index, "measurements": previous["measurements"] + 1,
                 "instance_ids": sorted(set(previous["instance_ids"]) | {event.instance_id}),
-                **_xyz("center", event.center_world), "shape_code": _list(event.shape_code),
+                **_xyz("center", event.center_world), "shape_code": _list(event.shape_code), "category": event.category,
                 "truth": self._truth(event.instance_id if not previous["instance_ids"] else previous["instance_ids"][0])}
         elif isinstance(event, TreeEvent):
             self._trees[event.session] = event
@@ -139,7 +142,7 @@ class TableSink:
                 "frame": event.frame_index, "session": event.session, "object_id": event.object_id, "kind": event.kind,
                 "reason": event.reason, **_xyz("position", position), "partner_id": event.partner_id,
                 "instance_ids": list(event.instance_ids), "partner_instance_ids": list(event.partner_instance_ids),
-                "score": event.score, "angle_deg": event.angle_deg,
+                "score": event.score, "angle_deg": event.angle_deg, "category": event.category,
                 "truth": self._truth(event.instance_ids[0]) if event.instance_ids else None,
                 "kind_right": self._kind_right(event)})
         elif isinstance(event, PoseQualityEvent):

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 from scipy.ndimage import binary_dilation
 
-from ndfa.core.conventions import world_up
+from ndfa.core.conventions import UNKNOWN_CATEGORY, world_up
 from ndfa.core.errors import ModelError
 from ndfa.core.geometry import transform_points
 from ndfa.ndf.checkpoint import load_model
@@ -46,6 +46,10 @@ class ObjectCode:
     # NaN and 0 for a model without the trained frame decoder.
     heading_rad: float = float("nan")
     heading_strength: float = 0.0
+    # The most probable of the model's categories and its probability (`NDFEncoder.categories`);
+    # `UNKNOWN_CATEGORY` and NaN for a model without a category head (NDF v2).
+    category: str = UNKNOWN_CATEGORY
+    category_probability: float = float("nan")
 
 
 FINE_GRID_RESOLUTION = 20  # the reconstruction grid of `ndfa ndf-eval` and the model card
@@ -123,6 +127,8 @@ class NDFEncoder:
         self.config = config
         self.runtime = make_runtime(self.model, self.n_points, config.runtime, config.threads)
         self._frame_weights = frame_weights_of(self.model)
+        # The categories its head tells apart (NDF v3); none: every object's is `UNKNOWN_CATEGORY`.
+        self.categories: tuple[str, ...] = tuple(self.model.config.categories)
         axis = np.linspace(-1.0, 1.0, config.grid_resolution, dtype=np.float32) * config.grid_half_extent_m
         self._grid = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), axis=-1).reshape(-1, 3)
         n = config.grid_resolution
@@ -161,7 +167,7 @@ class NDFEncoder:
             return []
         points = np.stack([self.resample(_checked_cloud(c, i)) for i, c in enumerate(clouds)])
         centred, up, centroids = self._inputs(points, poses_world_camera)
-        z, codes, offsets = self.runtime.encode(centred, up, centroids[:, 0].astype(np.float32))
+        z, codes, offsets, probabilities = self.runtime.encode(centred, up, centroids[:, 0].astype(np.float32))
         query_points = offsets[:, None, :] + self._grid[None]  # around each predicted center
         occupancy = self._grid_occupancy(z, query_points, centred, full_reconstruction)
 
@@ -172,6 +178,10 @@ class NDFEncoder:
             rotation = np.asarray(pose)[:3, :3]
             z_world = z[i] @ rotation.T
             heading = handle_heading(z_world, self._frame_weights)
+            category, probability = UNKNOWN_CATEGORY, float("nan")
+            if probabilities is not None:
+                likeliest = int(np.argmax(probabilities[i]))
+                category, probability = self.categories[likeliest], float(probabilities[i, likeliest])
             results.append(ObjectCode(
                 shape_code=codes[i],
                 center_world=transform_points(pose, (centroids[i, 0] + center_local)[None])[0],
@@ -180,6 +190,8 @@ class NDFEncoder:
                 reconstruction=transform_points(pose, query_points[i][inside] + centroids[i, 0]),
                 heading_rad=heading.angle_rad,
                 heading_strength=heading.strength,
+                category=category,
+                category_probability=probability,
             ))
         return results
 

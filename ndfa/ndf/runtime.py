@@ -23,10 +23,12 @@ import numpy as np
 import torch
 
 from ndfa.core.errors import ModelError
-from ndfa.ndf.export_onnx import ENCODE_OUTPUTS, export_onnx
+from ndfa.ndf.export_onnx import CATEGORY_OUTPUT, ENCODE_OUTPUTS, export_onnx
 from ndfa.ndf.model import NDFModel
 
 RUNTIMES = ("auto", "onnxruntime", "torch")
+# What `NDFRuntime.encode` returns: z, shape code, center offset, category probabilities (or None).
+Encoded = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]
 
 
 class NDFRuntime(Protocol):
@@ -34,9 +36,10 @@ class NDFRuntime(Protocol):
 
     name: str
 
-    def encode(self, points: np.ndarray, up: np.ndarray, view_ray: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def encode(self, points: np.ndarray, up: np.ndarray, view_ray: np.ndarray) -> Encoded:
         """Centred points `[B, N, 3]`, up and view ray `[B, 3]` -> z `[B, k, 3]`, shape code
-        `[B, D]`, center offset `[B, 3]` (metres)."""
+        `[B, D]`, center offset `[B, 3]` (metres), and the category probabilities `[B, C]` of a
+        model with a category head (`NDFConfig.categories`; None without one)."""
         ...
 
     def occupancy(self, z: np.ndarray, queries: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -53,9 +56,12 @@ class TorchRuntime:
         self.model = model
 
     @torch.inference_mode()
-    def encode(self, points: np.ndarray, up: np.ndarray, view_ray: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def encode(self, points: np.ndarray, up: np.ndarray, view_ray: np.ndarray) -> Encoded:
         z = self.model.encode(torch.from_numpy(points), torch.from_numpy(up), torch.from_numpy(view_ray))
-        return z.numpy(), self.model.shape_code(z).numpy(), self.model.center_offset(z).numpy()
+        code = self.model.shape_code(z)
+        probabilities = None if self.model.category_head is None else \
+            torch.softmax(self.model.category_logits(code), dim=-1).numpy()
+        return z.numpy(), code.numpy(), self.model.center_offset(z).numpy(), probabilities
 
     @torch.inference_mode()
     def occupancy(self, z: np.ndarray, queries: np.ndarray, points: np.ndarray) -> np.ndarray:
@@ -82,12 +88,13 @@ class OnnxRuntime:
         providers = ["CPUExecutionProvider"]
         self._encode = onnxruntime.InferenceSession(encode, options, providers=providers)
         self._occupancy = onnxruntime.InferenceSession(occupancy, options, providers=providers)
+        self._outputs = list(ENCODE_OUTPUTS) + [CATEGORY_OUTPUT] * (model.category_head is not None)
         self.threads = threads
 
-    def encode(self, points: np.ndarray, up: np.ndarray, view_ray: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        # By name: a model with categories has a fourth output, which the detector does not read yet.
-        z, code, offset = self._encode.run(list(ENCODE_OUTPUTS), {"points": points, "up": up, "view_ray": view_ray})
-        return z, code, offset
+    def encode(self, points: np.ndarray, up: np.ndarray, view_ray: np.ndarray) -> Encoded:
+        # By name: a model with categories has a fourth output, the category probabilities.
+        outputs = self._encode.run(self._outputs, {"points": points, "up": up, "view_ray": view_ray})
+        return outputs[0], outputs[1], outputs[2], outputs[3] if len(outputs) > 3 else None
 
     def occupancy(self, z: np.ndarray, queries: np.ndarray, points: np.ndarray) -> np.ndarray:
         occupancy: np.ndarray = self._occupancy.run(None, {"z": z, "queries": queries, "points": points})[0]

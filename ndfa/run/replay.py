@@ -30,7 +30,7 @@ import polars as pl
 from ndfa.change.associate import Measurement
 from ndfa.change.detector import ChangeDetector, DetectorConfig, reported_changes
 from ndfa.change.register import RegistrationPrior
-from ndfa.core.conventions import is_visible
+from ndfa.core.conventions import UNKNOWN_CATEGORY, is_visible
 from ndfa.core.events import CHANGE_SCORE, SESSIONS, DecisionEvent, ObservationEvent
 
 
@@ -76,7 +76,10 @@ def observation_of(row: dict) -> ObservationEvent:
         mean_occupancy=row["mean_occupancy"],
         # the handle heading (docs/rotation.md); a table written before it had none
         heading_rad=np.radians(np.nan if row.get("heading_deg") is None else row["heading_deg"]),
-        heading_strength=row.get("heading_strength") or 0.0)
+        heading_strength=row.get("heading_strength") or 0.0,
+        # the NDF's category (docs/categories.md); a table written before it had none
+        category=row.get("category") or UNKNOWN_CATEGORY,
+        category_probability=np.nan if row.get("category_probability") is None else row["category_probability"])
 
 
 def replay(observations: pl.DataFrame, config: DetectorConfig = DetectorConfig(),

@@ -118,6 +118,7 @@ def change_summary(c: DecisionEvent) -> dict:
     position = c.center_source if c.center_source is not None else c.center_world
     return {"object": c.object_id, "session": c.session, "kind": c.kind, "frame": c.frame_index,
             "position": [round(float(v), 4) for v in position], "instance_ids": list(c.instance_ids),
+            "category": c.category,
             "score": None if np.isnan(c.score) else round(float(c.score), 4)} \
         | ({} if c.angle_deg is None else {"angle_deg": round(c.angle_deg, 1)})
 
