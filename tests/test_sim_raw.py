@@ -13,7 +13,7 @@ from ndfa.core.geometry import invert_pose
 from ndfa.io.ingest.synthetic import ingest_sim, render_objects, world_ground_truth
 from ndfa.io.recording import RecordingReader, RecordingWriter
 from ndfa.sim.camera import PinholeCamera
-from ndfa.sim.clutter import CLUTTER_FIRST_ID, CLUTTER_KINDS, make_clutter_mesh
+from ndfa.sim.clutter import CLUTTER_FIRST_ID, CLUTTER_KINDS, NON_OBJECTS, footprint_radius, make_clutter_mesh
 from ndfa.sim.noise import DepthNoise
 from ndfa.sim.presets import make_config
 from ndfa.sim.render import SceneRenderer
@@ -118,12 +118,16 @@ def test_clutter_never_collides_with_mugs_and_moves_none_of_them():
                 assert np.linalg.norm(np.subtract(item.xy, other.xy)) >= item.footprint_radius + other.footprint_radius
 
 
-@pytest.mark.parametrize("kind", ["box", "bowl", "bottle"])
-def test_clutter_shapes_are_closed(kind):
+@pytest.mark.parametrize("kind", CLUTTER_KINDS)
+def test_clutter_stands_on_the_table_and_non_objects_are_closed(kind):
+    """Objects are the categories' (closed parts: tests/test_categories.py); papers and cables are
+    closed meshes of their own, lying flat."""
     for seed in range(3):
         mesh = make_clutter_mesh(kind, np.random.default_rng(seed))
-        assert mesh.is_watertight()
-        assert mesh.vertices[:, 2].min() == pytest.approx(0.0)  # stands on z = 0
+        assert mesh.vertices[:, 2].min() == pytest.approx(0.0, abs=1e-9)  # stands on z = 0
+        assert footprint_radius(mesh) <= 0.19
+        if kind in NON_OBJECTS:
+            assert mesh.is_watertight() and mesh.vertices[:, 2].max() <= 0.013
 
 
 def test_clutter_is_listed_as_clutter_not_as_objects(recordings):
@@ -134,6 +138,7 @@ def test_clutter_is_listed_as_clutter_not_as_objects(recordings):
     assert truth["objects"] == plain["objects"] and truth["changes"] == plain["changes"]
     assert "clutter" not in plain
     assert [c["instance_id"] for c in truth["clutter"]] == [item.instance_id for item in world.clutter]
+    assert [c["category"] for c in truth["clutter"]] == [None if i.kind in NON_OBJECTS else i.kind for i in world.clutter]
     assert {c["instance_id"] for c in truth["clutter"]}.isdisjoint(o["instance_id"] for o in truth["objects"])
     # The raw recording carries the same list; rendered with masks the clutter is an instance.
     assert len(RecordingReader(recordings["raw"] / "source.mcap").ground_truth["clutter"]) == len(world.clutter)

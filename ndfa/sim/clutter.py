@@ -1,14 +1,19 @@
-"""Clutter: things on the tables that are not mugs (boxes, books, bowls, bottles).
+"""Clutter: what stands on the tables beside the scene's objects, and does not change.
 
-Why: a real table holds more than the objects of interest. Clutter tests that perception and the
-detector do not take every object for a mug and do not report objects that did not change. It
-stands still between the sessions, carries instance ids of its own (from `CLUTTER_FIRST_ID`, far
-above any mug's), and the ground truth lists it apart from the mugs: it is never an object to
-score and never a change.
+Why: a real table holds more than the objects a scene changes. Clutter is of two sorts:
+
+- **objects** of the categories beside the mugs (`CLUTTER_CATEGORIES`: bowls, cups, bottles, cans,
+  boxes; `ndfa.sim.categories.make_object`), rigid things standing on the table that a detector of
+  every category should find, and never report changed;
+- **non-objects** (`NON_OBJECTS`): papers lying flat (a sheet to a magazine's stack) and cables
+  lying in curves, which the segmentation's objectness gate must turn away.
+
+It stands still between the sessions, carries instance ids of its own (from `CLUTTER_FIRST_ID`, far
+above any object's), and the ground truth lists it apart from the scene's objects, each item with
+its `category` (None for a non-object): never an object to score as changed and never a change.
 
 Every shape is procedural, drawn from a seeded generator, in the same frame as a mug: z up,
-base at z = 0, metres. Boxes, bowls and bottles are single closed meshes; a stack of books is
-closed books touching each other.
+base at z = 0, metres.
 """
 
 from __future__ import annotations
@@ -18,13 +23,18 @@ from dataclasses import dataclass
 import numpy as np
 
 from ndfa.core.geometry import make_pose, rotation_z
+from ndfa.sim.categories import make_object
 from ndfa.sim.mesh import Mesh, box_mesh
-from ndfa.sim.mug_body import revolve_profile
+from ndfa.sim.mug_handle import sweep_tube
 from ndfa.sim.scene import Table
+from ndfa.sim.splits import TEST_SEEDS
 
-CLUTTER_KINDS = ("box", "books", "bowl", "bottle")
+CLUTTER_CATEGORIES = ("bowl", "cup", "bottle", "can", "box")
+NON_OBJECTS = ("paper", "cable")
+CLUTTER_KINDS = CLUTTER_CATEGORIES + NON_OBJECTS
 CLUTTER_FIRST_ID = 1001  # instance ids of clutter start here; mug ids stay below
-_REVOLVE_SEGMENTS = 32
+# The widest clutter object, from its axis: a table keeps room for the scene's objects.
+MAX_CLUTTER_RADIUS_M = 0.12
 
 
 @dataclass(frozen=True, eq=False)
@@ -40,6 +50,11 @@ class ClutterItem:
     color: tuple[float, float, float]
 
     @property
+    def category(self) -> str | None:
+        """The object category of an object (`CLUTTER_CATEGORIES`), None for a non-object."""
+        return self.kind if self.kind in CLUTTER_CATEGORIES else None
+
+    @property
     def footprint_radius(self) -> float:
         """Radius of the circle about the object's axis that contains it seen from above."""
         return footprint_radius(self.mesh)
@@ -53,50 +68,37 @@ def footprint_radius(mesh: Mesh) -> float:
 
 
 def make_clutter_mesh(kind: str, rng: np.random.Generator) -> Mesh:
-    """A random object of `kind` (one of CLUTTER_KINDS), at most about 12 cm from its axis."""
-    if kind == "box":
-        size = rng.uniform([0.06, 0.06, 0.04], [0.16, 0.12, 0.2])
-        return box_mesh(tuple(size), (0.0, 0.0, size[2] / 2))
-    if kind == "books":
-        return _book_stack(rng)
-    if kind == "bowl":
-        return revolve_profile(_bowl_profile(rng), _REVOLVE_SEGMENTS)
-    if kind == "bottle":
-        return revolve_profile(_bottle_profile(rng), _REVOLVE_SEGMENTS)
+    """A random object or non-object of `kind` (one of CLUTTER_KINDS), at most about 18 cm from its
+    axis (an object: `MAX_CLUTTER_RADIUS_M`)."""
+    if kind in CLUTTER_CATEGORIES:
+        for _ in range(100):  # a test-split object of the category narrow enough
+            mesh = make_object(kind, int(rng.integers(TEST_SEEDS.start, TEST_SEEDS.stop))).mesh
+            if footprint_radius(mesh) <= MAX_CLUTTER_RADIUS_M:
+                return mesh
+        return mesh
+    if kind == "paper":
+        return _paper(rng)
+    if kind == "cable":
+        return _cable(rng)
     raise ValueError(f"unknown clutter kind {kind!r}; expected one of {CLUTTER_KINDS}")
 
 
-def _book_stack(rng: np.random.Generator) -> Mesh:
-    """One to three books lying flat, each a little turned against the one below."""
-    books, z = [], 0.0
-    for _ in range(int(rng.integers(1, 4))):
-        length, width, thickness = rng.uniform(0.13, 0.2), rng.uniform(0.1, 0.14), rng.uniform(0.015, 0.045)
-        book = box_mesh((length, width, thickness), (0.0, 0.0, z + thickness / 2))
-        books.append(book.transformed(make_pose(rotation_z(rng.uniform(-0.25, 0.25)), np.zeros(3))))
-        z += thickness
-    return Mesh.concatenate(books)
+def _paper(rng: np.random.Generator) -> Mesh:
+    """Paper lying flat: an A5 to A4 sheet, a notepad or a magazine, 1 mm to 1.2 cm thick."""
+    length, width = rng.uniform(0.15, 0.3), rng.uniform(0.1, 0.21)
+    thickness = rng.uniform(0.001, 0.012)
+    return box_mesh((length, width, thickness), (0.0, 0.0, thickness / 2))
 
 
-def _bowl_profile(rng: np.random.Generator) -> np.ndarray:
-    """Closed (r, z) profile of a bowl, bottom pole to top pole (the centre of the inner floor),
-    counter-clockwise around the material as `revolve_profile` wants it."""
-    rim_r, height = rng.uniform(0.06, 0.09), rng.uniform(0.04, 0.07)
-    foot_r, wall, floor = rim_r * rng.uniform(0.45, 0.6), 0.006, 0.008
-    z_out = np.linspace(0.0, height, 10)[1:]
-    outer = foot_r + (rim_r - foot_r) * np.sqrt(z_out / height)  # a rounded flare
-    z_in = np.linspace(height, floor, 10)[1:]
-    inner = foot_r - wall + (rim_r - foot_r) * np.sqrt((z_in - floor) / (height - floor))
-    return np.concatenate([[[0.0, 0.0], [foot_r, 0.0]], np.c_[outer, z_out], [[rim_r - wall, height]],
-                           np.c_[inner, z_in], [[0.0, floor]]])
-
-
-def _bottle_profile(rng: np.random.Generator) -> np.ndarray:
-    """Closed (r, z) profile of a bottle: body, shoulder, neck and cap, bottom pole to top pole."""
-    body_r, height = rng.uniform(0.03, 0.045), rng.uniform(0.18, 0.3)
-    neck_r = rng.uniform(0.011, 0.016)
-    shoulder_z, neck_z = height * rng.uniform(0.55, 0.7), height * rng.uniform(0.8, 0.88)
-    angles = np.linspace(0, np.pi / 2, 6)[1:]
-    shoulder = np.c_[neck_r + (body_r - neck_r) * np.cos(angles), shoulder_z + (neck_z - shoulder_z) * np.sin(angles)]
-    return np.concatenate([[[0.0, 0.0], [body_r - 0.004, 0.0], [body_r, 0.004], [body_r, shoulder_z]], shoulder,
-                           [[neck_r, height - 0.01], [neck_r + 0.002, height - 0.01], [neck_r + 0.002, height],
-                            [0.0, height]]])
+def _cable(rng: np.random.Generator) -> Mesh:
+    """A cable lying on the table in a wave: 3-8 mm thick, 20-32 cm end to end."""
+    length, amplitude = rng.uniform(0.2, 0.32), rng.uniform(0.01, 0.05)
+    waves, phase, radius = rng.uniform(0.5, 2.0), rng.uniform(0, 2 * np.pi), rng.uniform(0.0015, 0.004)
+    x = np.linspace(-length / 2, length / 2, 40)
+    angle = 2 * np.pi * waves * x / length + phase
+    # In the xz plane as `sweep_tube` takes it, then laid down: z becomes the table's y.
+    points = np.c_[x, np.zeros_like(x), amplitude * np.sin(angle)]
+    tangents = np.c_[np.ones_like(x), np.zeros_like(x), amplitude * 2 * np.pi * waves / length * np.cos(angle)]
+    tangents /= np.linalg.norm(tangents, axis=1, keepdims=True)
+    lay_down = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 0.0, -1.0, 0.0], [0.0, 1.0, 0.0, radius], [0.0, 0.0, 0.0, 1.0]])
+    return sweep_tube(points, tangents, radius, radius).transformed(lay_down)

@@ -56,7 +56,7 @@ class SimConfig:
     # What makes the scene closer to raw sensor data; all off by default, and off leaves every
     # image of a scene as it was.
     textures: bool = False          # procedural colour on walls, floor and table tops (for photometric odometry)
-    clutter_per_table: int = 0      # non-mug objects per table (boxes, books, bowls, bottles); static
+    clutter_per_table: int = 0      # clutter per table (objects of other categories, papers, cables); static
     raw: bool = False               # record as a sensor does: no instance masks, no camera poses (/tf)
     world_tilt_deg: float = 0.0     # tilt of the recorded world frame away from z-up (roll/pitch, seeded)
     # Mugs turned in place about up in the target (a change the paper leaves out; docs/rotation.md),

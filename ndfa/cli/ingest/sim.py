@@ -81,7 +81,7 @@ def ingest_sim_command(
                                               callback=in_range(ge=0, le=180, why="degrees per frame")),
     textures: Optional[bool] = typer.Option(None, "--textures/--no-textures", help="Procedural colour texture on "
                                             "walls, floor and table tops (default: the preset's; office: on)."),
-    clutter: Optional[int] = typer.Option(None, help="Non-mug objects per table (boxes, books, bowls, bottles); static, "
+    clutter: Optional[int] = typer.Option(None, help="Clutter per table (bowls, cups, bottles, cans, boxes; papers, cables); static, "
                                                      "listed as clutter in the ground truth (default: the preset's; "
                                                      "office: 3).",
                                           callback=in_range(ge=0, le=MAX_CLUTTER, why="a table is full long before: "

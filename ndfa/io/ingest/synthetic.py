@@ -310,10 +310,11 @@ def world_ground_truth(world: World, config: SimConfig) -> dict:
     }
     # Only with the options on, so that a default scene's ground truth stays as it was.
     if config.clutter_per_table:
-        # Static, in both sessions: never an object to score, never a change.
+        # Static, in both sessions: never a change; objects of a category, and non-objects.
         truth["clutter"] = [{
             "instance_id": item.instance_id,
             "kind": item.kind,
+            "category": item.category,  # None: not an object (paper, a cable)
             "table_id": item.table_id,
             "pose_world_object": (pose_world_level @ world.clutter_pose(item)).tolist(),
         } for item in world.clutter]
