@@ -26,7 +26,7 @@ from ndfa.ndf.encoder import EncoderConfig, NDFEncoder, ObjectCode
 from ndfa.ndf.reuse import CodeReuse, ReuseConfig
 from ndfa.perception.observations import Observation, ObservationConfig, SkippedObservation, extract_observations
 from ndfa.perception.segmentation import segment_frame
-from ndfa.perception.segmentation_config import SegmentationConfig
+from ndfa.perception.segmentation_config import GATES, SegmentationConfig
 
 
 @dataclass(frozen=True)
@@ -48,7 +48,8 @@ class PipelineConfig:
         encoded a frame or two before, when its view has barely changed (`ndfa.ndf.reuse`; off by
         default: the paper encodes every observation). Segmented frames are always encoded: a
         segment's points change with the clustering from frame to frame, and on `paper --raw
-        --textures` reuse moved decisions (docs/speed.md)."""
+        --textures` reuse moved decisions (docs/speed.md).
+    gate: which segments are objects (`GATES`; docs/segmentation.md, "Objects, not mugs")."""
 
     observation: ObservationConfig = field(default_factory=ObservationConfig)
     encoder: EncoderConfig = field(default_factory=EncoderConfig)
@@ -57,6 +58,11 @@ class PipelineConfig:
     segmentation: SegmentationConfig | None = field(default_factory=SegmentationConfig)
     min_segment_occupancy: float = 0.63
     reuse: ReuseConfig = field(default_factory=ReuseConfig)
+    gate: str = "auto"
+
+    def __post_init__(self) -> None:
+        if self.gate not in GATES:
+            raise ValueError(f"unknown objectness gate {self.gate!r}; expected one of {', '.join(GATES)}")
 
 
 @dataclass(frozen=True)
@@ -80,6 +86,10 @@ class ChangeDetectionPipeline:
     def __init__(self, config: PipelineConfig = PipelineConfig(), encoder: NDFEncoder | None = None) -> None:
         self.config = config
         self.encoder = encoder or NDFEncoder(config.weights, config.encoder)
+        objects = config.gate == "objects" or (config.gate == "auto" and bool(self.encoder.categories))
+        self.gate = "objects" if objects else "mugs"  # what `config.gate` came to
+        # The segmentation this pipeline runs on frames without masks (None: none).
+        self.segmentation = config.segmentation.for_objects() if objects and config.segmentation else config.segmentation
 
     def new_detector(self) -> ChangeDetector:
         """A change detector with this pipeline's parameters: one per pair of sessions."""
@@ -102,7 +112,7 @@ class ChangeDetectionPipeline:
         """The frame's observations: of its masks, else of its segmentation (if on)."""
         started = time.perf_counter()
         stage_ms = {}
-        segmentation = self.config.segmentation
+        segmentation = self.segmentation
         segmented = frame.instances is None and segmentation is not None
         if segmented:
             assert segmentation is not None

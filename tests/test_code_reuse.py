@@ -15,6 +15,8 @@ from ndfa.ndf.reuse import CodeReuse, ReuseConfig
 class CountingEncoder:
     """`encode_batch` as the reuse sees it: one fresh code per observation, the calls counted."""
 
+    categories: tuple[str, ...] = ()  # a model without a category head
+
     def __init__(self) -> None:
         self.encoded: list[int] = []  # observations per call
 

@@ -122,6 +122,54 @@ def test_a_mug_floating_above_the_table_is_rejected():
     assert rejection(_shape(lifted)) == "floating"
 
 
+OBJECTS = ObjectnessConfig.objects()
+
+
+@pytest.mark.parametrize("points, what", [
+    (_mug_front((0.0, 0.0)), "a mug"),
+    (_mug_front((0.0, 0.0), radius=0.03, height=0.30), "a bottle's body"),
+    (_mug_front((0.0, 0.0), radius=0.026, height=0.06), "a small can"),
+    (_bowl_front(), "a bowl's front"),
+    (_box((0.28, 0.28, 0.06)), "a wide bowl or a low box"),
+    (_box((0.30, 0.20, 0.30)), "a shoebox on end"),
+    (_box((0.25, 0.18, 0.03)), "a flat box"),
+    (_box_corner(), "a box of a mug's size"),
+])
+def test_the_objects_gate_keeps_an_object_of_every_category(points, what):
+    shape, reason = judge(points[:, 2], points[:, :2], np.full(len(points), 1.2), OBJECTS, np.array([0.0, -1.2]))
+    assert reason is None, f"{what}: {reason}"
+
+
+@pytest.mark.parametrize("size, reason", [
+    ((0.21, 0.28, 0.008), "flat"),      # a magazine or papers lying on the table
+    ((0.30, 0.006, 0.006), "flat"),     # a cable lying on it
+    ((0.60, 0.03, 0.07), "long"),       # a counter's edge, a table's rim at object height
+    ((0.25, 0.02, 0.12), "sliver"),     # a board or a wall's edge seen end-on
+    ((0.03, 0.03, 0.12), "short"),      # a tap
+    ((0.10, 0.08, 0.45), "tall"),       # a chair back
+])
+def test_the_objects_gate_still_turns_non_objects_away(size, reason):
+    assert rejection(_shape(_box(size)), OBJECTS) == reason
+
+
+def test_the_gate_follows_the_ndf_unless_chosen():
+    """"auto": the mugs' gate for a model without categories (the shipped NDF v2), the objects'
+    for one that names them; "objects" and "mugs" whatever the model."""
+    from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
+
+    class Named(_FixedOccupancyEncoder):
+        categories = ("mug", "bowl")
+
+    mugs = SegmentationConfig()
+    assert ChangeDetectionPipeline(PipelineConfig(), encoder=_FixedOccupancyEncoder(0.7)).segmentation == mugs
+    assert ChangeDetectionPipeline(PipelineConfig(), encoder=Named(0.7)).segmentation == mugs.for_objects()
+    assert ChangeDetectionPipeline(PipelineConfig(gate="objects"), encoder=_FixedOccupancyEncoder(0.7)).gate == "objects"
+    assert ChangeDetectionPipeline(PipelineConfig(gate="mugs"), encoder=Named(0.7)).segmentation == mugs
+    assert mugs.for_objects().objectness == OBJECTS
+    with pytest.raises(ValueError, match="gate"):
+        PipelineConfig(gate="cups")
+
+
 def test_the_gate_thresholds_are_configurable():
     magazine = _shape(_box((0.21, 0.28, 0.008)))
     assert rejection(magazine, ObjectnessConfig(min_top_m=0.0, max_length_m=0.5, min_width_ratio=0.0, min_aspect=0.0)) is None
@@ -204,6 +252,8 @@ def test_on_redkitchen_the_segments_are_the_two_mugs():
 
 class _FixedOccupancyEncoder:
     """Stands in for the NDF: every observation gets the same mean occupancy."""
+
+    categories: tuple[str, ...] = ()  # a model without a category head: the mugs' gate
 
     def __init__(self, occupancy: float) -> None:
         self.occupancy = occupancy

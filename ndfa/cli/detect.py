@@ -29,6 +29,7 @@ from ndfa.core.errors import OptionError
 from ndfa.io.atomic import atomic_path
 from ndfa.io.recording import RecordingReader
 from ndfa.io.recording.ground_truth import changed_instances
+from ndfa.perception.segmentation_config import GATES
 from ndfa.run.align import REGISTRATION_MODES
 from ndfa.run.world import POSE_MODES, UP_MODES
 
@@ -100,11 +101,16 @@ def detect_command(
                                                 "encoded (centroid within 1 cm) takes that code instead of being "
                                                 "encoded (faster; 0: every observation encoded, as the paper; "
                                                 "docs/speed.md).", min=0.0),
+    gate: str = typer.Option("auto", help="Which segments of frames without masks are objects: mugs | objects (a "
+                                          "rigid object of any category on its support) | auto (objects when the "
+                                          "NDF names categories, else mugs; docs/segmentation.md)."),
 ) -> None:
     """Detect added, removed and moved objects between two recordings (the paper's method), or
     between each consecutive pair of more, with every object's history over them."""
     if len(recordings) < 2:
         raise typer.BadParameter(f"give two or more session recordings, got {len(recordings)}")
+    if gate not in GATES:
+        raise typer.BadParameter(f"--gate must be one of {', '.join(GATES)}, got {gate!r}")
     if frame_step > 1:
         for recording in recordings:
             frames = len(RecordingReader(recording))
@@ -132,10 +138,13 @@ def detect_command(
         detector = replace(detector, levels=LevelsConfig(tree_height_m=tree_height or None))
     config = PipelineConfig(detector=detector, weights=weights, encoder=EncoderConfig(runtime=runtime, threads=threads or 1,
                                                                                        n_points=points, knn=neighbours),
-                            reuse=ReuseConfig(angle_deg=reuse_angle))
+                            reuse=ReuseConfig(angle_deg=reuse_angle), gate=gate)
     pipeline = ChangeDetectionPipeline(config)
     runtime = pipeline.encoder.runtime.name
-    err_console.print(f"NDF runtime: {runtime}" + (f", {threads or 1} thread(s)" if runtime == "onnxruntime" else ""),
+    named = pipeline.encoder.categories
+    err_console.print(f"NDF runtime: {runtime}" + (f", {threads or 1} thread(s)" if runtime == "onnxruntime" else "")
+                      + f"; categories: {', '.join(named) if named else 'none (every object is of unknown category)'}"
+                      + f"; segments gated as {pipeline.gate}",
                       highlight=False)
     if up not in UP_MODES:
         raise typer.BadParameter(f"--up must be one of {', '.join(UP_MODES)}, got {up!r}")

@@ -1,4 +1,5 @@
-"""Is a cluster above a support plane a mug? Its shape measured in the plane's frame, and a gate.
+"""Is a cluster above a support plane a mug (or, `ObjectnessConfig.objects`, a rigid object of any
+category)? Its shape measured in the plane's frame, and a gate.
 
 The clusters of `ndfa.perception.segmentation` are whatever sticks out of a horizontal plane:
 on a real table that is mostly not mugs (magazines and papers lying flat, the edge of a counter
@@ -87,6 +88,19 @@ class ObjectnessConfig:
     max_right_angles: float = 0.5
     normal_neighbours: int = 24
     max_lean: float = 0.25
+
+    @classmethod
+    def objects(cls) -> ObjectnessConfig:
+        """The gate for a rigid object of any category standing on its support (mugs, bowls, cups,
+        bottles, cans, boxes: `ndfa.sim.categories.SIZE_RANGES`), not for a mug: 2.5-36 cm tall, a
+        footprint 3.5-32 cm long, as tall as 7.5 times its footprint (a bottle seen from the side)
+        and as flat as 0.08 times it (a wide bowl, a flat box); `boxy` and `flared` off (boxes and
+        bowls are objects now). What still turns non-objects away: papers and cables lie flat
+        (`flat`: under 2.5 cm), counter edges and table rims are long or slivers, a wall's foot is
+        a column of the segmentation's `max_object_height_m`, something hidden floats.
+        docs/segmentation.md, "Objects, not mugs", has the figures."""
+        return cls(min_top_m=0.025, max_top_m=0.36, max_bottom_m=0.05, min_length_m=0.035, max_length_m=0.32,
+                   min_width_m=0.015, min_width_ratio=0.15, max_aspect=7.5, min_aspect=0.08, near_view_depth_m=0.0)
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_top_m < self.max_top_m:

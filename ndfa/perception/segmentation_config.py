@@ -7,10 +7,16 @@ Pure; no I/O.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from ndfa.core import conventions
 from ndfa.perception.objectness import ObjectnessConfig
+
+# Which clusters of a segmented frame are objects (`ndfa.pipeline.PipelineConfig.gate`): "mugs", the
+# segmentation's gate as configured (`SegmentationConfig()`: mugs); "objects", a rigid object of any
+# category (`SegmentationConfig.for_objects`); "auto", objects when the NDF tells categories apart
+# (NDF v3), else mugs: a model trained on mugs alone can neither encode nor name a bowl it is shown.
+GATES = ("auto", "mugs", "objects")
 
 
 @dataclass(frozen=True)
@@ -112,6 +118,14 @@ class SegmentationConfig:
     image_margin_px: int = 4
     objectness: ObjectnessConfig | None = field(default_factory=ObjectnessConfig)
     split_max_length_m: float = 0.0
+
+    def for_objects(self) -> SegmentationConfig:
+        """These settings with the gate for objects of every category (`ObjectnessConfig.objects`)
+        and room for their size: tops up to 36 cm (a bottle; the band above it to 45 cm, so that a
+        wall's foot still shows as a column), footprints up to 42 cm across, tops from 2.5 cm (a
+        flat box; papers and cables stay below)."""
+        return replace(self, objectness=ObjectnessConfig.objects(), min_object_height_m=0.025,
+                       max_object_height_m=0.36, band_height_m=max(self.band_height_m, 0.45), max_extent_m=0.42)
 
     def __post_init__(self) -> None:
         if self.stride is not None and self.stride < 1:
