@@ -34,7 +34,8 @@ def objects(centers, code_of=None):
     code_of = code_of or {}
     return SessionObjects({i: np.array([x, 0.0, 0.8]) for i, x in enumerate(centers)},
                           {i: _code(code_of.get(i, i)) for i in range(len(centers))},
-                          {i: 100 + i for i in range(len(centers))})
+                          {i: 100 + i for i in range(len(centers))},
+                          {i: ("bowl", "cup", "box")[i % 3] for i in range(len(centers))})
 
 
 def _code(shape: int) -> np.ndarray:
@@ -68,6 +69,8 @@ def test_pair_decisions_link_the_objects_over_the_sessions():
     assert [r.present for r in d] == [False, True, True] and d[1].decision == "added"
     assert [r.session_object for r in d] == [None, 2, 1] and [r.instance_id for r in d] == [None, 102, 101]
     assert b[2].reason == "not looked at"
+    # each present row has its session object's category, as_dict and the table carry it
+    assert [r.category for r in d] == ["unknown", "box", "cup"] and d[1].as_dict()["category"] == "box"
 
 
 def test_objects_no_decision_links_continue_what_stands_at_their_place():

@@ -17,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from ndfa.core.conventions import UNKNOWN_CATEGORY
+
 
 @dataclass(frozen=True, kw_only=True)
 class SessionStartEvent:
@@ -74,6 +76,7 @@ class HistoryRow:
     score: float = float("nan")
     partner: int | None = None               # the previous session's object it was matched with
     reason: str = ""
+    category: str = UNKNOWN_CATEGORY         # its category in that session (None-present rows: unknown)
 
     def as_dict(self) -> dict[str, Any]:
         center = self.center_first
@@ -82,7 +85,7 @@ class HistoryRow:
                 "center": None if center is None else [round(float(v), 4) for v in center],
                 "session_object": self.session_object, "instance_id": self.instance_id,
                 "decision": self.decision, "score": None if np.isnan(self.score) else round(float(self.score), 4),
-                "partner": self.partner, "reason": self.reason}
+                "partner": self.partner, "reason": self.reason, "category": self.category}
 
 
 @dataclass(frozen=True, kw_only=True)

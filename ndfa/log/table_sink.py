@@ -21,7 +21,7 @@
                            doubtful / unusable), the estimated error and the figures behind it
                            (`ndfa.trajectory.quality`, docs/pose_quality.md)
     history.parquet        a run over more than two sessions (`ndfa.run.sessions`): one row per object
-                           per session (`ndfa.core.sessions.HistoryRow`); its registration, graphs
+                           per session (`ndfa.core.sessions.HistoryRow`, with its category); its registration, graphs
                            and decisions rows then name their `pair` ("0-1", ...), its sessions are
                            named `session_0`, ..., and positions are in the first session's world
 
@@ -207,6 +207,7 @@ HISTORY_SCHEMA = {
     "object": pl.Int64, "session": pl.Int64, "session_name": pl.String, "present": pl.Boolean,
     "center_x": pl.Float64, "center_y": pl.Float64, "center_z": pl.Float64, "session_object": pl.Int64,
     "instance_id": pl.Int64, "decision": pl.String, "score": pl.Float64, "partner": pl.Int64, "reason": pl.String,
+    "category": pl.String,
 }
 
 
@@ -215,7 +216,7 @@ def _history_row(row: HistoryRow) -> dict:
     return {"object": row.object, "session": row.session, "session_name": row.session_name, "present": row.present,
             **_xyz("center", row.center_first), "session_object": row.session_object,
             "instance_id": row.instance_id, "decision": row.decision, "score": row.score, "partner": row.partner,
-            "reason": row.reason}
+            "reason": row.reason, "category": row.category}
 
 
 def _xyz(prefix: str, vector: np.ndarray | None) -> dict:

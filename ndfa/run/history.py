@@ -41,6 +41,7 @@ import numpy as np
 
 from ndfa.change.associate import cosine_similarity
 from ndfa.change.config import DetectorConfig
+from ndfa.core.conventions import UNKNOWN_CATEGORY
 from ndfa.core.events import DecisionEvent
 from ndfa.core.geometry import transform_points
 from ndfa.core.sessions import HistoryRow
@@ -117,6 +118,7 @@ class SessionObjects:
     centers: dict[int, np.ndarray]                                # object id -> center, the session's world
     codes: dict[int, np.ndarray] = field(default_factory=dict)    # object id -> shape code (for linking by place)
     instances: dict[int, int] = field(default_factory=dict)       # object id -> its mask id (for scoring)
+    categories: dict[int, str] = field(default_factory=dict)      # object id -> its category (`SessionObject.category`)
 
 
 def link_history(names: list[str], sessions: list[SessionObjects], placements: list[np.ndarray | None],
@@ -223,7 +225,8 @@ def link_history(names: list[str], sessions: list[SessionObjects], placements: l
             object_id = where.get((session, h))
             if object_id is not None:
                 rows.append(HistoryRow(present=True, center_first=first(session, object_id), session_object=object_id,
-                                       instance_id=sessions[session].instances.get(object_id), **fields))
+                                       instance_id=sessions[session].instances.get(object_id),
+                                       category=sessions[session].categories.get(object_id, UNKNOWN_CATEGORY), **fields))
             elif session < born[h] or (gone_from is not None and session >= gone_from):
                 rows.append(HistoryRow(present=False, **fields))
             else:

@@ -243,7 +243,8 @@ def session_pass(
         maps = [pairs[0].detector.source] + [pair.detector.target for pair in pairs]
         objects = [SessionObjects({i: o.center_world for i, o in m.objects.items()},
                                   {i: o.shape_code for i, o in m.objects.items()},
-                                  {i: max(taken, key=taken.__getitem__) for i, taken in session_masks.items()})
+                                  {i: max(taken, key=taken.__getitem__) for i, taken in session_masks.items()},
+                                  {i: o.category for i, o in m.objects.items()})
                    for m, session_masks in zip(maps, masks)]
         history = link_history(names, objects, placements, [p.decisions for p in pairs],
                                LinkConfig.of(pipeline.config.detector))
