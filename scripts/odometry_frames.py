@@ -23,7 +23,8 @@ import numpy as np
 from ndfa.io.recording import RecordingReader
 from ndfa.trajectory.metrics import absolute_trajectory_error, rotation_angle
 from ndfa.trajectory.open3d_threads import open3d_threads
-from ndfa.trajectory.rgbd import RgbdOdometry, RgbdOdometryConfig
+from ndfa.trajectory.rgbd import RgbdOdometry
+from ndfa.trajectory.session import rgbd_config_for
 
 COUNTERS = {"feature_frames": "feat", "promoted_frames": "prom", "prediction_wins": "pwin",
             "feature_fallbacks": "fall", "rejected_frames": "rej", "starved_frames": "starv", "unseen_frames": "unseen"}
@@ -37,7 +38,10 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=None, help="only the first N frames")
     args = parser.parse_args()
     overrides = ast.literal_eval(args.config)
-    odometry = RgbdOdometry(dataclasses.replace(RgbdOdometryConfig(), **overrides))
+    # With the recording's colour camera, as `ndfa poses` runs it (the 7-Scenes kitchen's colour is
+    # not registered to its depth).
+    config = rgbd_config_for(RecordingReader(args.recording).meta)
+    odometry = RgbdOdometry(dataclasses.replace(config, **overrides))
     estimate, truth = [], []
     started = time.process_time()
     with open3d_threads():

@@ -32,7 +32,8 @@ Per frame:
    edge (pose_graph.py). Features need no guess, so loops are found however far the odometry
    drifted.
 
-`finish()` optimises the keyframe graph and returns every frame's pose: a non-keyframe keeps its
+`finish()` optimises the keyframe graph (opt-in: then again with every other pair of keyframes that
+look at the same place, keyframe_pairs.py) and returns every frame's pose: a non-keyframe keeps its
 pose relative to its keyframe, so it follows the keyframe's correction. Callers that write each
 frame as it comes can use `update`'s poses, the odometry alone (the importers instead write first
 and replace the poses with the whole-session estimate: rewrite.py).
@@ -53,6 +54,7 @@ from ndfa.core.frame import Frame
 from ndfa.trajectory.checks import GapClock
 from ndfa.trajectory.degeneracy import depth_degeneracy, keep_prediction_where_unseen
 from ndfa.trajectory.features import FeatureMotion, estimate_motion
+from ndfa.trajectory.keyframe_pairs import refine_with_keyframe_pairs
 from ndfa.trajectory.pose_graph import PoseEdge, PoseGraphConfig, optimize_pose_graph
 from ndfa.trajectory.rgbd_config import HYBRID, INTENSITY, NO_TERM, POINT_TO_PLANE, RgbdOdometryConfig
 from ndfa.trajectory.rgbd_view import View, depth_information, prepare_view, register_dense
@@ -150,6 +152,9 @@ class RgbdOdometry:
         if self.config.loop_closure and self.loop_closures:
             graph = PoseGraphConfig(max_correspondence_distance_m=self.config.loop_max_correction_m)
             corrected = optimize_pose_graph(odometry, self.edges, graph)
+        if self.config.loop_closure and self.config.keyframe_pairs:
+            views = [keyframe.view for keyframe in self.keyframes]
+            corrected = refine_with_keyframe_pairs(views, corrected, self.edges, self.config)
         poses = []
         for pose, keyframe in zip(self._poses, self._keyframe_of):
             if keyframe >= 0:

@@ -50,6 +50,13 @@ class RgbdOdometryConfig:
         dense overlap, without).
     loop_max_correction_m: and a loop that corrects the estimate by more than this is refused.
     loop_candidates: at most this many candidates (the nearest) are registered per keyframe.
+    keyframe_pairs: after loop closure, register every pair of keyframes that look at the same
+        place (as a loop candidate) and whose depth sees every direction, and optimise the graph
+        again (`ndfa.trajectory.keyframe_pairs`). Opt-in: the 7-Scenes kitchen 3.71 -> 3.05 cm,
+        but 1.5-2.6x the CPU time per frame (docs/odometry.md); a pair that moves more than
+        `pair_max_correction_m` from where the loop-closed graph puts it is left out.
+    pair_voxel_m, pair_iterations: the pairs' coloured ICP runs on points thinned to one per
+        `pair_voxel_m` cube, pairs within twice that, for at most `pair_iterations` iterations.
     anchor_to_first_pose: start the estimate at the first frame's given pose (see kiss.py).
     features: sparse feature matching for each frame's first guess (features.py); None: the
         constant-velocity prediction alone.
@@ -106,6 +113,10 @@ class RgbdOdometryConfig:
     loop_min_inliers: int = 40
     loop_max_correction_m: float = 1.0
     loop_candidates: int = 2
+    keyframe_pairs: bool = False
+    pair_max_correction_m: float = 0.1
+    pair_voxel_m: float = 0.02
+    pair_iterations: int = 30
     anchor_to_first_pose: bool = True
     features: FeatureConfig | None = field(default_factory=FeatureConfig)
     min_features: int = 100
