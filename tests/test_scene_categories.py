@@ -7,7 +7,7 @@ from collections import Counter
 import numpy as np
 import pytest
 
-from ndfa.eval.scoring import score
+from ndfa.eval.scoring import KindReport, score
 from ndfa.io.ingest.synthetic import world_ground_truth
 from ndfa.sim.categories import CATEGORIES
 from ndfa.sim.presets import make_config
@@ -68,6 +68,18 @@ def test_score_per_true_category():
     mugs_only = [dict(o, category="mug") for o in objects]
     assert score([1, 3], {"objects": mugs_only}).categories == {}
     assert score([1], {"objects": [{k: v for k, v in o.items() if k != "category"} for o in objects]}).categories == {}
+
+
+def test_the_reports_named_categories_are_scored_against_the_truth():
+    objects = [{"instance_id": 1, "category": "bowl", "change": "added"},
+               {"instance_id": 2, "category": "cup", "change": "removed"},
+               {"instance_id": 3, "category": "box", "change": "added"}]
+    reports = [KindReport("added", 1, category="bowl"), KindReport("removed", 2, category="bowl"),
+               KindReport("added", 3), KindReport("added", 9, category="box")]  # 3: unknown; 9: not scored
+    s = score([1, 2, 3, 9], {"objects": objects}, {"source": {1, 2, 3}, "target": {1, 2, 3}}, kinds=reports)
+    assert s.categories_named == (2, 1)
+    assert s.as_dict()["categories_named"] == {"reports": 2, "right": 1, "accuracy": 0.5}
+    assert "categories_named" not in score([1], {"objects": objects}, kinds=[KindReport("added", 1)]).as_dict()
 
 
 def test_scene_categories_are_checked():

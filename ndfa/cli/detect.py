@@ -209,6 +209,9 @@ def detect_command(
                 f"{change} {found}/{n}" for change, (n, found) in sorted(s.kinds_found.items())), highlight=False)
         if s.categories:
             console.print(f"per true category, TP/FP/FN: {s.describe_categories()}", highlight=False)
+        if s.categories_named[0]:
+            console.print(f"reports naming their object's true category: {s.categories_named[1]}/{s.categories_named[0]}",
+                          highlight=False)
     for note in result.notes:
         console.print(f"note: {note}")
     if json_out is not None:

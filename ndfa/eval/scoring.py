@@ -33,6 +33,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+from ndfa.core.conventions import UNKNOWN_CATEGORY
 from ndfa.io.recording.ground_truth import changed_instances, kind_is_right
 
 
@@ -43,6 +44,7 @@ class KindReport:
     kind: str
     instance_id: int
     partner_id: int | None = None  # "moved": the mug of its source object (None: unknown)
+    category: str = UNKNOWN_CATEGORY  # the category the detector gave its object
 
     def right(self, truth: dict[int, str]) -> bool:
         """Whether the kind is right for the mug's true change (`ground_truth.RIGHT_KIND`)."""
@@ -71,6 +73,9 @@ class Score:
     # when the ground truth holds more than one category; a report is counted by the true category
     # of the object it names, not by the category the detector gave it.
     categories: dict[str, tuple[int, int, int]] = field(default_factory=dict, compare=False)
+    # (reports on scored objects that name a category, those naming the object's true one): how
+    # often the NDF's category is right (none name one with a model without categories, NDF v2)
+    categories_named: tuple[int, int] = field(default=(0, 0), compare=False)
 
     def kind_recall(self, change: str) -> float:
         """The share of the mugs with the true `change` named by a report of a right kind (1.0 when none)."""
@@ -112,6 +117,9 @@ class Score:
             out["categories"] = {name: {"tp": tp, "fp": fp, "fn": fn, "precision": _ratio(tp, tp + fp),
                                         "recall": _ratio(tp, tp + fn)}
                                  for name, (tp, fp, fn) in sorted(self.categories.items())}
+        if self.categories_named[0]:
+            named, right = self.categories_named
+            out["categories_named"] = {"reports": named, "right": right, "accuracy": _ratio(right, named)}
         if self.kinds_found:
             out["kinds_found"] = {change: {"mugs": n, "found": found, "recall": self.kind_recall(change)}
                                   for change, (n, found) in sorted(self.kinds_found.items())}
@@ -139,6 +147,13 @@ def category_counts(ground_truth: dict, tp: Sequence[int], fp: Sequence[int], fn
             if instance_id in category:
                 counts[category[instance_id]][column] += 1
     return {name: (tp_, fp_, fn_) for name, (tp_, fp_, fn_) in counts.items()}
+
+
+def categories_named(ground_truth: dict, reports: Sequence[KindReport]) -> tuple[int, int]:
+    """(reports that name a category, those naming their object's true category)."""
+    truth = instance_categories(ground_truth)
+    named = [r for r in reports if r.category != UNKNOWN_CATEGORY]
+    return len(named), sum(truth.get(r.instance_id) == r.category for r in named)
 
 
 def scorable_instances(ground_truth: dict, visible: dict[str, set[int]]) -> set[int]:
@@ -182,13 +197,14 @@ def score(reported_instances: list[int], ground_truth: dict, visible: dict[str, 
         n, right = per_change.get(change, (0, 0))
         per_change[change] = (n + 1, right + int(instance_id in found_rightly))
     return Score(len(tp), len(fp), len(fn), tuple(tp), tuple(fp), tuple(fn), tuple(sorted(everything - scored)),
-                 tuple(turned), tuple(found), per_kind, per_change, category_counts(ground_truth, tp, fp, fn))
+                 tuple(turned), tuple(found), per_kind, per_change, category_counts(ground_truth, tp, fp, fn),
+                 categories_named(ground_truth, [r for r in kinds if r.instance_id in scored]))
 
 
 def kind_reports(changes: list) -> list[KindReport]:
     """What each reported change (`DecisionEvent`) says, by the mask ids of its objects."""
-    return [KindReport(c.kind, c.instance_ids[0], c.partner_instance_ids[0] if c.partner_instance_ids else None)
-            for c in changes if c.instance_ids]
+    return [KindReport(c.kind, c.instance_ids[0], c.partner_instance_ids[0] if c.partner_instance_ids else None,
+                       c.category) for c in changes if c.instance_ids]
 
 
 def rotated_reports(changes: list) -> list[int]:
