@@ -19,6 +19,7 @@ from pathlib import Path
 
 from ndfa.change.associate import Measurement
 from ndfa.change.detector import ChangeDetector, DetectorConfig
+from ndfa.change.sight import SightRule
 from ndfa.core.events import SESSIONS, Event, FrameEvent, ObservationEvent, Session, TimingEvent
 from ndfa.core.frame import Frame
 from ndfa.core.geometry import transform_points
@@ -93,7 +94,9 @@ class ChangeDetectionPipeline:
 
     def new_detector(self) -> ChangeDetector:
         """A change detector with this pipeline's parameters: one per pair of sessions."""
-        return ChangeDetector(self.config.detector)
+        observation = self.config.observation
+        return ChangeDetector(self.config.detector, SightRule(observation.min_pixels, observation.min_depth_m,
+                                                              observation.max_depth_m, observation.skip_border))
 
     def new_code_reuse(self) -> CodeReuse | None:
         """What a session's pass hands to `encode` so that its observations may reuse codes (None:
@@ -149,6 +152,10 @@ class ChangeDetectionPipeline:
             raise ValueError(f"session must be one of {SESSIONS}, got {session!r}")
         started, registering = time.perf_counter(), detector.registrar.seconds
         events, measurements = self.measure(session, observed)
+        frame = observed.frame
+        for taker, role in ((detector, session), (also_source_of, "source")):
+            if taker is not None:  # what the frame showed: a change's place must have been shown
+                taker.add_view(role, frame.index, frame.depth, frame.K, frame.pose_world_camera)  # type: ignore[arg-type]
         events += (detector.add_source if session == "source" else detector.add_target)(measurements)
         if also_source_of is not None:
             also_source_of.add_source(measurements)

@@ -153,6 +153,13 @@ class EvidenceConfig:
     # mugs pair. Every same-mug pair of the seven masked scenes is above 0.859 (docs/registration.md,
     # "The right kind"); below it, removed + added. Off: None (delta_s, the paper's)
     move_similarity: float | None = 0.85
+    # An "added" object's place must have been shown by the source's frames, a removed one's by the
+    # target's, well enough for perception to take an object of this size standing there (in view
+    # whole, in range, its pixels not hidden reaching perception's minimum: `ndfa.change.sight`);
+    # otherwise the change is withheld with the reason. A mug-sized cylinder, 8 cm across and 9 cm
+    # tall: at 615 px focal length its 300 px stop 3 m away (docs/detector.md). Off: radius 0.
+    sight_radius_m: float = 0.04
+    sight_height_m: float = 0.09
 
 
 @dataclass(frozen=True)
@@ -218,7 +225,8 @@ class DetectorConfig:
                "ransac": RansacConfig(candidates=1, min_inliers=0, enough_inliers=0, retry_frames=1, small_maps=False),
                "priors": PriorConfig(enabled=False),
                "waiting": WaitingConfig(min_measurements=1, confirm_measurements=1, neighbours=False),
-               "evidence": EvidenceConfig(in_place_m=0.0, observed_height_m=0.0, observed_reach_m=0.0, move_similarity=None),
+               "evidence": EvidenceConfig(in_place_m=0.0, observed_height_m=0.0, observed_reach_m=0.0, move_similarity=None,
+                                            sight_radius_m=0.0),
                "rotation": RotationConfig(threshold_deg=None)}
         values = {name: getattr(self, name) for name in ("association", "registration", "decision") + ADDITIONS}
         return DetectorConfig(**(values | {name: off[name] for name in additions}))

@@ -15,6 +15,10 @@ Read it top to bottom as the paper's loop:
                                  an unchanged one whose handle turned about up, as rotated
                                  (`ndfa.change.rotation`; beyond the paper)
 
+An "added" or "removed" change also needs the other session's frames to have shown its place
+(`add_view`, `ndfa.change.sight`; beyond the paper): where they did not, the change is decided
+with the reason in `DecisionEvent.withheld` and not reported, nor paired into a move.
+
 Every decision carries a score in [0, 1] (`DecisionEvent.score`; `ndfa.change.verdict.decision_score`,
 `removal_score`): changes at least 0.5, "unchanged" below, so a threshold on it trades precision
 against recall without changing what the detector does at 0.5 (docs/scores.md).
@@ -35,16 +39,22 @@ from ndfa.change.policy import DecisionPolicy
 from ndfa.change.register import Registration, RegistrationPrior, apply
 from ndfa.change.registrar import Registrar
 from ndfa.change.rotation import rotation_of
+from ndfa.change.sight import SessionViews, Sight, SightRule
 from ndfa.change.verdict import Verdict, decision_score, graph_verdict, removal_score, shape_verdict
 from ndfa.core.conventions import horizontal
-from ndfa.core.events import AssociationEvent, DecisionEvent, DecisionKind, Event, Session
+from ndfa.core.events import SESSIONS, AssociationEvent, DecisionEvent, DecisionKind, Event, Session
+from ndfa.core.geometry import invert_pose
 
 __all__ = ["ChangeDetector", "DetectorConfig", "reported_changes"]
 
 
 class ChangeDetector:
-    def __init__(self, config: DetectorConfig = DetectorConfig()) -> None:
+    def __init__(self, config: DetectorConfig = DetectorConfig(), sight: SightRule = SightRule()) -> None:
+        """`sight`: perception's bar for taking an object from a view (the pipeline fills it from its
+        `ObservationConfig`), which a change's place must have reached in the other session's frames."""
         self.config = config
+        self.views = {session: SessionViews(sight) for session in SESSIONS}  # what each session's frames showed
+        self.unseen: dict[int, DecisionEvent] = {}  # target object -> its "added", withheld (place not shown)
         self.source = SessionMap(config)
         self.target = SessionMap(config)
         self.registrar = Registrar(config, self.source, self.target)
@@ -66,6 +76,28 @@ class ChangeDetector:
         self.registrar.add_prior(prior)
 
     # -- the two passes -------------------------------------------------------------------------
+
+    def add_view(self, session: Session, frame_index: int, depth: np.ndarray, K: np.ndarray,
+                 pose_world_camera: np.ndarray) -> None:
+        """A frame of `session` the detector takes measurements from: what it showed (depth in
+        metres, camera -> world pose), for the test that a change's place was shown (`sight`).
+        A detector given no views of a session takes every place as shown by it (a replay)."""
+        if self.config.evidence.sight_radius_m > 0:
+            self.views[session].add(frame_index, depth, K, pose_world_camera)
+
+    def sight(self, session: Session, place_world: np.ndarray) -> Sight:
+        """How well `session`'s frames showed an object of the category standing at `place_world`
+        (that session's world): `ndfa.change.sight`, sized by `EvidenceConfig.sight_*`."""
+        evidence = self.config.evidence
+        return self.views[session].sight(place_world, evidence.sight_radius_m, evidence.sight_height_m)
+
+    def _unshown(self, session: Session, place_world: np.ndarray) -> str | None:
+        """Why a change at `place_world` is withheld (`session`, the other one, did not show the
+        place), or None when it was shown or the test is off (`EvidenceConfig.sight_radius_m` 0)."""
+        if self.config.evidence.sight_radius_m <= 0:
+            return None
+        seen = self.sight(session, place_world)
+        return None if seen.shown else f"its place was {seen.describe(session)}"
 
     def add_source(self, frame: list[Measurement]) -> list[Event]:
         """One source frame's measurements: intra-session update of the source map."""
@@ -103,8 +135,16 @@ class ChangeDetector:
         if self.registration is not None:
             for object_id in sorted(self.policy.pending):
                 events += self._test(object_id, self._last_frame, final=True)
-        removed = [i for i in sorted(self.observers) if i not in self.matched
-                   and self.source.objects[i].n_measurements >= self.config.waiting.min_measurements]
+        candidates = [i for i in sorted(self.observers) if i not in self.matched
+                      and self.source.objects[i].n_measurements >= self.config.waiting.min_measurements]
+        unshown: dict[int, str] = {}
+        if self.registration is not None and candidates:
+            to_target = invert_pose(self.registration.transform)
+            for source_id in candidates:
+                why = self._unshown("target", apply(to_target, self.source.objects[source_id].center_world[None])[0])
+                if why is not None:
+                    unshown[source_id] = why
+        removed = [i for i in candidates if i not in unshown]
         move_similarity = self.config.evidence.move_similarity
         moved_from = moves(sorted(self.changed), removed, self.target, self.source,
                            self.config.association.shape_similarity if move_similarity is None else move_similarity)
@@ -125,6 +165,13 @@ class ChangeDetector:
                 reason="observed but never matched", center_world=obj.center_world, center_source=obj.center_world,
                 instance_ids=obj.instance_ids, score=removal_score(len(self.observers[source_id])),
                 category=obj.category))
+        for source_id, why in unshown.items():
+            obj = self.source.objects[source_id]
+            events.append(DecisionEvent(
+                frame_index=self._last_frame, session="source", object_id=source_id, kind="removed",
+                reason="observed but never matched", center_world=obj.center_world, center_source=obj.center_world,
+                instance_ids=obj.instance_ids, score=removal_score(len(self.observers[source_id])),
+                category=obj.category, withheld=why))
         return events + self._rotations()
 
     # -- steps ----------------------------------------------------------------------------------
@@ -155,7 +202,7 @@ class ChangeDetector:
 
     def _test(self, object_id: int, frame_index: int, final: bool = False) -> list[Event]:
         """The change test of target object O at T_rel t_O, unless O is already marked changed."""
-        if object_id in self.changed:
+        if object_id in self.changed or object_id in self.unseen:
             return []
         obj = self.target.objects[object_id]
         if not self.policy.testable(obj.n_measurements):
@@ -191,8 +238,10 @@ class ChangeDetector:
             self.partners[object_id] = verdict.partner_id
             return events + [self._decision(frame_index, object_id, "unchanged", verdict, center_source)]
         if verdict.kind == "changed":
-            self.changed[object_id] = self._decision(frame_index, object_id, "added", verdict, center_source)
-            return events + [self.changed[object_id]]
+            decision = self._decision(frame_index, object_id, "added", verdict, center_source,
+                                      withheld=self._unshown("source", center_source))
+            (self.changed if decision.withheld is None else self.unseen)[object_id] = decision
+            return events + [decision]
         return events  # undecided: O waits (the policy holds it pending)
 
     def _rotations(self) -> list[Event]:
@@ -219,18 +268,19 @@ class ChangeDetector:
         return events
 
     def _decision(self, frame_index: int, object_id: int, kind: DecisionKind, verdict: Verdict,
-                  center_source: np.ndarray) -> DecisionEvent:
+                  center_source: np.ndarray, withheld: str | None = None) -> DecisionEvent:
         obj = self.target.objects[object_id]
         return DecisionEvent(frame_index=frame_index, session="target", object_id=object_id, kind=kind,
                              reason=verdict.reason, center_world=obj.center_world, center_source=center_source,
                              partner_id=verdict.partner_id, instance_ids=obj.instance_ids,
-                             score=decision_score(verdict), category=obj.category)
+                             score=decision_score(verdict), category=obj.category, withheld=withheld)
 
 
 def reported_changes(decisions: list[DecisionEvent]) -> list[DecisionEvent]:
-    """The changes to report from every decision of a run, in order: not "unchanged", and a target
-    object later found "moved" is reported once, as moved, not also as the "added" it was first."""
-    changes = [d for d in decisions if d.kind != "unchanged"]
+    """The changes to report from every decision of a run, in order: not "unchanged", not withheld,
+    and a target object later found "moved" is reported once, as moved, not also as the "added" it
+    was first."""
+    changes = [d for d in decisions if d.kind != "unchanged" and d.withheld is None]
     moved = {(d.session, d.object_id) for d in changes if d.kind == "moved"}
     return [d for d in changes if d.kind == "moved" or (d.session, d.object_id) not in moved]
 

@@ -135,7 +135,9 @@ class DecisionEvent:
     but never matched), "moved" (a changed target object that matches a removed source object by
     shape; assigned at the end) or "rotated" (an unchanged object whose handle turned about up by
     `angle_deg`; assigned at the end, `ndfa.change.rotation`). A change is reported the first time
-    it is found and never retracted.
+    it is found and never retracted. A change whose place the other session did not show (an
+    "added" object's place never shown well by the source, a removed one's by the target) is
+    decided with `withheld` set, and not reported.
 
     score: how strongly the evidence says "changed", in [0, 1]; reported changes score at least
     `CHANGE_SCORE` and "unchanged" decisions below it, so thresholding the scores at another value
@@ -156,6 +158,9 @@ class DecisionEvent:
     score: float = float("nan")
     angle_deg: float | None = None           # "rotated": the turn about up, degrees (source world, source -> target)
     category: str = UNKNOWN_CATEGORY         # the object's category (`SessionObject.category`)
+    # Why the change is withheld, not reported: the other session's frames did not show its place
+    # well enough to have found the object there (`ndfa.change.sight`); None: reported
+    withheld: str | None = None
 
     @property
     def reported_instances(self) -> tuple[int, ...]:

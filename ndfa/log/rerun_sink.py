@@ -64,6 +64,7 @@ from ndfa.io.atomic import Staged
 
 KIND_COLORS = {"added": (230, 60, 60), "removed": (240, 160, 30), "moved": (170, 80, 230), "rotated": (40, 190, 220),
                "unchanged": (90, 200, 90)}
+WITHHELD_COLOR = (150, 150, 150)  # a change withheld: its place not shown by the other session
 SESSION_COLORS = {"source": (80, 140, 255), "target": (255, 120, 80)}
 # Sessions of a many-session run, in order (then again): blue, orange, green, pink, teal, yellow.
 SESSION_PALETTE = ((80, 140, 255), (255, 120, 80), (90, 200, 120), (230, 110, 200), (60, 200, 210), (220, 200, 60))
@@ -273,15 +274,17 @@ class RerunSink:
 
     def _DecisionEvent(self, e: DecisionEvent) -> None:
         position = e.center_source if e.center_source is not None else e.center_world
+        withheld = "" if e.withheld is None else "withheld "
         if e.kind != "unchanged":
             self._places[f"decisions/{e.session}_{e.object_id}"] = np.asarray(position, dtype=float)
             self.rec.log(f"decisions/{e.session}_{e.object_id}", rr.Points3D(
-                [position], colors=KIND_COLORS[e.kind], radii=0.03,
-                labels=[f"{e.kind} {e.category} {e.session[0]}{e.object_id} {e.score:.2f}{_turn(e)}"]))
+                [position], colors=WITHHELD_COLOR if withheld else KIND_COLORS[e.kind], radii=0.03,
+                labels=[f"{withheld}{e.kind} {e.category} {e.session[0]}{e.object_id} {e.score:.2f}{_turn(e)}"]))
+        why = "" if e.withheld is None else f"; withheld, not reported: {e.withheld}"
         self.rec.log("decisions/log", rr.TextLog(
-            f"frame {e.frame_index}: {e.session} object {e.object_id} ({e.category}) {e.kind}{_turn(e)} "
-            f"(score {e.score:.2f}): {e.reason}",
-            level="INFO" if e.kind == "unchanged" else "WARN"))
+            f"frame {e.frame_index}: {e.session} object {e.object_id} ({e.category}) {withheld}{e.kind}{_turn(e)} "
+            f"(score {e.score:.2f}): {e.reason}{why}",
+            level="INFO" if e.kind == "unchanged" or withheld else "WARN"))
 
     def _PoseQualityEvent(self, e: PoseQualityEvent) -> None:
         self.rec.log(f"pose_quality/{e.session}", rr.TextDocument(e.text), static=True)

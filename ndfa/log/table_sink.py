@@ -15,7 +15,9 @@
                            mask when the recordings carry it, and whether a change's kind is right
                            for it (`kind_right`; a move from another mask is not); `reported`: the
                            changes the run reports (an "added" later found "moved" is reported as
-                           the move); a rotation's turn in `angle_deg`; the object's `category`
+                           the move); a rotation's turn in `angle_deg`; the object's `category`;
+                           `withheld`: why a change is not reported (its place not shown by the
+                           other session: ndfa.change.sight)
     timings.parquet        ms per stage per frame
     pose_quality.parquet   one row per session whose poses were estimated: the verdict (good /
                            doubtful / unusable), the estimated error and the figures behind it
@@ -143,6 +145,7 @@ class TableSink:
                 "reason": event.reason, **_xyz("position", position), "partner_id": event.partner_id,
                 "instance_ids": list(event.instance_ids), "partner_instance_ids": list(event.partner_instance_ids),
                 "score": event.score, "angle_deg": event.angle_deg, "category": event.category,
+                "withheld": event.withheld,
                 "truth": self._truth(event.instance_ids[0]) if event.instance_ids else None,
                 "kind_right": self._kind_right(event)})
         elif isinstance(event, PoseQualityEvent):
@@ -195,12 +198,13 @@ class TableSink:
 
 def _reported(decisions: list[dict]) -> list[bool]:
     """Which decision rows are reported changes (`ndfa.change.detector.reported_changes`): not
-    "unchanged", and a target object's "added" only when it was not later found "moved"."""
+    "unchanged", not withheld, and a target object's "added" only when it was not later found "moved"."""
     def key(row: dict) -> tuple:
         return row.get("pair"), row["session"], row["object_id"]
 
     moved = {key(row) for row in decisions if row["kind"] == "moved"}
-    return [row["kind"] != "unchanged" and (row["kind"] == "moved" or key(row) not in moved) for row in decisions]
+    return [row["kind"] != "unchanged" and row.get("withheld") is None and (row["kind"] == "moved" or key(row) not in moved)
+            for row in decisions]
 
 
 HISTORY_SCHEMA = {

@@ -113,7 +113,7 @@ class SegmentationConfig:
     max_bottom_m: float = 0.06
     occluder_look_px: int = 6
     occluder_gap_m: float = 0.10
-    occluder_band_px: int = 0
+    occluder_band_px: int = 24
     fill_distance_m: float = 0.015
     image_margin_px: int = 4
     objectness: ObjectnessConfig | None = field(default_factory=ObjectnessConfig)

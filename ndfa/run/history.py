@@ -58,6 +58,8 @@ class PairOutcome:
     def of(cls, decisions: list[DecisionEvent]) -> PairOutcome:
         outcome = cls()
         for d in decisions:
+            if d.withheld is not None:  # not shown by the other session: no evidence either way
+                continue
             if d.session == "source":
                 if d.kind == "removed":
                     outcome.removed[d.object_id] = d

@@ -67,6 +67,22 @@ class PairResult:
         self.notes.extend(self.weighed.notes)
 
     @property
+    def unshown(self) -> list[DecisionEvent]:
+        """The changes the detector withheld because the other session's frames did not show their
+        places (`DecisionEvent.withheld`, `ndfa.change.sight`), as the detector made them."""
+        return [d for d in self.changes_decided if d.withheld is not None]
+
+    def note_unshown(self) -> None:
+        """After the passes: a note on the changes withheld because their places were not shown."""
+        unshown = self.unshown
+        if unshown:
+            self.notes.append(
+                f"{len(unshown)} change(s) withheld, not reported: the other session's frames did not show their "
+                "places well enough to have found an object there (too far, hidden, or never in view), so the "
+                "difference is no evidence of a change: " + "; ".join(
+                    f"{d.session} object {d.object_id} {d.kind}: {d.withheld}" for d in unshown))
+
+    @property
     def changes(self) -> list[DecisionEvent]:
         """The changes to report, sessions named, source positions in the first session's world."""
         return [self.to_first(named(c, self.source if c.session == "source" else self.target)) for c in self.reported]
@@ -112,6 +128,10 @@ class PairResult:
             event, transform=None if event.transform is None else placement @ event.transform,
             source_centers=transform_points(placement, np.asarray(event.source_centers).reshape(-1, 3)))
 
+    def _summary(self, change: DecisionEvent) -> dict:
+        """A change as the summaries list it: sessions named, in the first session's world."""
+        return change_summary(self.to_first(named(change, self.source if change.session == "source" else self.target)))
+
     def note_registration(self, mode: RegistrationMode) -> None:
         """After the passes: notes on a pair without T_rel, and what could give it one."""
         detector, alignment = self.detector, self.alignment
@@ -133,9 +153,9 @@ class PairResult:
                "changes": [change_summary(c) for c in self.changes], "registration": self.registration,
                "scene_alignment": None if self.alignment is None else self.alignment.as_dict(), "notes": self.notes,
                "pose_verdict": "good" if self.weighed is None else self.weighed.verdict,
-               "withheld_changes": [] if self.weighed is None else
-               [change_summary(self.to_first(named(c, self.source if c.session == "source" else self.target)))
-                | {"reason": self.weighed.reason} for c in self.weighed.withheld]}
+               "withheld_changes": [self._summary(c) | {"reason": c.withheld} for c in self.unshown]
+               + ([] if self.weighed is None else [self._summary(c) | {"reason": self.weighed.reason}
+                                                   for c in self.weighed.withheld])}
         if self.score is not None:
             out["score"] = self.score.as_dict()  # type: ignore[attr-defined]
         return out

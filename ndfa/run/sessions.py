@@ -264,6 +264,7 @@ def session_pass(
                              "the sessions after it have no positions in the first session's world")
     for pair in pairs:
         pair.note_registration(registration)
+        pair.note_unshown()
         pair.weigh(worlds)
     return SessionsResult(names=names, paths=paths, readers=readers, frames=frames, seconds=seconds,
                           stage_totals=stage_totals, worlds=worlds, placements=placements, pairs=pairs, maps=maps,

@@ -1,0 +1,164 @@
+"""Whether a session's frames showed a place well enough for the detector to have found an object there.
+
+"Added" says the source had no object where the target has one; "removed" says the target has
+none where the source had one. Either rests on the *other* session having looked: an object it
+could not have taken (seen only from afar, where it falls below perception's pixel minimum; only
+past a monitor; only cut by the image border; never) is absent from its map whether or not it
+stood there, and its absence is then no evidence of a change. So for each frame the detector takes
+(`SessionViews.add`), a coarse copy of its depth and its camera are kept, and `SessionViews.sight`
+asks of a place: in how many frames was an object of the category there in view (whole, inside
+the image), in the depth range, and how many pixels would the best of them have given it, counting
+only the parts whose line of sight the measured depth leaves free? The place counts as shown when
+that reaches the pixel minimum perception itself takes an object from (`SightRule`, filled by the
+pipeline from `ObservationConfig`: one bar for both).
+
+The object is a vertical cylinder of the category's size (`EvidenceConfig.sight_radius_m`,
+`sight_height_m`) standing at the place's center. Its pixels in a view are its projected area (the
+side's rectangle foreshortened by the view's elevation, the top's ellipse) times the share of its
+camera-facing surface samples not hidden: a sample is hidden when the depth at its pixel is more
+than `OCCLUSION_MARGIN_M` nearer than the sample, or missing (a black screen, the aligned
+sensor's band at an edge: nothing says what is behind). Where the place was empty the depth there
+is the table or the wall behind it, which hides nothing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ndfa.core.conventions import MAX_DEPTH_M, MIN_DEPTH_M, VISIBLE_PIXELS
+
+# A sample counts as hidden when the measured depth along its ray is this much nearer than it:
+# more than the sensor's noise at a few metres, less than the depth of a monitor or another mug
+# standing in front.
+OCCLUSION_MARGIN_M = 0.05
+# Every STRIDE-th pixel of a frame's depth is kept: a mug 3 m away still spans ~4 kept pixels.
+STRIDE = 4
+# The cylinder's surface samples: around it, up it, and across its top.
+AROUND, UP, ACROSS = 16, 5, 3
+
+
+@dataclass(frozen=True)
+class SightRule:
+    """Perception's bar for taking an object from a view (`ndfa.perception.observations`'s
+    `ObservationConfig` fills it in the pipeline): pixels, depth range, and whether a view cut by
+    the image border counts."""
+
+    min_pixels: int = VISIBLE_PIXELS
+    min_depth_m: float = MIN_DEPTH_M
+    max_depth_m: float = MAX_DEPTH_M
+    skip_border: bool = True
+
+
+@dataclass(frozen=True)
+class Sight:
+    """What a session's frames showed of one place. `shown`: the best frame reaches the rule's
+    pixels; `pixels`: the best frame's expected pixels (0 when never in view); `frame_index`,
+    `distance_m`, `unhidden`: that frame's, its distance to the place and the share of the
+    object's facing surface not hidden; `in_view`: frames with the place whole in view and in range."""
+
+    shown: bool
+    pixels: float
+    frames: int
+    in_view: int = 0
+    frame_index: int | None = None
+    distance_m: float = float("nan")
+    unhidden: float = float("nan")
+    min_pixels: int = VISIBLE_PIXELS
+
+    def describe(self, session: str) -> str:
+        """One line: why the place counts as shown by `session`, or not."""
+        if self.frames == 0:
+            return f"the {session}'s frames are not known"
+        if self.in_view == 0:
+            return f"never whole in view of the {session}'s {self.frames} frames within range"
+        best = (f"at best {self.pixels:.0f} px expected (frame {self.frame_index}, {self.distance_m:.1f} m away, "
+                f"{self.unhidden:.0%} not hidden) in {self.in_view} of the {session}'s {self.frames} frames")
+        verb = "shown" if self.shown else f"not shown well enough to find an object there (< {self.min_pixels} px)"
+        return f"{verb}: {best}"
+
+    def as_dict(self) -> dict[str, object]:
+        def number(value: float) -> float | None:
+            return None if not np.isfinite(value) else round(float(value), 3)
+
+        return {"shown": self.shown, "pixels": round(float(self.pixels), 1), "frames": self.frames,
+                "in_view": self.in_view, "frame": self.frame_index, "distance_m": number(self.distance_m),
+                "unhidden": number(self.unhidden)}
+
+
+@dataclass
+class SessionViews:
+    """The frames one session gave the detector, coarsely: what `sight` needs of them."""
+
+    rule: SightRule = field(default_factory=SightRule)
+    indices: list[int] = field(default_factory=list)
+    poses: list[np.ndarray] = field(default_factory=list)      # camera -> world, (4, 4)
+    depths: list[np.ndarray] = field(default_factory=list)     # every STRIDE-th pixel, float16 metres
+    K: np.ndarray | None = None
+    shape: tuple[int, int] = (0, 0)                            # the full image's (H, W)
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def add(self, frame_index: int, depth: np.ndarray, K: np.ndarray, pose_world_camera: np.ndarray) -> None:
+        """One frame the detector takes (its depth in metres, 0 or non-finite: none)."""
+        depth = np.nan_to_num(np.asarray(depth, dtype=np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+        self.K, self.shape = np.asarray(K, dtype=float), depth.shape
+        self.indices.append(int(frame_index))
+        self.poses.append(np.asarray(pose_world_camera, dtype=float))
+        self.depths.append(depth[STRIDE // 2::STRIDE, STRIDE // 2::STRIDE].astype(np.float16))
+
+    def sight(self, place_world: np.ndarray, radius_m: float, height_m: float) -> Sight:
+        """How well these frames showed an object of `radius_m` and `height_m` standing centred at
+        `place_world` (this session's world; the module docstring says how)."""
+        rule = self.rule
+        if not self.indices:
+            return Sight(True, float("nan"), 0, min_pixels=rule.min_pixels)
+        assert self.K is not None
+        poses = np.stack(self.poses)
+        cameras = poses[:, :3, 3]
+        samples, normals = _cylinder(np.asarray(place_world, dtype=float), radius_m, height_m)
+        # (frames, samples, 3) in each camera
+        world_to_camera = np.linalg.inv(poses)
+        points = np.einsum("fij,sj->fsi", world_to_camera[:, :3, :3], samples) + world_to_camera[:, None, :3, 3]
+        z = points[..., 2]
+        safe_z = np.where(z > 1e-6, z, np.inf)
+        u = self.K[0, 0] * points[..., 0] / safe_z + self.K[0, 2]
+        v = self.K[1, 1] * points[..., 1] / safe_z + self.K[1, 2]
+        height, width = self.shape
+        border = 1.0 if rule.skip_border else 0.0
+        inside = (z > 0) & (u >= border) & (u <= width - 1 - border) & (v >= border) & (v <= height - 1 - border)
+        center_depth = np.einsum("fj,fj->f", world_to_camera[:, 2, :3], np.broadcast_to(place_world, cameras.shape)) \
+            + world_to_camera[:, 2, 3]
+        in_view = inside.all(axis=1) & (center_depth >= rule.min_depth_m) & (center_depth <= rule.max_depth_m)
+        if not in_view.any():
+            return Sight(False, 0.0, len(self), min_pixels=rule.min_pixels)
+        facing = np.einsum("fsj,sj->fs", cameras[:, None, :] - samples[None], normals) > 0
+        rows = np.clip(np.rint((v - STRIDE // 2) / STRIDE), 0, self.depths[0].shape[0] - 1).astype(int)
+        cols = np.clip(np.rint((u - STRIDE // 2) / STRIDE), 0, self.depths[0].shape[1] - 1).astype(int)
+        frames = np.flatnonzero(in_view)
+        measured = np.stack([self.depths[f][rows[f], cols[f]] for f in frames]).astype(np.float32)
+        free = (measured > 0) & (measured >= z[frames] - OCCLUSION_MARGIN_M)
+        unhidden = (free & facing[frames]).sum(axis=1) / np.maximum(facing[frames].sum(axis=1), 1)
+        offsets = np.asarray(place_world, dtype=float) - cameras[frames]
+        distance = np.linalg.norm(offsets, axis=1)
+        elevation = np.abs(offsets[:, 2]) / np.maximum(distance, 1e-9)   # sin of the sight line's slope
+        area = 2 * radius_m * height_m * np.sqrt(1 - elevation**2) + np.pi * radius_m**2 * elevation
+        pixels = self.K[0, 0] * self.K[1, 1] * area / np.maximum(distance, 1e-9) ** 2 * unhidden
+        best = int(np.argmax(pixels))
+        return Sight(bool(pixels[best] >= rule.min_pixels), float(pixels[best]), len(self), len(frames),
+                     self.indices[frames[best]], float(distance[best]), float(unhidden[best]), rule.min_pixels)
+
+
+def _cylinder(center: np.ndarray, radius_m: float, height_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Samples of a vertical cylinder's surface (side and top) and their outward normals."""
+    angles = np.linspace(0, 2 * np.pi, AROUND, endpoint=False)
+    heights = np.linspace(-height_m / 2, height_m / 2, UP)
+    ring = np.stack([np.cos(angles), np.sin(angles), np.zeros_like(angles)], axis=1)
+    side = (center + radius_m * ring[None, :, :] + np.array([0, 0, 1.0]) * heights[:, None, None]).reshape(-1, 3)
+    side_normals = np.broadcast_to(ring, (UP, AROUND, 3)).reshape(-1, 3)
+    across = np.linspace(-radius_m * 0.6, radius_m * 0.6, ACROSS)
+    top = np.array([[center[0] + x, center[1] + y, center[2] + height_m / 2] for x in across for y in across])
+    top_normals = np.tile([0.0, 0.0, 1.0], (len(top), 1))
+    return np.concatenate([side, top]), np.concatenate([side_normals, top_normals])
