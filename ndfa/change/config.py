@@ -156,10 +156,12 @@ class EvidenceConfig:
     # An "added" object's place must have been shown by the source's frames, a removed one's by the
     # target's, well enough for perception to take an object of this size standing there (in view
     # whole, in range, its pixels not hidden reaching perception's minimum: `ndfa.change.sight`);
-    # otherwise the change is withheld with the reason. A mug-sized cylinder, 8 cm across and 9 cm
-    # tall: at 615 px focal length its 300 px stop 3 m away (docs/detector.md). Off: radius 0.
-    sight_radius_m: float = 0.04
-    sight_height_m: float = 0.09
+    # otherwise the change is withheld with the reason. The size of a large mug, 10 cm across and
+    # 11 cm tall (about 1.5x the median mug's pixels in the simulator's masks): withheld only where
+    # even such a mug would have fallen short, 3.5 m away at 615 px focal length (docs/detector.md).
+    # Off: radius 0.
+    sight_radius_m: float = 0.05
+    sight_height_m: float = 0.11
 
 
 @dataclass(frozen=True)
