@@ -198,13 +198,16 @@ def score_by_position(reports: Sequence[Sequence[ReportedObject]], ground_truth:
     visible = {s: {int(i) for i in ids} for s, ids in listed.items()} if isinstance(listed, dict) else None
     if visible is not None and not {"source", "target"} <= visible.keys():
         visible = None  # one session's list is no list: scoring the other's mugs as invisible would be wrong
-    mugs = score(mug_ids, ground_truth, visible, kinds=said)
+    listed_shown = ground_truth.get("shown")
+    shown = {s: {int(i) for i in ids} for s, ids in listed_shown.items()} if isinstance(listed_shown, dict) else None
+    mugs = score(mug_ids, ground_truth, visible, kinds=said, shown=shown)
     # Unmatched objects have no id: negative ones of their own, so that each is one FP.
     extra = clutter + tuple(-(k + 1) for k in range(len(unmatched)))
     result = PositionScore(
         mugs.tp, mugs.fp + len(extra), mugs.fn, mugs.true_positive_ids, mugs.false_positive_ids + extra,
         mugs.false_negative_ids, mugs.unscored_ids, clutter_ids=clutter, unmatched=unmatched,
-        kinds=mugs.kinds, kinds_found=mugs.kinds_found, categories=mugs.categories, alignment_rmse_m=dict(alignment_rmse_m or {}),
+        kinds=mugs.kinds, kinds_found=mugs.kinds_found, categories=mugs.categories, unshown_ids=mugs.unshown_ids,
+        alignment_rmse_m=dict(alignment_rmse_m or {}),
         visibility_known=visible is not None, radius_m=radius_m,
         local_alignment=any(o.pose_true_run is not None for report in reports for o in report))
     return result, matches

@@ -17,6 +17,7 @@ import numpy as np
 from ndfa.change.detector import ChangeDetector
 from ndfa.core.events import DecisionEvent
 from ndfa.eval.position_match import PositionScore, ReportedObject, align_worlds, score_by_position
+from ndfa.eval.shown import places_shown
 from ndfa.io.recording import RecordingReader
 from ndfa.run.world import SessionWorld
 
@@ -79,6 +80,8 @@ def score_segmented_run(changes: list[DecisionEvent], detector: ChangeDetector,
         listed = (reader.ground_truth or {}).get("visible")
         visible |= listed if isinstance(listed, dict) else {}
     truth["visible"] = visible or None
+    # The changes the recordings could show at all: the detector's own rule, with the true poses
+    truth["shown"] = places_shown(readers, truth, detector.config.evidence, detector.views["source"].rule)
     result, _ = score_by_position(reports, truth, pose_true_run, rmse, kinds=[c.kind for c in changes])
     session_wide, _ = score_by_position([[replace(o, pose_true_run=None) for o in report] for report in reports],
                                         truth, pose_true_run, rmse, kinds=[c.kind for c in changes])

@@ -15,6 +15,7 @@ from ndfa.core.events import CHANGE_SCORE
 from ndfa.eval.history import score_history
 from ndfa.eval.position_score import score_segmented_run
 from ndfa.eval.scoring import Score, kind_reports, rotated_reports, score
+from ndfa.eval.shown import places_shown
 from ndfa.run.detect import DetectionResult
 from ndfa.run.replay import ReplayResult, reported_at
 from ndfa.run.sessions import SessionsResult
@@ -32,8 +33,11 @@ def score_pair(run: SessionsResult, index: int) -> object | None:
     reported = pair.reported
     if source.has_instances and target.has_instances:
         visible = {"source": run.visible[pair.source], "target": run.visible[pair.target]}
+        detector = pair.detector
+        shown = places_shown({"source": source, "target": target}, truth, detector.config.evidence,
+                             detector.views["source"].rule)
         pair.score = score([i for c in reported for i in c.reported_instances], truth, visible,
-                           rotated_reports(reported), kind_reports(reported))
+                           rotated_reports(reported), kind_reports(reported), shown)
     else:
         pair.score = score_segmented_run(reported, pair.detector, {"source": source, "target": target},
                                          {"source": run.worlds[pair.source], "target": run.worlds[pair.target]},

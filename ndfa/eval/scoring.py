@@ -24,8 +24,12 @@ Only mugs whose change the recordings can show are scored: an added mug must be 
 target, a removed one in the source, and every other mug in both sessions ("visible": its mask
 holds at least `VISIBLE_PIXELS` pixels with depth in at least one frame). A mug the source
 never saw and the target did is "added" to any detector; a mug removed where the source never
-looked cannot be missed. The others are listed as unscored, not dropped silently: with the
-`random` preset's routes, a table can be seen only from afar in one session.
+looked cannot be missed. Nor can a change at places the other session did not show well enough
+to have found a mug there (`ndfa.eval.shown`, the detector's own rule: `ndfa.change.sight`): a
+mug added where the source only passed far away may as well have stood there before, and the
+detector withholds such a change. A moved or switched mug shows at either of its two places. The
+others are listed as unscored, not dropped silently (`Score.unshown_ids`: those for the second
+reason): with the `random` preset's routes, a table can be seen only from afar in one session.
 """
 
 from __future__ import annotations
@@ -59,7 +63,7 @@ class Score:
     true_positive_ids: tuple[int, ...]
     false_positive_ids: tuple[int, ...]
     false_negative_ids: tuple[int, ...]
-    unscored_ids: tuple[int, ...] = ()  # mugs not visible in a session they would need to be
+    unscored_ids: tuple[int, ...] = ()  # mugs not visible in a session they would need to be, or unshown
     rotated_ids: tuple[int, ...] = ()        # scored mugs the ground truth turned in place
     rotated_found_ids: tuple[int, ...] = ()  # those of them with a "rotated" report
     # kind -> (reports of it on scored mugs, of the right kind): `KindReport.right`. Not part of a
@@ -76,6 +80,8 @@ class Score:
     # (reports on scored objects that name a category, those naming the object's true one): how
     # often the NDF's category is right (none name one with a model without categories, NDF v2)
     categories_named: tuple[int, int] = field(default=(0, 0), compare=False)
+    # changed mugs unscored because no place of their change was shown by the other session
+    unshown_ids: tuple[int, ...] = ()
 
     def kind_recall(self, change: str) -> float:
         """The share of the mugs with the true `change` named by a report of a right kind (1.0 when none)."""
@@ -107,6 +113,8 @@ class Score:
     def as_dict(self) -> dict:
         out = {"tp": self.tp, "fp": self.fp, "fn": self.fn, "precision": self.precision, "recall": self.recall,
                "unscored": list(self.unscored_ids)}
+        if self.unshown_ids:
+            out["unshown"] = list(self.unshown_ids)
         if self.rotated_ids:  # only for scenes with turned mugs: the others' summaries stay as they were
             out["rotated"] = {"mugs": list(self.rotated_ids), "found_as_rotated": list(self.rotated_found_ids),
                               "recall": self.rotated_recall}
@@ -156,29 +164,40 @@ def categories_named(ground_truth: dict, reports: Sequence[KindReport]) -> tuple
     return len(named), sum(truth.get(r.instance_id) == r.category for r in named)
 
 
-def scorable_instances(ground_truth: dict, visible: dict[str, set[int]]) -> set[int]:
+def scorable_instances(ground_truth: dict, visible: dict[str, set[int]] | None,
+                       shown: dict[str, set[int]] | None = None) -> set[int]:
     """Instances whose change (or lack of one) the recordings show; `visible[session]` holds the
-    instance ids seen with at least `VISIBLE_PIXELS` pixels in that session."""
+    instance ids seen with at least `VISIBLE_PIXELS` pixels in that session (None: all), `shown[session]`
+    those whose place in that session the other session showed (`ndfa.eval.shown`; None: all)."""
     needs = {"added": ("target",), "removed": ("source",)}
+    ends = {"added": ("target",), "removed": ("source",), "moved": ("source", "target"), "switched": ("source", "target")}
     out = set()
     for o in ground_truth.get("objects", []):
-        instance_id = int(o["instance_id"])
-        if all(instance_id in visible.get(s, ()) for s in needs.get(o.get("change"), ("source", "target"))):
-            out.add(instance_id)
+        instance_id, change = int(o["instance_id"]), o.get("change")
+        if visible is not None and not all(instance_id in visible.get(s, ()) for s in needs.get(change, ("source", "target"))):
+            continue
+        if shown is not None and change in ends and not any(instance_id in shown.get(s, ()) for s in ends[change]):
+            continue
+        out.add(instance_id)
     return out
 
 
 def score(reported_instances: list[int], ground_truth: dict, visible: dict[str, set[int]] | None = None,
-          rotated_instances: Sequence[int] = (), kinds: Sequence[KindReport] = ()) -> Score:
+          rotated_instances: Sequence[int] = (), kinds: Sequence[KindReport] = (),
+          shown: dict[str, set[int]] | None = None) -> Score:
     """Score the instance ids of the reported changes (one per report, repeats allowed).
 
     `visible`: per session, the instances visible in it; None scores every mug of the ground truth.
+    `shown`: per session, the mugs whose place in it the other session showed (`ndfa.eval.shown`);
+    None: every place counts as shown.
     `rotated_instances`: the instance ids of the "rotated" reports among them (`rotated_reports`).
     `kinds`: what each report says (`kind_reports`), for the per-kind score of the scored mugs.
     """
     truth = changed_instances(ground_truth)
     everything = {int(o["instance_id"]) for o in ground_truth.get("objects", [])} | set(reported_instances)
-    scored = everything if visible is None else scorable_instances(ground_truth, visible)
+    scored = everything if visible is None and shown is None else scorable_instances(ground_truth, visible, shown)
+    unshown = () if shown is None else tuple(sorted(
+        set(truth) & (scorable_instances(ground_truth, visible) if visible is not None else everything) - scored))
     reported = set(reported_instances) & scored
     truth = {i: kind for i, kind in truth.items() if i in scored}
     tp = sorted(reported & truth.keys())
@@ -198,7 +217,7 @@ def score(reported_instances: list[int], ground_truth: dict, visible: dict[str, 
         per_change[change] = (n + 1, right + int(instance_id in found_rightly))
     return Score(len(tp), len(fp), len(fn), tuple(tp), tuple(fp), tuple(fn), tuple(sorted(everything - scored)),
                  tuple(turned), tuple(found), per_kind, per_change, category_counts(ground_truth, tp, fp, fn),
-                 categories_named(ground_truth, [r for r in kinds if r.instance_id in scored]))
+                 categories_named(ground_truth, [r for r in kinds if r.instance_id in scored]), unshown)
 
 
 def kind_reports(changes: list) -> list[KindReport]:
