@@ -1,0 +1,98 @@
+"""A change needs the other session to have shown its place (`ndfa.change.sight`), in the detector
+and in the scoring's scope (`ndfa.eval.scoring.scorable_instances`)."""
+
+import numpy as np
+
+from ndfa.change.associate import Measurement
+from ndfa.change.config import DetectorConfig, RegistrationConfig
+from ndfa.change.detector import ChangeDetector, reported_changes
+from ndfa.change.sight import SessionViews, SightRule
+from ndfa.eval.scoring import scorable_instances
+
+K = np.array([[525.0, 0, 319.5], [0, 525.0, 239.5], [0, 0, 1]])
+SIZE = (0.05, 0.11)
+
+
+def look_at(eye, center) -> np.ndarray:
+    """Camera -> world pose (OpenCV axes: z forward, y down) at `eye` looking at `center`, z up."""
+    eye, center = np.asarray(eye, float), np.asarray(center, float)
+    forward = (center - eye) / np.linalg.norm(center - eye)
+    right = np.cross(forward, [0, 0, 1.0])
+    right /= np.linalg.norm(right)
+    pose = np.eye(4)
+    pose[:3, :3] = np.stack([right, np.cross(forward, right), forward], axis=1)
+    pose[:3, 3] = eye
+    return pose
+
+
+def views_of(eye, center, depth_m: float) -> SessionViews:
+    views = SessionViews(SightRule())
+    views.add(0, np.full((480, 640), depth_m, np.float32), K, look_at(eye, center))
+    return views
+
+
+def test_a_place_is_shown_near_and_in_the_open_and_not_far_hidden_without_depth_or_out_of_view():
+    place = np.array([1.2, 0.0, 0.8])
+    near = views_of([0, 0, 1.2], place, 3.0).sight(place, *SIZE)
+    assert near.shown and near.in_view == 1 and near.unhidden == 1.0
+    # about f^2 times the side's area over the distance squared, foreshortened, plus a bit of the top
+    assert 1500 < near.pixels < 2600
+    hidden = views_of([0, 0, 1.2], place, 0.8).sight(place, *SIZE)          # a surface in front of it
+    assert not hidden.shown and hidden.unhidden == 0.0 and "not shown" in hidden.describe("source")
+    blind = views_of([0, 0, 1.2], place, 0.0).sight(place, *SIZE)           # no depth: nothing known
+    assert not blind.shown
+    far = np.array([3.9, 0.0, 0.8])
+    distant = views_of([0, 0, 1.2], far, 6.0).sight(far, *SIZE)
+    assert distant.in_view == 1 and distant.pixels < SightRule().min_pixels and not distant.shown
+    behind = views_of([0, 0, 1.2], place, 3.0).sight(np.array([-1.2, 0.0, 0.8]), *SIZE)
+    assert behind.in_view == 0 and not behind.shown and "never whole in view" in behind.describe("target")
+    assert SessionViews().sight(place, *SIZE).shown  # no frames known (a replay): every place counts as shown
+
+
+def _code(seed: int) -> np.ndarray:
+    return np.random.default_rng(seed).normal(size=16)
+
+
+def test_an_added_mug_where_the_source_never_looked_is_withheld_and_one_it_saw_is_reported():
+    """Two tables of four mugs; a mug is added to each. The source's camera saw table A close by and
+    table B only from 3.8 m: the mug added on B is withheld with the reason, the one on A reported."""
+    tables = {"A": np.array([0.0, 0.0]), "B": np.array([0.0, 3.0])}
+    mugs = {}
+    for t, (name, center) in enumerate(tables.items()):
+        for k, offset in enumerate([(-0.2, -0.15), (0.2, -0.1), (-0.15, 0.2), (0.25, 0.2)]):
+            mugs[4 * t + k + 1] = np.r_[center + offset, 0.8]
+    target = dict(mugs) | {20: np.r_[0.0, 0.0, 0.8], 21: np.r_[0.0, 3.0, 0.8]}
+    codes = {i: _code(100 + i) for i in target}
+    rng = np.random.default_rng(0)
+    detector = ChangeDetector(DetectorConfig(registration=RegistrationConfig(pairs=4)))
+    source_eyes = {"A": [-1.2, 0.0, 1.3], "B": [-1.2, -0.6, 1.3]}   # B looked at from 3.8 m away
+    target_eyes = {"A": [-1.2, 0.0, 1.3], "B": [-1.2, 3.0, 1.3]}
+    for session, layout, eyes, first in (("source", mugs, source_eyes, 0), ("target", target, target_eyes, 20)):
+        for t, (name, center) in enumerate(tables.items()):
+            for view in range(10):
+                frame = first + 10 * t + view
+                detector.add_view(session, frame, np.full((480, 640), 9.0, np.float32), K,  # type: ignore[arg-type]
+                                  look_at(eyes[name], np.r_[center, 0.8]))
+                measurements = [Measurement(frame, i, codes[i] + rng.normal(scale=0.02, size=16),
+                                            c + rng.normal(scale=0.003, size=3), 0.8)
+                                for i, c in layout.items() if np.linalg.norm(c[:2] - center) < 1.0]
+                (detector.add_source if session == "source" else detector.add_target)(measurements)
+    decisions = [e for e in detector.finish() if hasattr(e, "kind")] + list(detector.changed.values()) \
+        + list(detector.unseen.values())
+    reported = {d.instance_ids[0] for d in reported_changes(decisions)}
+    withheld = {d.instance_ids[0]: d.withheld for d in decisions if d.withheld is not None}
+    assert reported == {20}
+    assert set(withheld) == {21} and "not shown well enough" in withheld[21] and "3.8 m away" in withheld[21]
+    assert DetectorConfig.paper().evidence.sight_radius_m == 0  # the paper's: no such test
+
+
+def test_a_change_no_session_showed_is_out_of_the_scorings_scope():
+    truth = {"objects": [{"instance_id": 1, "change": "added"}, {"instance_id": 2, "change": "added"},
+                         {"instance_id": 3, "change": "switched"}, {"instance_id": 4, "change": "removed"},
+                         {"instance_id": 5, "change": "unchanged"}]}
+    visible = {"source": {3, 4, 5}, "target": {1, 2, 3, 5}}
+    assert scorable_instances(truth, visible) == {1, 2, 3, 4, 5}
+    # 2's place in the target was never shown by the source; 3 shows at its source place alone;
+    # 4's source place was never shown by the target
+    shown = {"source": {3, 5}, "target": {1, 5}}
+    assert scorable_instances(truth, visible, shown) == {1, 3, 5}
