@@ -25,6 +25,7 @@ from ndfa.eval.baselines.nn import NNBaseline, NNConfig
 from ndfa.eval.baselines.tsdf import TSDFBaseline, TSDFConfig
 from ndfa.eval.runs import score_detection
 from ndfa.eval.scoring import kind_reports, rotated_reports, score
+from ndfa.eval.shown import places_shown
 from ndfa.io.atomic import atomic_path, write_parquet
 from ndfa.io.recording import Frame, RecordingReader
 from ndfa.perception.observations import ObservationConfig
@@ -167,13 +168,18 @@ def evaluate_methods(source: Path, target: Path, nn: NNConfig = NNConfig(), tsdf
     reported["ndfa"] = [i for change in detection.changes for i in change.reported_instances]
 
     rows, notes, unscored = [], [], ()
+    # Every method on one scope: the changes whose places the other session showed (`ndfa.eval.shown`)
+    detector = detection.pair.detector
+    shown = places_shown({"source": source_reader, "target": target_reader}, truth, detector.config.evidence,
+                         detector.views["source"].rule)
     for method, poses in (("NN", "true"), ("PMT", "true"), ("ndfa", "given")):
-        s = score(reported[method], truth, visible, kinds=kind_reports(detection.changes) if method == "ndfa" else ())
+        s = score(reported[method], truth, visible, kinds=kind_reports(detection.changes) if method == "ndfa" else (),
+                  shown=shown)
         unscored = s.unscored_ids
         rows.append(MethodRow(method, poses, s.tp, s.fp, s.fn, s.precision, s.recall, seconds[method],
                               s.false_positive_ids, s.false_negative_ids, tuple(sorted(set(reported[method]))),
                               s.kinds, s.kinds_found, s.categories))
-    turned = score(reported["ndfa"], truth, visible, rotated_reports(detection.changes))
+    turned = score(reported["ndfa"], truth, visible, rotated_reports(detection.changes), shown=shown)
     if turned.rotated_ids:
         notes.append(f"ndfa reported {len(turned.rotated_found_ids)} of the {len(turned.rotated_ids)} mugs turned in "
                      "place as rotated; TP/FP/FN count a turned mug found by any report (the baselines have no "
@@ -183,7 +189,8 @@ def evaluate_methods(source: Path, target: Path, nn: NNConfig = NNConfig(), tsdf
         notes.append(f"ndfa's own score (TP {own.tp} FP {own.fp} FN {own.fn}) differs from this table's: "
                      "its visible sets come from its observations")
     if unscored:
-        notes.append(f"unscored (not visible where their change would show): {', '.join(map(str, unscored))}")
+        notes.append(f"unscored (not visible where their change would show, or their places not shown by the "
+                     f"other session): {', '.join(map(str, unscored))}")
     return EvalResult(rows, visible, unscored, notes + detection.notes, truth, baselines, detection)
 
 
