@@ -42,13 +42,15 @@ def places_shown(readers: Mapping[str, RecordingReader], ground_truth: dict,
             seen.add(frame.index, frame.depth, frame.K, true)
         views[session] = seen
     shown: dict[str, set[int]] = {session: set() for session in SESSIONS}
+    # The pose is the mug's base on its support: the place's center is half a mug above it, along the
+    # up of a world the recording may hold tilted (a planted real recording's: `world_tilt`)
+    tilt = ground_truth.get("world_tilt")
+    up = np.asarray(tilt["pose_world_level"], dtype=float)[:3, 2] if tilt else np.array([0.0, 0.0, 1.0])
     for o in ground_truth.get("objects", []):
         for session in SESSIONS:
             if not o.get(session):
                 continue
-            # The pose is the mug's base on its support: the place's center is half a mug above it.
-            base = np.asarray(o[session]["pose_world_object"], dtype=float)[:3, 3]
-            place = base + np.array([0.0, 0.0, evidence.sight_height_m / 2])
+            place = np.asarray(o[session]["pose_world_object"], dtype=float)[:3, 3] + up * evidence.sight_height_m / 2
             if views[OTHER[session]].sight(place, evidence.sight_radius_m, evidence.sight_height_m).shown:
                 shown[session].add(int(o["instance_id"]))
     return shown
