@@ -160,8 +160,10 @@ def test_a_nearer_surface_behind_a_band_without_depth_still_hides_the_foot_below
     from ndfa.perception.segmentation import _hidden_above
     from ndfa.perception.segmentation_config import SegmentationConfig
 
-    config = dataclasses.replace(SegmentationConfig(), occluder_band_px=24)
+    config = SegmentationConfig()
+    assert config.occluder_band_px == 24
     foot = _foot_below_a_band(1.1)      # the foot of a far table's leg below a nearer table top
     assert _hidden_above(*foot, config)
-    assert not _hidden_above(*foot, SegmentationConfig())  # without: the band hid the table top
+    without = dataclasses.replace(config, occluder_band_px=0)
+    assert not _hidden_above(*foot, without)  # without: the band hid the table top
     assert not _hidden_above(*_foot_below_a_band(3.0), config)  # farther background above: a mug
