@@ -67,9 +67,9 @@ class SegmentationConfig:
     occluder_band_px: pixels without depth between a cluster's top and the surface above are
         skipped, up to this many: a depth camera leaves a band without depth at an occluding edge
         (a RealSense D435 aligned to colour: up to 20 px), and a nearer table top behind such a band
-        still hides what is below it. 0 (the default for now): the band ends the look; 24 drops the
-        office's desk-leg foot (docs/results.md, "The hand-held office") but is not yet rerun on
-        the kitchen halves and paper-raw.
+        still hides what is below it. 24 drops the office's desk-leg foot and keeps the kitchen
+        halves at 0 changes with both mugs (docs/results.md, "The hand-held office"). 0: the band
+        ends the look (before 2026-12-03).
     fill_distance_m: a full-resolution pixel joins a cluster whose nearest point is closer than this.
     image_margin_px: a cluster with a sample within this many pixels of the image border is
         dropped: the image cuts it, so its shape (the gate's evidence) is unknown; on real data such
