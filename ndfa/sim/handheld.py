@@ -6,7 +6,9 @@ Along the route's positions (one per frame at `fps`), the person looks towards t
 the room and back (a pan of +-`pan_deg` about that direction, one sweep every `pan_period_s`), and
 the hand shakes (small smoothed rotations and translations every frame) and rolls a little. The
 heading and pitch turn at most `max_rate_deg_s` (a quick pan: 90 deg/s, 3 deg per frame at 30 Hz),
-which is what odometry then has to follow.
+which is what odometry then has to follow. The person walks at a pace that drifts slowly about
+the route's mean step (`walking_arc_lengths`: slowing down and speeding up by `pace_variation`),
+not at a machine's constant speed.
 """
 
 from __future__ import annotations
@@ -33,10 +35,14 @@ class HandheldMotion:
     shake_deg: float = 0.3          # tremor: rotation per frame (standard deviation, smoothed)
     shake_m: float = 0.002          # tremor: translation (standard deviation, smoothed)
     smoothing_s: float = 0.1        # the tremor's correlation time
+    pace_variation: float = 0.2     # the walking pace's standard deviation, a fraction of the mean (capped at 2x)
+    pace_time_s: float = 2.0        # how long a faster or slower stretch lasts (the pace's correlation time)
 
     def __post_init__(self) -> None:
         if not (self.max_rate_deg_s > 0 and self.pan_period_s > 0 and self.smoothing_s > 0):
             raise SimError(f"hand-held motion needs positive rates and times: {self}")
+        if not (0.0 <= self.pace_variation < 0.5 and self.pace_time_s > 0):
+            raise SimError(f"hand-held motion needs pace_variation in [0, 0.5) and pace_time_s > 0: {self}")
         if min(self.pan_deg, self.roll_deg, self.shake_deg, self.shake_m) < 0 or not 0 < self.max_down_deg < 90:
             raise SimError(f"hand-held motion amplitudes must be >= 0 and max_down_deg in (0, 90): {self}")
 
@@ -65,6 +71,18 @@ def handheld_poses(eyes: np.ndarray, targets: np.ndarray, fps: float, motion: Ha
     roll = _smoothed_noise(rng, (n, 1), fps)[:, 0] * np.radians(motion.roll_deg) + tremor[:, 2]
     shaken = eyes + _smoothed_noise(rng, (n, 3), smooth) * motion.shake_m
     return np.stack([_pose(e, h, p, r) for e, h, p, r in zip(shaken, heading, pitch, roll)])
+
+
+def walking_arc_lengths(length_m: float, mean_step_m: float, fps: float, motion: HandheldMotion,
+                        rng: np.random.Generator) -> np.ndarray:
+    """Distances along a route of `length_m` at which the frames are taken: `mean_step_m` per frame
+    on average, the pace drifting by `motion.pace_variation` (standard deviation, capped at twice
+    that) over stretches of `motion.pace_time_s`; starts at 0, stays below `length_m`."""
+    most = int(np.ceil(length_m / (mean_step_m * (1.0 - 2.0 * motion.pace_variation)))) + 1
+    drift = _smoothed_noise(rng, (most, 1), motion.pace_time_s * fps)[:, 0] if most > 1 else np.zeros(most)
+    pace = 1.0 + motion.pace_variation * np.clip(drift, -2.0, 2.0)
+    arc = np.r_[0.0, np.cumsum(mean_step_m * pace[:-1])]
+    return arc[arc < length_m]
 
 
 def angular_speeds_deg_s(poses: np.ndarray, fps: float) -> np.ndarray:

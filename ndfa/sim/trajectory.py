@@ -21,7 +21,7 @@ import numpy as np
 
 from ndfa.core.errors import SimError
 from ndfa.core.geometry import look_at
-from ndfa.sim.handheld import MOTIONS, HandheldMotion, handheld_poses
+from ndfa.sim.handheld import MOTIONS, HandheldMotion, handheld_poses, walking_arc_lengths
 from ndfa.sim.scene import Table
 
 ROUTES = ("perimeter", "corridor", "weave", "circles")
@@ -36,7 +36,7 @@ MAX_ROUTE_FRAMES = 10_000
 @dataclass(frozen=True)
 class TrajectoryConfig:
     route: str = "perimeter"
-    step_m: float = 0.08            # camera travel between frames
+    step_m: float = 0.08            # camera travel between frames (hand-held: its mean)
     clearance_m: float = 0.75       # route distance from table edges
     height_above_table_m: float = 0.25  # camera height over the table top, before the height wobble
     height_wobble_m: float = 0.05   # smooth random height variation (the paper trains on +-0.1 m)
@@ -68,7 +68,13 @@ def camera_poses(tables: list[Table], config: TrajectoryConfig, rng: np.random.G
         raise SimError(f"the {config.route} route is {frames * config.step_m:.1f} m long: a step of "
                        f"{config.step_m:g} m gives {frames:.0f} frames, outside 2-{MAX_ROUTE_FRAMES}; choose a step "
                        f"from {frames * config.step_m / MAX_ROUTE_FRAMES:.3g} to {frames * config.step_m / 2:.3g} m")
-    positions_xy = smooth_resample(waypoints, config.step_m, config.smoothing_m, closed)
+    if config.motion == "handheld":  # a person's pace drifts; step_m is its mean
+        fine = smooth_resample(waypoints, config.step_m / 8, config.smoothing_m, closed)
+        arc = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(fine, axis=0), axis=1))]
+        walked = walking_arc_lengths(float(arc[-1]), config.step_m, fps, config.handheld, rng)
+        positions_xy = np.stack([np.interp(walked, arc, fine[:, d]) for d in range(2)], axis=1)
+    else:
+        positions_xy = smooth_resample(waypoints, config.step_m, config.smoothing_m, closed)
     targets = np.array([_gaze_target(tables, p, config.look_height_m) for p in positions_xy])
     # Smoothing the gaze turns the camera gradually where the nearest table changes.
     targets = _gaussian_smooth(targets, config.smoothing_m / config.step_m, closed)
