@@ -53,7 +53,7 @@ def terms(path: str, low: int, high: int, gap: int) -> None:
             if result is None:
                 row.append(f"{term}: failed")
                 continue
-            kept = keep_prediction_where_unseen(result, prediction, views[k].smooth_plane_information,
+            kept = keep_prediction_where_unseen(result, prediction, views[k].unseen_information,
                                                 views[k].median_depth_m, 0.005)
             row.append(f"{term} {motion_error(result, truth)}, prediction kept where unseen "
                        f"{motion_error(kept, truth)}, fitness {fitness:.2f}")

@@ -1,13 +1,22 @@
 """What depth cannot see: the plane term's unseen directions on a noisy wall, the prediction kept
-along them, and the constant-velocity model of a camera that walks straight while it pans."""
+along them (after the choice of term, not before), and the constant-velocity model of a camera
+that walks straight while it pans."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from ndfa.core.geometry import axis_angle_to_matrix, make_pose
-from ndfa.trajectory.degeneracy import depth_degeneracy, keep_prediction_where_unseen, plane_information
-from ndfa.trajectory.rgbd import _motion, _predict
+from ndfa.trajectory import rgbd
+from ndfa.trajectory.degeneracy import (
+    depth_degeneracy,
+    keep_prediction_where_unseen,
+    plane_information,
+    unseen_information,
+)
+from ndfa.trajectory.rgbd import HYBRID, POINT_TO_PLANE, _motion, _predict
+from ndfa.trajectory.rgbd_view import View
 
 K = np.array([[290.0, 0.0, 160.0], [0.0, 290.0, 120.0], [0.0, 0.0, 1.0]])
 
@@ -69,3 +78,35 @@ def test_a_camera_that_walks_straight_while_it_pans_is_predicted_by_its_velocity
     camera = _predict(poses[1], _motion(poses[0], poses[1], in_world=False), in_world=False)
     np.testing.assert_allclose(world, poses[2], atol=1e-12)
     assert np.linalg.norm(camera[:3, 3] - poses[2][:3, 3]) > 0.003  # the body-frame model turns the walk
+
+
+def test_a_prediction_stays_a_rotation_however_often_it_is_repeated():
+    # A registration's rotation a little off orthonormal (float32 inside Open3D), repeated frame
+    # after frame by the world-velocity model, grew by its own error each time without the projection.
+    last = twist_pose((0.0, 0.05, 0.0), (0.1, 0.0, 0.0))
+    last[:3, :3] *= 1.0 + 1e-4
+    motion = _motion(last, last @ twist_pose((0.0, 0.03, 0.0), (0.05, 0.0, 0.0)), in_world=True)
+    for _ in range(200):
+        last = _predict(last, motion, in_world=True)
+    np.testing.assert_allclose(last[:3, :3] @ last[:3, :3].T, np.eye(3), atol=1e-9)
+    assert np.linalg.det(last[:3, :3]) == pytest.approx(1.0)
+
+
+def test_the_term_nearer_the_prediction_is_chosen_before_the_prediction_is_kept_where_unseen(monkeypatch):
+    # A textured frame facing a wall: hybrid lands 3 cm from the prediction (beyond the cross-check),
+    # point-to-plane 10 cm along the wall. Kept where the wall's depth is blind, point-to-plane's
+    # result would be the prediction itself and win the comparison it lost on its merits.
+    prediction = twist_pose((0.0, 0.0, 0.0), (0.05, 0.0, 0.0))
+    results = {HYBRID: prediction @ twist_pose((0.0, 0.0, 0.0), (0.0, 0.03, 0.0)),
+               POINT_TO_PLANE: prediction @ twist_pose((0.0, 0.0, 0.0), (0.1, 0.0, 0.0))}
+    monkeypatch.setattr(rgbd, "register_dense", lambda view, keyframe, initial, term, config: (results[term], 0.8))
+    view = View(rgbd=None, features=None, K=None, plane_information=np.eye(6),
+                unseen_information=unseen_information(wall(), K), median_depth_m=1.2, valid_fraction=1.0, textured=True)
+    odometry = rgbd.RgbdOdometry(rgbd.RgbdOdometryConfig(unseen_from_prediction=(POINT_TO_PLANE,)))
+    result, _, term = odometry._from_prediction(view, view, prediction, HYBRID)
+    assert term == HYBRID and result is results[HYBRID] and not odometry._unseen
+    # Where point-to-plane is the better of the two, its slide along the wall is the prediction's.
+    results[HYBRID] = prediction @ twist_pose((0.0, 0.0, 0.0), (0.0, 0.2, 0.0))
+    result, _, term = odometry._from_prediction(view, view, prediction, HYBRID)
+    assert term == POINT_TO_PLANE and odometry._unseen
+    np.testing.assert_allclose(result, prediction, atol=1e-9)

@@ -34,6 +34,22 @@ def plane_information(depth: np.ndarray, K: np.ndarray, step: int = 2, baseline:
     return jacobian.T @ jacobian
 
 
+# The grid `unseen_information` samples: this many columns whatever the image's size, normals across
+# UNSEEN_BASELINE samples. At 320 px wide (a 640 x 480 frame as the odometry subsamples it) every 4th
+# pixel, normals over 16 px: 2.9 deg of a 60 deg view at any resolution, 5 cm at 1 m.
+UNSEEN_COLUMNS = 80
+UNSEEN_BASELINE = 4
+
+
+def unseen_information(depth: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """`plane_information` with normals over a wide baseline, for finding the directions depth
+    cannot see (`keep_prediction_where_unseen`). The baseline is a fixed share of the image's width,
+    not a pixel count: the same sample step on a 160 x 120 image spans twice the angle, and its
+    normals skip the small objects (mugs, table legs, a desk's edge) that pin a slide there."""
+    step = max(1, round(depth.shape[1] / UNSEEN_COLUMNS))
+    return plane_information(depth, K, step=step, baseline=UNSEEN_BASELINE)
+
+
 def depth_degeneracy(information: np.ndarray, depth_m: float) -> float:
     """Smallest over largest eigenvalue of a depth term's 6x6 information matrix, with rotations
     expressed as arc length at `depth_m` (so a direction is compared in metres either way): near 0

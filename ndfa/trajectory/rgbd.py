@@ -261,30 +261,32 @@ class RgbdOdometry:
         """T_keyframe_frame by dense registration from the constant-velocity prediction (no feature
         estimate: too few matches), its fitness and term."""
         config = self.config
-        result, fitness = self._register_predicted(view, keyframe, predicted, term)
+        result, fitness = register_dense(view, keyframe, predicted, term, config)
         if term != INTENSITY and _jump(result, predicted) > config.cross_check_m:
             # Dense odometry on a few planes has false minima a few centimetres off; the camera
             # moves smoothly, so of the two terms' results the one nearer the prediction wins.
             other = POINT_TO_PLANE if term == HYBRID else HYBRID
             if other == POINT_TO_PLANE or view.textured:
-                candidate, candidate_fitness = self._register_predicted(view, keyframe, predicted, other)
+                candidate, candidate_fitness = register_dense(view, keyframe, predicted, other, config)
                 if _jump(candidate, predicted) < _jump(result, predicted):
                     result, fitness, term = candidate, candidate_fitness, other
+        # Only the chosen result keeps the prediction where depth is blind: kept before the choice,
+        # a point-to-plane result would always lie nearer the prediction and win it.
+        result = self._keep_unseen(view, result, predicted, term)
         if result is None or fitness < config.min_fitness or _jump(result, predicted) > config.max_correction_m:
             self.rejected_frames += 1
             return predicted, fitness, term
         return result, fitness, term
 
-    def _register_predicted(self, view: View, keyframe: View, predicted: np.ndarray, term: str) -> tuple[np.ndarray | None, float]:
-        """Dense registration from the prediction, which is kept along the directions the frame's
-        depth cannot see when the term leans on depth (`keep_prediction_where_unseen`)."""
-        result, fitness = register_dense(view, keyframe, predicted, term, self.config)
-        if result is not None and term in self.config.unseen_from_prediction:
-            remapped = keep_prediction_where_unseen(result, predicted, view.smooth_plane_information, view.median_depth_m,
-                                                    self.config.unseen_ratio)
-            self._unseen = self._unseen or remapped is not result
-            result = remapped
-        return result, fitness
+    def _keep_unseen(self, view: View, result: np.ndarray | None, predicted: np.ndarray, term: str) -> np.ndarray | None:
+        """`result` with the prediction kept along the directions the frame's depth cannot see, when
+        `term` leans on depth alone (`keep_prediction_where_unseen`, rgbd_config)."""
+        if result is None or term not in self.config.unseen_from_prediction:
+            return result
+        remapped = keep_prediction_where_unseen(result, predicted, view.unseen_information, view.median_depth_m,
+                                                self.config.unseen_ratio)
+        self._unseen = remapped is not result
+        return remapped
 
     def _add_keyframe(self, view: View, pose: np.ndarray, edge: PoseEdge | None, frame: int | None = None) -> None:
         """Append a keyframe (by default the frame being tracked), its edge to the last keyframe,
@@ -363,8 +365,12 @@ def _predict(last: np.ndarray, motion: np.ndarray, in_world: bool) -> np.ndarray
     """The pose after `last` by the same `motion` (`_motion`) again."""
     if not in_world:
         return last @ motion
+    # Back onto the rotations: the turn was taken with a transpose for the inverse, so a registration's
+    # slightly non-orthonormal rotation (float32 inside Open3D) would otherwise grow by its own
+    # error at every predicted frame (a 160 x 120 session's poses overflowed after 15 of them).
+    left, _, right = np.linalg.svd(last[:3, :3] @ motion[:3, :3])
     pose = np.eye(4)
-    pose[:3, :3] = last[:3, :3] @ motion[:3, :3]
+    pose[:3, :3] = left @ np.diag([1.0, 1.0, np.linalg.det(left @ right)]) @ right
     pose[:3, 3] = last[:3, 3] + motion[:3, 3]
     return pose
 

@@ -125,9 +125,9 @@ class RgbdOdometryConfig:
     prediction_overlap_ratio: float = 2.0
     feature_agreement_m: float = 0.05
     feature_agreement_deg: float = 3.0
-    unseen_from_prediction: tuple[str, ...] = ()
+    unseen_from_prediction: tuple[str, ...] = (POINT_TO_PLANE,)
     unseen_ratio: float = 0.005
-    velocity_in_world: bool = False
+    velocity_in_world: bool = True
     color_camera: ColorCamera | None = None
 
     def __post_init__(self) -> None:

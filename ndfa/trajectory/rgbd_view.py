@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ndfa.core.frame import Frame
-from ndfa.trajectory.degeneracy import plane_information, textured_fraction
+from ndfa.trajectory.degeneracy import plane_information, textured_fraction, unseen_information
 from ndfa.trajectory.features import Features, detect_features, no_features
 from ndfa.trajectory.rgbd_config import HYBRID, INTENSITY, POINT_TO_PLANE, RgbdOdometryConfig
 
@@ -22,7 +22,7 @@ class View:
     features: Features  # ORB keypoints of the full-resolution image (none without colour)
     K: object  # open3d.core.Tensor (3, 3) float64, of the subsampled image
     plane_information: np.ndarray  # (6, 6) of the frame's own point-to-plane term (`plane_information`)
-    smooth_plane_information: np.ndarray  # the same from normals over a wider baseline: what depth cannot see
+    unseen_information: np.ndarray  # the same from normals over a wider baseline: what depth cannot see
     median_depth_m: float
     valid_fraction: float
     textured: bool
@@ -61,7 +61,7 @@ def prepare_view(frame: Frame, config: RgbdOdometryConfig) -> View:
     rgbd = o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(np.ascontiguousarray(rgb)),
                                     o3d.t.geometry.Image(np.ascontiguousarray(depth[..., None])))
     return View(rgbd=rgbd, features=features, K=o3d.core.Tensor(K), plane_information=plane_information(depth, K),
-                smooth_plane_information=plane_information(depth, K, step=4, baseline=4),
+                unseen_information=unseen_information(depth, K),
                  median_depth_m=float(np.median(depth[valid])) if valid.any() else 1.0,
                  valid_fraction=float(valid.mean()),
                  textured=frame.rgb is not None and textured_fraction(rgb, valid, config.gradient_threshold) >= config.textured_fraction)
