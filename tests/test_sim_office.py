@@ -84,6 +84,17 @@ def test_handheld_motion_turns_like_a_hand():
     assert 0.001 < np.sqrt(np.mean(shake**2)) < 0.01  # the hand shakes the path by millimetres
 
 
+def test_the_office_is_walked_at_a_hand_held_pace_that_drifts():
+    config = make_config("office", 1).trajectory
+    poses = camera_poses(table_grid(2, 2), config, np.random.default_rng(1), fps=30.0)
+    speeds = np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1) * 30.0  # m/s, the hand's shake included
+    assert 0.7 < speeds.mean() < 1.1  # a walk with a camera, not a run (8 cm per frame was 2.4 m/s)
+    assert 0.4 < speeds.min() and speeds.max() < 1.4
+    assert np.quantile(speeds, 0.9) - np.quantile(speeds, 0.1) > 0.2  # slowing down and speeding up
+    fast = camera_poses(table_grid(2, 2), dataclasses.replace(config, step_m=0.08), np.random.default_rng(1), fps=30.0)
+    assert len(poses) > 1.5 * len(fast)  # --step 0.08 stays the run over the same route (the pace drifts apart)
+
+
 def test_aligned_depth_cuts_the_occlusion_bands():
     # A near box (1 m) in front of a far wall (3 m): with a 50 mm stereo baseline at 615 px the band
     # left of the box is 615 * 0.05 * (1 - 1/3) = 20.5 px; the colour offset's on its right 6.8 px.

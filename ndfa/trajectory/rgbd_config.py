@@ -71,14 +71,14 @@ class RgbdOdometryConfig:
     feature_agreement_m, feature_agreement_deg: a dense registration that lands farther than this
         from the feature estimate it started at fell into another minimum: the feature estimate is
         kept instead.
-    unseen_from_prediction, unseen_ratio: a registration from the prediction with one of these
-        terms keeps the prediction along the directions the frame's depth cannot see (eigenvalues
-        of its plane term, normals over a wider baseline, below `unseen_ratio` times the largest:
-        a bare wall's slide and roll), and such a frame does not update the velocity;
-        () turns this off (`degeneracy.keep_prediction_where_unseen`), the default: on a 160 x 120
-        recording it flags most frames (docs/odometry.md). ("point-to-plane",): the term an
-        untextured frame is registered with; hybrid's intensity residuals still carry some of the
-        slide on a wall's faint texture.
+    unseen_from_prediction, unseen_ratio: a registration from the prediction whose chosen term is
+        one of these keeps the prediction along the directions the frame's depth cannot see
+        (eigenvalues of its plane term, normals over a baseline of a fixed share of the image,
+        `degeneracy.unseen_information`, below `unseen_ratio` times the largest: a bare wall's
+        slide and roll), and such a frame does not update the velocity
+        (`degeneracy.keep_prediction_where_unseen`); () turns this off. ("point-to-plane",), the
+        default: the term an untextured frame is registered with; hybrid's intensity residuals
+        still carry some of the slide on a wall's faint texture (docs/odometry.md).
     color_camera: the colour camera when the colour is not registered to the depth (a recording's
         meta says so: `ndfa.core.color_camera`, `session.rgbd_config_for`); each frame's colour is then
         carried onto its depth pixels before features and the intensity term use it. None: registered.
