@@ -3,6 +3,7 @@ result matches the z-up recording's; a world without a findable up stops with on
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 from pathlib import Path
 
@@ -21,18 +22,30 @@ WRITER_KEYS = ("format", "format_version", "depth_scale", "units")
 
 
 def _rewritten(source: Path, out: Path, pose_world_world: np.ndarray, meta_update: dict, stop: int | None = None) -> Path:
-    """A copy of `source` whose world is turned by `pose_world_world` (every pose, given and true)."""
+    """A copy of `source` whose world is turned by `pose_world_world` (every pose, given and true,
+    and the ground truth's objects, with the turn recorded as the truth's `world_tilt`)."""
     reader = RecordingReader(source)
     meta = {k: v for k, v in reader.meta.items() if k not in WRITER_KEYS} | meta_update
     with RecordingWriter(out, meta) as writer:
         if reader.ground_truth is not None:
-            writer.write_ground_truth(reader.ground_truth)
+            writer.write_ground_truth(_turned_truth(reader.ground_truth, pose_world_world))
         for frame in reader.frames(stop=stop):
             true = frame.pose_world_camera_true
             writer.write_frame(dataclasses.replace(
                 frame, pose_world_camera=pose_world_world @ frame.pose_world_camera,
                 pose_world_camera_true=None if true is None else pose_world_world @ true))
     return out
+
+
+def _turned_truth(truth: dict, pose_world_world: np.ndarray) -> dict:
+    turned = copy.deepcopy(truth)
+    for obj in turned.get("objects", []):
+        for session in ("source", "target"):
+            if obj.get(session):
+                obj[session]["pose_world_object"] = (pose_world_world @ np.asarray(obj[session]["pose_world_object"])).tolist()
+    level = np.asarray(truth["world_tilt"]["pose_world_level"]) if truth.get("world_tilt") else np.eye(4)
+    turned["world_tilt"] = {"pose_world_level": (pose_world_world @ level).tolist()}
+    return turned
 
 
 def _tilt(degrees: float) -> np.ndarray:

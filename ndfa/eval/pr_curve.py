@@ -19,6 +19,7 @@ change no method ever reports) adds nothing.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -92,8 +93,14 @@ def evaluation_curves(result, observations: pl.DataFrame) -> PRCurves:
     baselines it ran. A note says when the replay's default point differs from the run's."""
     alignment = result.detection.alignment if result.detection is not None else None
     replayed = replay(observations, prior=None if alignment is None else alignment.prior())
+    # A replay has no frames, so it cannot ask whether a change's place was shown (`ndfa.change.sight`):
+    # the run's answers are carried over to the same decisions.
+    unshown = {(d.session, d.object_id, d.kind): d.withheld for d in result.detection.pair.unshown} \
+        if result.detection is not None else {}
+    decisions = [dataclasses.replace(d, withheld=unshown.get((d.session, d.object_id, d.kind), d.withheld))
+                 for d in replayed.decisions]
     baselines = {name: (b.candidate_scores(), b.threshold) for name, b in result.baselines.items()}
-    curves = pr_curves(replayed.decisions, baselines, result.truth, result.visible)
+    curves = pr_curves(decisions, baselines, result.truth, result.visible)
     own = next((r for r in result.rows if r.method == "ndfa"), None)
     at_default = curves.table.filter((pl.col("method") == "ndfa") & pl.col("default")).row(0, named=True)
     if own is not None and (own.tp, own.fp, own.fn) != (at_default["tp"], at_default["fp"], at_default["fn"]):

@@ -48,13 +48,14 @@ def reported_at(decisions: list[DecisionEvent], threshold: float = CHANGE_SCORE)
     """The mask ids a run reports when each of its decisions is reported as a change iff its score
     is at least `threshold`: an "unchanged" target object whose test ever scored that high counts
     as found changed (online, a change is reported the first time it is found), a change scoring
-    lower is withheld. At `CHANGE_SCORE` these are exactly the detector's reported changes.
+    lower is withheld, and so is one the detector withheld (`DecisionEvent.withheld`: its place not
+    shown by the other session). At `CHANGE_SCORE` these are exactly the detector's reported changes.
 
     Approximate away from 0.5, stated in docs/scores.md: the detector is not re-run at the
     threshold, so an object withheld here is not tested again, and removals and moves stay the
     ones the detector found at 0.5 (each kept when its own score passes).
     """
-    reported = [d for d in decisions if d.score >= threshold]
+    reported = [d for d in decisions if d.score >= threshold and d.withheld is None]
     return sorted({i for d in reported for i in d.reported_instances})
 
 

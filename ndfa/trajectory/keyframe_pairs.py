@@ -34,7 +34,7 @@ from ndfa.trajectory.rgbd_view import View
 def sees_every_direction(view: View, config: RgbdOdometryConfig) -> bool:
     """Whether the view's depth pins all six directions of motion (no eigenvalue of its
     wide-baseline plane term below `unseen_ratio` of the largest: `degeneracy.keep_prediction_where_unseen`)."""
-    return depth_degeneracy(view.smooth_plane_information, view.median_depth_m) >= config.unseen_ratio
+    return depth_degeneracy(view.unseen_information, view.median_depth_m) >= config.unseen_ratio
 
 
 def keyframe_pair_edges(views: list[View], poses: list[np.ndarray], edges: list[PoseEdge],
