@@ -27,7 +27,8 @@ from ndfa.trajectory.rgbd import RgbdOdometry
 from ndfa.trajectory.session import rgbd_config_for
 
 COUNTERS = {"feature_frames": "feat", "promoted_frames": "prom", "prediction_wins": "pwin",
-            "feature_fallbacks": "fall", "rejected_frames": "rej", "starved_frames": "starv", "unseen_frames": "unseen"}
+            "feature_fallbacks": "fall", "rejected_frames": "rej", "starved_frames": "starv", "unseen_frames": "unseen",
+            "faint_wall_frames": "faint"}
 
 
 def main() -> None:
@@ -68,7 +69,8 @@ def main() -> None:
     closed = absolute_trajectory_error(np.array(poses), np.array(truth))
     print(f"{args.recording} {overrides}: ATE {100 * closed.rmse_m:.2f} cm (max {100 * closed.max_m:.1f}; odometry alone "
           f"{100 * alone.rmse_m:.2f}), {cpu_ms:.0f} ms/frame CPU, {len(odometry.keyframes)} keyframes, "
-          f"{odometry.loop_closures} loops, {odometry.unseen_frames} frames with unseen directions")
+          f"{odometry.loop_closures} loops, {odometry.unseen_frames} frames with unseen directions, "
+          f"{odometry.faint_wall_frames} across a faint wall by hybrid")
 
 
 if __name__ == "__main__":

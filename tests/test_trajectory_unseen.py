@@ -9,13 +9,14 @@ import pytest
 
 from ndfa.core.geometry import axis_angle_to_matrix, make_pose
 from ndfa.trajectory import rgbd
+from ndfa.trajectory.constant_velocity import motion_between, predict
 from ndfa.trajectory.degeneracy import (
     depth_degeneracy,
     keep_prediction_where_unseen,
     plane_information,
     unseen_information,
 )
-from ndfa.trajectory.rgbd import HYBRID, POINT_TO_PLANE, _motion, _predict
+from ndfa.trajectory.rgbd import HYBRID, POINT_TO_PLANE
 from ndfa.trajectory.rgbd_view import View
 
 K = np.array([[290.0, 0.0, 160.0], [0.0, 290.0, 120.0], [0.0, 0.0, 1.0]])
@@ -74,8 +75,8 @@ def test_where_depth_sees_every_direction_the_registration_stands():
 
 def test_a_camera_that_walks_straight_while_it_pans_is_predicted_by_its_velocity_in_the_world():
     poses = [twist_pose((0.0, np.radians(3.0) * k, 0.0), (0.08 * k, 0.0, 0.0)) for k in range(3)]
-    world = _predict(poses[1], _motion(poses[0], poses[1], in_world=True), in_world=True)
-    camera = _predict(poses[1], _motion(poses[0], poses[1], in_world=False), in_world=False)
+    world = predict(poses[1], motion_between(poses[0], poses[1], in_world=True), in_world=True)
+    camera = predict(poses[1], motion_between(poses[0], poses[1], in_world=False), in_world=False)
     np.testing.assert_allclose(world, poses[2], atol=1e-12)
     assert np.linalg.norm(camera[:3, 3] - poses[2][:3, 3]) > 0.003  # the body-frame model turns the walk
 
@@ -85,9 +86,9 @@ def test_a_prediction_stays_a_rotation_however_often_it_is_repeated():
     # after frame by the world-velocity model, grew by its own error each time without the projection.
     last = twist_pose((0.0, 0.05, 0.0), (0.1, 0.0, 0.0))
     last[:3, :3] *= 1.0 + 1e-4
-    motion = _motion(last, last @ twist_pose((0.0, 0.03, 0.0), (0.05, 0.0, 0.0)), in_world=True)
+    motion = motion_between(last, last @ twist_pose((0.0, 0.03, 0.0), (0.05, 0.0, 0.0)), in_world=True)
     for _ in range(200):
-        last = _predict(last, motion, in_world=True)
+        last = predict(last, motion, in_world=True)
     np.testing.assert_allclose(last[:3, :3] @ last[:3, :3].T, np.eye(3), atol=1e-9)
     assert np.linalg.det(last[:3, :3]) == pytest.approx(1.0)
 
@@ -110,3 +111,67 @@ def test_the_term_nearer_the_prediction_is_chosen_before_the_prediction_is_kept_
     result, _, term = odometry._from_prediction(view, view, prediction, HYBRID)
     assert term == POINT_TO_PLANE and odometry._unseen
     np.testing.assert_allclose(result, prediction, atol=1e-9)
+
+
+def test_an_untextured_frame_facing_a_wall_meets_hybrid_when_it_has_colour(monkeypatch):
+    # Colour below the `textured` test on a bare wall: point-to-plane slides 10 cm along it, hybrid,
+    # pinned by the wall's faint texture, lands 3 mm from the prediction and wins; its slide is
+    # measured, not guessed. Without colour hybrid is not tried: point-to-plane, prediction kept.
+    prediction = twist_pose((0.0, 0.0, 0.0), (0.04, 0.0, 0.0))
+    results = {HYBRID: prediction @ twist_pose((0.0, 0.0, 0.0), (0.003, 0.0, 0.0)),
+               POINT_TO_PLANE: prediction @ twist_pose((0.0, 0.0, 0.0), (0.1, 0.0, 0.0))}
+    tried = []
+
+    def register(view, keyframe, initial, term, config):
+        tried.append(term)
+        return results[term], 0.9
+
+    monkeypatch.setattr(rgbd, "register_dense", register)
+    faint = View(rgbd=None, features=None, K=None, plane_information=np.eye(6),
+                 unseen_information=unseen_information(wall(), K), median_depth_m=1.2, valid_fraction=1.0, textured=False)
+    odometry = rgbd.RgbdOdometry(rgbd.RgbdOdometryConfig())
+    result, _, term = odometry._from_prediction(faint, faint, prediction, POINT_TO_PLANE)
+    assert tried == [POINT_TO_PLANE, HYBRID]
+    # Off, the frame is point-to-plane's with the prediction kept, as before.
+    plain = rgbd.RgbdOdometry(rgbd.RgbdOdometryConfig(hybrid_where_unseen=False))
+    assert plain._from_prediction(faint, faint, prediction, POINT_TO_PLANE)[2] == POINT_TO_PLANE and plain._unseen
+    assert term == HYBRID and result is results[HYBRID] and not odometry._unseen and odometry._faint_wall
+    # Where hybrid slides as far as point-to-plane (no texture at all), point-to-plane keeps the prediction.
+    results[HYBRID] = prediction @ twist_pose((0.0, 0.0, 0.0), (0.12, 0.0, 0.0))
+    odometry._faint_wall = False
+    result, _, term = odometry._from_prediction(faint, faint, prediction, POINT_TO_PLANE)
+    assert term == POINT_TO_PLANE and odometry._unseen and not odometry._faint_wall
+    np.testing.assert_allclose(result, prediction, atol=1e-9)
+    # No colour: nothing for hybrid to pin the slide with.
+    tried.clear()
+    blind = View(rgbd=None, features=None, K=None, plane_information=np.eye(6),
+                 unseen_information=unseen_information(wall(), K), median_depth_m=1.2, valid_fraction=1.0,
+                 textured=False, coloured=False)
+    result, _, term = odometry._from_prediction(blind, blind, prediction, POINT_TO_PLANE)
+    assert tried == [POINT_TO_PLANE] and term == POINT_TO_PLANE and odometry._unseen
+    # A frame whose depth sees every direction (a corner) is not a wall: no hybrid either.
+    tried.clear()
+    seen = View(rgbd=None, features=None, K=None, plane_information=np.eye(6),
+                unseen_information=unseen_information(corner(), K), median_depth_m=1.5, valid_fraction=1.0, textured=False)
+    odometry._from_prediction(seen, seen, prediction, POINT_TO_PLANE)
+    assert tried == [POINT_TO_PLANE]
+
+
+def test_frames_crossing_a_faint_wall_by_hybrid_become_keyframes(monkeypatch):
+    # Hybrid on a faint wall lands a few millimetres off, more the farther its keyframe: each such
+    # frame is made a keyframe (frame to frame through the wall); off, they share the first keyframe.
+    def register(view, keyframe, initial, term, config):
+        shift = 0.003 if term == HYBRID else 0.1
+        return initial @ twist_pose((0.0, 0.0, 0.0), (shift, 0.0, 0.0)), 0.9
+
+    monkeypatch.setattr(rgbd, "register_dense", register)
+    monkeypatch.setattr(rgbd, "depth_information", lambda *args: np.eye(6))
+    faint = View(rgbd=None, features=None, K=None, plane_information=np.eye(6),
+                 unseen_information=unseen_information(wall(), K), median_depth_m=1.2, valid_fraction=1.0, textured=False)
+    for keyframes, expected in ((True, 4), (False, 1)):
+        odometry = rgbd.RgbdOdometry(rgbd.RgbdOdometryConfig(features=None, loop_closure=False,
+                                                             faint_wall_keyframes=keyframes))
+        for _ in range(4):
+            odometry._poses.append(odometry._track(faint)[0])
+        assert odometry.faint_wall_frames == 3 and len(odometry.keyframes) == expected
+        assert not odometry._unseen  # its slide measured by hybrid, not kept from the prediction

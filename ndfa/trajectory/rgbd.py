@@ -20,7 +20,8 @@ Per frame:
    (`degenerate_ratio`). The image is textured when enough pixels have an intensity gradient.
    Term used: degenerate and textured -> intensity alone (the depth term would only pull the slide
    toward the guess); untextured (dark, or no colour) -> point-to-plane alone (the intensity term
-   would fit noise); otherwise the hybrid of both.
+   would fit noise; but facing a bare wall, hybrid is tried too and the result nearer the
+   prediction wins: faint texture below the test still pins the slide); otherwise the hybrid of both.
 3. Dense registration to the keyframe (not the previous frame: errors then add up per keyframe,
    not per frame) from the guess. From a feature guess, a result that leaves it by more than a few
    centimetres or degrees fell into another minimum, and the feature estimate is kept. From the
@@ -52,6 +53,7 @@ import numpy as np
 
 from ndfa.core.frame import Frame
 from ndfa.trajectory.checks import GapClock
+from ndfa.trajectory.constant_velocity import motion_between, predict
 from ndfa.trajectory.degeneracy import depth_degeneracy, keep_prediction_where_unseen
 from ndfa.trajectory.features import FeatureMotion, estimate_motion
 from ndfa.trajectory.keyframe_pairs import refine_with_keyframe_pairs
@@ -104,6 +106,11 @@ class RgbdOdometry:
         self._velocity = np.eye(4)
         self._unseen = False
         self.unseen: list[bool] = []  # per frame, whether its registration kept the prediction along some direction
+        # Whether this frame, and the last one, crossed a wall of faint texture by hybrid
+        # (rgbd_config: hybrid_where_unseen, faint_wall_keyframes).
+        self._faint_wall = False
+        self._after_faint_wall = False
+        self.faint_wall_frames = 0
 
     @property
     def frames(self) -> int:
@@ -173,8 +180,9 @@ class RgbdOdometry:
             return np.eye(4), NO_TERM, False
         last = self._poses[-1]
         # Constant velocity; across a time gap the motion is unknown, so no motion is the guess.
-        prediction = last if after_gap else _predict(last, self._velocity, self.config.velocity_in_world)
+        prediction = last if after_gap else predict(last, self._velocity, self.config.velocity_in_world)
         self._unseen = False
+        self._faint_wall = False
         if view.valid_fraction < config.min_valid_fraction or not self.keyframes:
             self.starved_frames += 1
             self._previous = None  # not registered: no keyframe material
@@ -211,15 +219,20 @@ class RgbdOdometry:
             keyframe_from_frame = motion.target_from_source
         else:
             keyframe_from_frame, fitness, term = self._from_prediction(view, keyframe.view, predicted, term)
+            # Until features take over again, the frames after such a wall are registered from
+            # the prediction to a keyframe on it: they too become keyframes (see below).
+            self._faint_wall = self._faint_wall or self._after_faint_wall
+        self._after_faint_wall = self._faint_wall
+        self.faint_wall_frames += self._faint_wall
         pose = keyframe.pose @ keyframe_from_frame
         self._previous = (view, keyframe_from_frame)
         if not self._unseen:  # a frame whose depth left some motion unseen keeps the last velocity
-            self._velocity = _motion(last, pose, self.config.velocity_in_world)
+            self._velocity = motion_between(last, pose, self.config.velocity_in_world)
 
         moved = np.linalg.norm(keyframe_from_frame[:3, 3])
         turned = _angle_deg(keyframe_from_frame[:3, :3])
         if (moved > config.keyframe_translation_m or turned > config.keyframe_rotation_deg
-                or fitness < config.keyframe_min_fitness):
+                or fitness < config.keyframe_min_fitness or (self._faint_wall and config.faint_wall_keyframes)):
             information = depth_information(view, keyframe.view, keyframe_from_frame, self.config)
             self._add_keyframe(view, pose, PoseEdge(len(self.keyframes), len(self.keyframes) - 1,
                                                     keyframe_from_frame, information))
@@ -266,10 +279,12 @@ class RgbdOdometry:
             # Dense odometry on a few planes has false minima a few centimetres off; the camera
             # moves smoothly, so of the two terms' results the one nearer the prediction wins.
             other = POINT_TO_PLANE if term == HYBRID else HYBRID
-            if other == POINT_TO_PLANE or view.textured:
+            faint = other == HYBRID and not view.textured and self._faint_texture(view, keyframe)
+            if other == POINT_TO_PLANE or view.textured or faint:
                 candidate, candidate_fitness = register_dense(view, keyframe, predicted, other, config)
                 if _jump(candidate, predicted) < _jump(result, predicted):
                     result, fitness, term = candidate, candidate_fitness, other
+                    self._faint_wall = faint
         # Only the chosen result keeps the prediction where depth is blind: kept before the choice,
         # a point-to-plane result would always lie nearer the prediction and win it.
         result = self._keep_unseen(view, result, predicted, term)
@@ -277,6 +292,13 @@ class RgbdOdometry:
             self.rejected_frames += 1
             return predicted, fitness, term
         return result, fitness, term
+
+    def _faint_texture(self, view: View, keyframe: View) -> bool:
+        """Whether an untextured frame's point-to-plane result should meet hybrid's (`hybrid_where_unseen`):
+        both images have colour, and the frame's depth leaves some direction unseen (a bare wall)."""
+        config = self.config
+        return (config.hybrid_where_unseen and view.coloured and keyframe.coloured
+                and depth_degeneracy(view.unseen_information, view.median_depth_m) < config.unseen_ratio)
 
     def _keep_unseen(self, view: View, result: np.ndarray | None, predicted: np.ndarray, term: str) -> np.ndarray | None:
         """`result` with the prediction kept along the directions the frame's depth cannot see, when
@@ -347,32 +369,6 @@ class RgbdOdometry:
         term = HYBRID if new.textured and old.textured else POINT_TO_PLANE
         measured, fitness = register_dense(new, old, estimate, term, self.config)
         return measured if measured is not None and fitness >= config.loop_min_fitness else None
-
-
-
-def _motion(before: np.ndarray, after: np.ndarray, in_world: bool) -> np.ndarray:
-    """The motion from pose `before` to `after`: the turn in the camera's frame, and the shift in
-    the world's (`in_world`) or the camera's frame; `_predict` applies it again."""
-    if not in_world:
-        return np.linalg.inv(before) @ after
-    motion = np.eye(4)
-    motion[:3, :3] = before[:3, :3].T @ after[:3, :3]
-    motion[:3, 3] = after[:3, 3] - before[:3, 3]
-    return motion
-
-
-def _predict(last: np.ndarray, motion: np.ndarray, in_world: bool) -> np.ndarray:
-    """The pose after `last` by the same `motion` (`_motion`) again."""
-    if not in_world:
-        return last @ motion
-    # Back onto the rotations: the turn was taken with a transpose for the inverse, so a registration's
-    # slightly non-orthonormal rotation (float32 inside Open3D) would otherwise grow by its own
-    # error at every predicted frame (a 160 x 120 session's poses overflowed after 15 of them).
-    left, _, right = np.linalg.svd(last[:3, :3] @ motion[:3, :3])
-    pose = np.eye(4)
-    pose[:3, :3] = left @ np.diag([1.0, 1.0, np.linalg.det(left @ right)]) @ right
-    pose[:3, 3] = last[:3, 3] + motion[:3, 3]
-    return pose
 
 
 def _view_centre(keyframe: _Keyframe) -> np.ndarray:

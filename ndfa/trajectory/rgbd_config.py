@@ -79,6 +79,17 @@ class RgbdOdometryConfig:
         (`degeneracy.keep_prediction_where_unseen`); () turns this off. ("point-to-plane",), the
         default: the term an untextured frame is registered with; hybrid's intensity residuals
         still carry some of the slide on a wall's faint texture (docs/odometry.md).
+    hybrid_where_unseen: an untextured frame (point-to-plane) whose depth leaves some direction
+        unseen and whose result lands beyond `cross_check_m` from the prediction is registered by
+        hybrid too, when both images have colour; the result nearer the prediction wins. A bare
+        wall's colour can fall below the `textured` test and still pin the slide depth cannot see
+        (the office's seed 3 target: hybrid 0.1-0.7 cm off per frame, point-to-plane 10-19 cm);
+        with no texture at all hybrid slides as point-to-plane does, and point-to-plane with the
+        prediction kept where unseen stays the choice (docs/odometry.md).
+    faint_wall_keyframes: a frame tracked across such a wall by hybrid, and each frame after it
+        tracked from the prediction until features take over, becomes a keyframe: hybrid's error
+        on the faint texture grows with the baseline (2.9-5.7 cm on 5-frame keyframe edges against
+        0.3-0.7 cm frame to frame there).
     color_camera: the colour camera when the colour is not registered to the depth (a recording's
         meta says so: `ndfa.core.color_camera`, `session.rgbd_config_for`); each frame's colour is then
         carried onto its depth pixels before features and the intensity term use it. None: registered.
@@ -127,6 +138,8 @@ class RgbdOdometryConfig:
     feature_agreement_deg: float = 3.0
     unseen_from_prediction: tuple[str, ...] = (POINT_TO_PLANE,)
     unseen_ratio: float = 0.005
+    hybrid_where_unseen: bool = True
+    faint_wall_keyframes: bool = True
     velocity_in_world: bool = True
     color_camera: ColorCamera | None = None
 

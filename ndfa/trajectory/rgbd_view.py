@@ -26,6 +26,7 @@ class View:
     median_depth_m: float
     valid_fraction: float
     textured: bool
+    coloured: bool = True  # False: the frame had no colour (its image is zeros)
 
 
 
@@ -64,7 +65,8 @@ def prepare_view(frame: Frame, config: RgbdOdometryConfig) -> View:
                 unseen_information=unseen_information(depth, K),
                  median_depth_m=float(np.median(depth[valid])) if valid.any() else 1.0,
                  valid_fraction=float(valid.mean()),
-                 textured=frame.rgb is not None and textured_fraction(rgb, valid, config.gradient_threshold) >= config.textured_fraction)
+                 textured=frame.rgb is not None and textured_fraction(rgb, valid, config.gradient_threshold) >= config.textured_fraction,
+                 coloured=frame.rgb is not None)
 
 def register_dense(source: View, target: View, initial: np.ndarray, term: str,
                config: RgbdOdometryConfig) -> tuple[np.ndarray | None, float]:
