@@ -7,6 +7,8 @@ every direction, and a bare wall, which pins three."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from ndfa.core.frame import Frame
@@ -95,3 +97,14 @@ def test_a_bare_walls_pairs_are_not_registered():
     edges = [PoseEdge(k, k - 1, np.linalg.inv(slid[k - 1]) @ slid[k], np.eye(6) * 1e4) for k in range(1, 4)]
     assert keyframe_pair_edges(keyframes, slid, edges, CONFIG) == []
     assert all(np.array_equal(a, b) for a, b in zip(refine_with_keyframe_pairs(keyframes, slid, edges, CONFIG), slid))
+
+
+def test_a_cap_pairs_each_keyframe_with_its_nearest_views_only():
+    truth = corner_poses()
+    keyframes = views(truth, cluttered=True)
+    edges = [PoseEdge(k, k - 1, np.linalg.inv(truth[k - 1]) @ truth[k], np.eye(6)) for k in range(1, 4)]
+    capped = dataclasses.replace(CONFIG, pair_candidates=1)
+    added = {(edge.source, edge.target) for edge in keyframe_pair_edges(keyframes, truth, edges, capped)}
+    centres = [pose[:3, 3] + view.median_depth_m * pose[:3, 2] for view, pose in zip(keyframes, truth)]
+    nearest = min((0, 1), key=lambda old: np.linalg.norm(centres[3] - centres[old]))
+    assert added == {(2, 0), (3, nearest)}  # of keyframe 3's two, one; uncapped both (test above)

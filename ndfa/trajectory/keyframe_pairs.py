@@ -49,13 +49,16 @@ def keyframe_pair_edges(views: list[View], poses: list[np.ndarray], edges: list[
     added: list[PoseEdge] = []
     clouds: dict[int, object] = {}  # by keyframe, built when a pair first needs it
     for new in range(len(views)):
+        candidates = []
         for old in range(new - 1):
             if (old, new) in joined or not (pinned[old] and pinned[new]):
                 continue
             axes = float(np.clip(poses[old][:3, 2] @ poses[new][:3, 2], -1.0, 1.0))
-            if (np.linalg.norm(centres[new] - centres[old]) > config.loop_radius_m
-                    or math.degrees(math.acos(axes)) > config.loop_angle_deg):
-                continue
+            distance = float(np.linalg.norm(centres[new] - centres[old]))
+            if distance <= config.loop_radius_m and math.degrees(math.acos(axes)) <= config.loop_angle_deg:
+                candidates.append((distance, old))
+        # The nearest views first: they overlap most; a cap keeps the pass linear in the keyframes.
+        for _, old in sorted(candidates)[:config.pair_candidates or None]:
             initial = np.linalg.inv(poses[old]) @ poses[new]
             edge = _register_pair(views, new, old, initial, config, clouds)
             if edge is not None and np.linalg.norm(edge.target_from_source[:3, 3] - initial[:3, 3]) <= config.pair_max_correction_m:

@@ -55,6 +55,8 @@ class RgbdOdometryConfig:
         again (`ndfa.trajectory.keyframe_pairs`). Opt-in: the 7-Scenes kitchen 3.71 -> 3.05 cm,
         but 1.5-2.6x the CPU time per frame (docs/odometry.md); a pair that moves more than
         `pair_max_correction_m` from where the loop-closed graph puts it is left out.
+    pair_candidates: each keyframe is paired with at most this many older ones, the nearest view
+        centres first (0: every one that qualifies).
     pair_voxel_m, pair_iterations: the pairs' coloured ICP runs on points thinned to one per
         `pair_voxel_m` cube, pairs within twice that, for at most `pair_iterations` iterations.
     anchor_to_first_pose: start the estimate at the first frame's given pose (see kiss.py).
@@ -126,6 +128,7 @@ class RgbdOdometryConfig:
     loop_candidates: int = 2
     keyframe_pairs: bool = False
     pair_max_correction_m: float = 0.1
+    pair_candidates: int = 0
     pair_voxel_m: float = 0.02
     pair_iterations: int = 30
     anchor_to_first_pose: bool = True
