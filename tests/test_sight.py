@@ -96,3 +96,37 @@ def test_a_change_no_session_showed_is_out_of_the_scorings_scope():
     # 4's source place was never shown by the target
     shown = {"source": {3, 5}, "target": {1, 5}}
     assert scorable_instances(truth, visible, shown) == {1, 3, 5}
+
+
+def _walk(frames: int) -> list[np.ndarray]:
+    """A camera walking 2 cm a frame past a table at x = 1.2 m, turning to keep it in view."""
+    place = np.array([1.2, 0.0, 0.8])
+    return [look_at([0.0, -1.0 + 0.02 * k, 1.2], place + [0.0, 0.002 * k, 0.0]) for k in range(frames)]
+
+
+def test_a_session_walking_the_same_way_again_keeps_one_depth_per_viewpoint_and_the_same_answers():
+    """A walk repeated (or a camera standing still) keeps each viewpoint's depth once, and the places'
+    answers are those of the walk once, every frame still counted in view."""
+    walk, place = _walk(40), np.array([1.2, 0.05, 0.8])
+    depth = np.full((480, 640), 3.0, np.float32)
+    depth[200:280, 300:340] = 1.0                      # something in front of the place in some views
+    once, laps = SessionViews(SightRule()), SessionViews(SightRule())
+    for k, pose in enumerate(walk):
+        once.add(k, depth, K, pose)
+    for k, pose in enumerate(walk * 5):
+        laps.add(k, depth, K, pose)
+    assert len(once.depths) == len(laps.depths) == 40 and len(laps) == 200
+    a, b = once.sight(place, *SIZE), laps.sight(place, *SIZE)
+    assert a.shown and (a.pixels, a.frame_index, a.unhidden) == (b.pixels, b.frame_index, b.unhidden)
+    assert b.in_view == 5 * a.in_view > 0 and b.frames == 200
+
+
+def test_a_walk_longer_than_the_bound_keeps_an_even_sample_of_its_depths():
+    depth = np.full((480, 640), 3.0, np.float32)
+    views = SessionViews(SightRule(), max_depths=16)
+    for k, pose in enumerate(_walk(100)):
+        views.add(k, depth, K, pose)
+    kept = [views.indices[f] for f in views.kept]
+    assert views.max_depths // 2 <= len(views.depths) == len(kept) <= views.max_depths
+    assert kept == list(range(0, 100, views.stride)) and views.stride == 8
+    assert len(views) == 100 and views.sight(np.array([1.2, 0.1, 0.8]), *SIZE).in_view == 100

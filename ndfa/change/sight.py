@@ -5,7 +5,7 @@ none where the source had one. Either rests on the *other* session having looked
 could not have taken (seen only from afar, where it falls below perception's pixel minimum; only
 past a monitor; only cut by the image border; never) is absent from its map whether or not it
 stood there, and its absence is then no evidence of a change. So for each frame the detector takes
-(`SessionViews.add`), a coarse copy of its depth and its camera are kept, and `SessionViews.sight`
+(`SessionViews.add`), its camera and a coarse copy of its depth are kept, and `SessionViews.sight`
 asks of a place: in how many frames was an object of the category there in view (whole, inside
 the image), in the depth range, and how many pixels would the best of them have given it, counting
 only the parts whose line of sight the measured depth leaves free? The place counts as shown when
@@ -19,6 +19,15 @@ camera-facing surface samples not hidden: a sample is hidden when the depth at i
 than `OCCLUSION_MARGIN_M` nearer than the sample, or missing (a black screen, the aligned
 sensor's band at an edge: nothing says what is behind). Where the place was empty the depth there
 is the table or the wall behind it, which hides nothing.
+
+Memory stays bounded in the recording's length: every frame's camera is kept (128 bytes), the
+depth of at most `MAX_DEPTHS` frames. A frame whose camera stands within `SAME_VIEW_M` of a kept
+frame's (`view_distance`: the cameras' distance plus their turn in radians times `TURN_SCALE_M`)
+keeps no depth: a session that walks the same places again, or stands still, keeps one depth per
+viewpoint. Past `MAX_DEPTHS` the kept depths are thinned as an object's history is
+(`ndfa.change.associate.keep_in_history`): every other one dropped, and from then on every other new
+viewpoint skipped, an even sample of the walk. `sight` counts the frames in view over every camera
+and takes the pixels from the frames whose depth is kept.
 """
 
 from __future__ import annotations
@@ -37,6 +46,14 @@ OCCLUSION_MARGIN_M = 0.05
 STRIDE = 4
 # The cylinder's surface samples: around it, up it, and across its top.
 AROUND, UP, ACROSS = 16, 5, 3
+# The most frames whose depth a session keeps (~38 kB each at 640x480: ~39 MB); a recording of up
+# to this many frames per session keeps every one.
+MAX_DEPTHS = 1024
+# A frame whose camera stands within this `view_distance` of a kept frame's shows nothing new to the
+# rule (at 3 m, a mug's pixels change by under 1 %); its depth is not kept.
+SAME_VIEW_M = 0.01
+# A turn of the camera by one radian counts as a step of this many metres (a point 1 m away moves as far).
+TURN_SCALE_M = 1.0
 
 
 @dataclass(frozen=True)
@@ -89,25 +106,50 @@ class Sight:
 
 @dataclass
 class SessionViews:
-    """The frames one session gave the detector, coarsely: what `sight` needs of them."""
+    """The frames one session gave the detector, coarsely: what `sight` needs of them: every frame's
+    camera, and the depth of at most `max_depths` of them (the module docstring says which)."""
 
     rule: SightRule = field(default_factory=SightRule)
+    max_depths: int = MAX_DEPTHS
     indices: list[int] = field(default_factory=list)
     poses: list[np.ndarray] = field(default_factory=list)      # camera -> world, (4, 4)
-    depths: list[np.ndarray] = field(default_factory=list)     # every STRIDE-th pixel, float16 metres
     K: np.ndarray | None = None
     shape: tuple[int, int] = (0, 0)                            # the full image's (H, W)
+    # The frames whose depth is kept, in frame order: their positions in `indices` and their depth
+    # (every STRIDE-th pixel, float16 metres); of the frames that stand apart from every kept one,
+    # every `stride`-th is kept (`candidates` counts them).
+    kept: list[int] = field(default_factory=list)
+    depths: list[np.ndarray] = field(default_factory=list)
+    stride: int = 1
+    candidates: int = 0
+    _kept_poses: np.ndarray = field(default_factory=lambda: np.zeros((0, 4, 4)))   # the kept frames' poses
 
     def __len__(self) -> int:
         return len(self.indices)
 
     def add(self, frame_index: int, depth: np.ndarray, K: np.ndarray, pose_world_camera: np.ndarray) -> None:
         """One frame the detector takes (its depth in metres, 0 or non-finite: none)."""
-        depth = np.nan_to_num(np.asarray(depth, dtype=np.float32), nan=0.0, posinf=0.0, neginf=0.0)
+        depth = np.asarray(depth)
         self.K, self.shape = np.asarray(K, dtype=float), depth.shape
         self.indices.append(int(frame_index))
         self.poses.append(np.asarray(pose_world_camera, dtype=float))
-        self.depths.append(depth[STRIDE // 2::STRIDE, STRIDE // 2::STRIDE].astype(np.float16))
+        kept_poses = self._kept_poses[:len(self.kept)]
+        if self.kept and view_distance(self.poses[-1], kept_poses).min() < SAME_VIEW_M:
+            return
+        self.candidates += 1
+        if (self.candidates - 1) % self.stride:
+            return
+        if len(self.kept) >= self.max_depths:
+            self.kept, self.depths, self.stride = self.kept[::2], self.depths[::2], 2 * self.stride
+            self._kept_poses[:len(self.kept)] = kept_poses[::2]
+            if (self.candidates - 1) % self.stride:
+                return
+        if len(self.kept) == len(self._kept_poses):
+            self._kept_poses = np.concatenate([self._kept_poses, np.zeros((max(len(self.kept), 64), 4, 4))])
+        self._kept_poses[len(self.kept)] = self.poses[-1]
+        coarse = np.asarray(depth[STRIDE // 2::STRIDE, STRIDE // 2::STRIDE], dtype=np.float32)
+        self.kept.append(len(self.poses) - 1)
+        self.depths.append(np.nan_to_num(coarse, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float16))
 
     def sight(self, place_world: np.ndarray, radius_m: float, height_m: float) -> Sight:
         """How well these frames showed an object of `radius_m` and `height_m` standing centred at
@@ -137,8 +179,11 @@ class SessionViews:
         facing = np.einsum("fsj,sj->fs", cameras[:, None, :] - samples[None], normals) > 0
         rows = np.clip(np.rint((v - STRIDE // 2) / STRIDE), 0, self.depths[0].shape[0] - 1).astype(int)
         cols = np.clip(np.rint((u - STRIDE // 2) / STRIDE), 0, self.depths[0].shape[1] - 1).astype(int)
-        frames = np.flatnonzero(in_view)
-        measured = np.stack([self.depths[f][rows[f], cols[f]] for f in frames]).astype(np.float32)
+        kept = [k for k, f in enumerate(self.kept) if in_view[f]]    # the frames in view with their depth
+        if not kept:
+            return Sight(False, 0.0, len(self), int(in_view.sum()), min_pixels=rule.min_pixels)
+        frames = np.array([self.kept[k] for k in kept])
+        measured = np.stack([self.depths[k][rows[f], cols[f]] for k, f in zip(kept, frames)]).astype(np.float32)
         free = (measured > 0) & (measured >= z[frames] - OCCLUSION_MARGIN_M)
         unhidden = (free & facing[frames]).sum(axis=1) / np.maximum(facing[frames].sum(axis=1), 1)
         offsets = np.asarray(place_world, dtype=float) - cameras[frames]
@@ -147,8 +192,16 @@ class SessionViews:
         area = 2 * radius_m * height_m * np.sqrt(1 - elevation**2) + np.pi * radius_m**2 * elevation
         pixels = self.K[0, 0] * self.K[1, 1] * area / np.maximum(distance, 1e-9) ** 2 * unhidden
         best = int(np.argmax(pixels))
-        return Sight(bool(pixels[best] >= rule.min_pixels), float(pixels[best]), len(self), len(frames),
+        return Sight(bool(pixels[best] >= rule.min_pixels), float(pixels[best]), len(self), int(in_view.sum()),
                      self.indices[frames[best]], float(distance[best]), float(unhidden[best]), rule.min_pixels)
+
+
+def view_distance(pose: np.ndarray, poses: np.ndarray) -> np.ndarray:
+    """How far apart a camera (camera -> world, (4, 4)) stands from each of `poses` ((N, 4, 4)):
+    the distance of their centers plus the angle between their orientations times `TURN_SCALE_M`."""
+    cosine = (np.einsum("ij,nij->n", pose[:3, :3], poses[:, :3, :3]) - 1) / 2
+    turn = np.arccos(np.clip(cosine, -1.0, 1.0))
+    return np.asarray(np.linalg.norm(poses[:, :3, 3] - pose[:3, 3], axis=1) + TURN_SCALE_M * turn)
 
 
 def _cylinder(center: np.ndarray, radius_m: float, height_m: float) -> tuple[np.ndarray, np.ndarray]:
