@@ -232,9 +232,25 @@ def input_dir(param: typer.CallbackParam, value: Path | None) -> Path | None:
     return value
 
 
+def shipped_weights(path: Path) -> Path:
+    """`path` itself, or where a bare name that is no file names shipped weights: `mugs` (the
+    default, NDF v2) or `objects` (NDF v3, every category), ndfa/ndf/weights/ndf_NAME.pt."""
+    if path.exists() or len(path.parts) != 1:
+        return path
+    from ndfa.ndf.encoder import WEIGHTS_DIR
+
+    shipped = WEIGHTS_DIR / f"ndf_{path}.pt"
+    return shipped if shipped.is_file() else path
+
+
 def checkpoint(param: typer.CallbackParam, value: Path | None) -> Path | None:
-    """A callback for `--weights`: the file is loaded once here (a fraction of a second), so that a
-    file that is no ndfa checkpoint fails before the recordings are read, not after."""
+    """A callback for `--weights`: a checkpoint file or the name of shipped weights
+    (`shipped_weights`). The file is loaded once here (a fraction of a second), so that a file
+    that is no ndfa checkpoint fails before the recordings are read, not after."""
+    if isinstance(value, (list, tuple)):
+        value = type(value)(None if path is None else shipped_weights(path) for path in value)
+    elif value is not None:
+        value = shipped_weights(value)
     input_file(param, value)
     for path in value if isinstance(value, (list, tuple)) else [value]:
         if path is not None:

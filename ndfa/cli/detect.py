@@ -48,7 +48,7 @@ def detect_command(
                                           callback=output_dir),
     json_out: Optional[Path] = typer.Option(None, "--json", help="Write the summary (scores, timings, changes) as JSON.",
                                             callback=output_file),
-    weights: Optional[Path] = typer.Option(None, help="NDF checkpoint (default: the shipped weights).",
+    weights: Optional[Path] = typer.Option(None, help="NDF checkpoint, or shipped weights by name: mugs (the default) | objects (NDF v3, every category).",
                                            callback=checkpoint),
     frame_step: int = typer.Option(1, help="Use every N-th frame of both recordings.", callback=at_least_one),
     no_images: bool = typer.Option(False, "--no-images", help="Leave depth/colour/mask images out of the .rrd (smaller)."),

@@ -16,7 +16,7 @@ from ndfa.io.atomic import write_parquet
 
 @app.command("ndf-eval")
 def ndf_eval_command(
-    weights: list[Path] = typer.Option(None, "--weights", "-w", help="Checkpoint(s) to evaluate (default: the shipped weights).",
+    weights: list[Path] = typer.Option(None, "--weights", "-w", help="Checkpoint(s) to evaluate, or shipped weights by name: mugs | objects (default: mugs).",
                                        callback=checkpoint),
     out: Path = typer.Option(Path("out/ndf-eval"), "--out", "-o", help="Directory for summary.parquet and views.parquet.",
                              callback=output_dir),
