@@ -60,6 +60,23 @@ def test_a_rotation_needs_reliable_tight_headings_and_a_turn_over_the_bar(target
     assert rotation_of(target, source, np.eye(3), RotationConfig(threshold_deg=None)) is None
 
 
+def test_only_objects_with_a_handle_or_of_unknown_category_can_be_rotated():
+    """A box turned by half a turn looks the same and a bowl has no handle: their headings say
+    nothing of a turn. Without a category head (NDF v2) every object is tested as a mug."""
+    def named(obj, category):
+        obj.category_votes = {category: 1.0}
+        return obj
+
+    turned = dict(target=[100.0, 104.0, 98.0], source=[0.0, 3.0, -2.0])
+    decision = RotationConfig(threshold_deg=30.0, views=3)
+    for category, reported in [("mug", True), ("box", False), ("bowl", False)]:
+        target, source = named(_object(turned["target"]), category), named(_object(turned["source"]), category)
+        assert (rotation_of(target, source, np.eye(3), decision) is not None) == reported, category
+    assert rotation_of(_object(turned["target"]), _object(turned["source"]), np.eye(3), decision) is not None
+    mixed = named(_object(turned["target"]), "mug"), named(_object(turned["source"]), "cup")
+    assert rotation_of(*mixed, np.eye(3), decision) is None
+
+
 def test_the_turn_is_measured_in_the_source_world():
     """A target world turned by 70 degrees about up: T_rel's rotation takes the headings back."""
     source = _object([10.0, 12.0, 8.0])

@@ -8,7 +8,9 @@ unchanged with a source partner is "rotated" when both have enough reliable view
 brought into the source world by T_rel's rotation, differs from the partner's by more than
 `RotationConfig.threshold_deg`. Otherwise nothing is said: the object stays unchanged. Mugs are close to
 symmetric without their handle, so the views that cannot see it (mostly those from behind the
-mug) give short handle vectors and are left out (docs/rotation.md).
+mug) give short handle vectors and are left out (docs/rotation.md). An object the NDF names as
+a category without a handle (`CATEGORIES_WITH_HEADING`) is never "rotated": its heading is not a
+handle's; an object of unknown category (a model without a category head) is tested as a mug.
 
 The score of a rotation is r / (1 + r) with r = |turn| / threshold_deg, at least 0.5 (a turn at
 the threshold scores 0.5, 90 degrees against 30 scores 0.75; docs/scores.md).
@@ -22,7 +24,7 @@ import numpy as np
 
 from ndfa.change.associate import SessionObject
 from ndfa.change.config import RotationConfig
-from ndfa.core.conventions import HORIZONTAL_AXES
+from ndfa.core.conventions import CATEGORIES_WITH_HEADING, HORIZONTAL_AXES, UNKNOWN_CATEGORY
 from ndfa.core.events import CHANGE_SCORE
 
 
@@ -75,8 +77,11 @@ def source_heading(angle_rad: float, rotation: np.ndarray) -> float:
 def rotation_of(target: SessionObject, partner: SessionObject, rotation: np.ndarray,
                 config: RotationConfig) -> Rotation | None:
     """O's turn against its unchanged partner when it is a reportable rotation, else None (the
-    test is off, a heading lacks reliable views or is too spread, or the turn is under the bar)."""
+    test is off, an object has no handle, a heading lacks reliable views or is too spread, or the
+    turn is under the bar)."""
     if config.threshold_deg is None:
+        return None
+    if any(o.category not in (*CATEGORIES_WITH_HEADING, UNKNOWN_CATEGORY) for o in (target, partner)):
         return None
     headings = [fused_heading(o, config.heading_strength) for o in (target, partner)]
     spread = np.radians(config.spread_deg)

@@ -36,6 +36,9 @@ UP_AXIS = 2                  # the world axis along WORLD_UP
 # The category of an object whose NDF has no category head (NDF v2, trained on mugs alone): not
 # "mug", which the model cannot tell from a bowl or a box the segmentation let through.
 UNKNOWN_CATEGORY = "unknown"
+# The categories whose NDF heading is a handle's, so that a turn about up shows (`ndfa.change.rotation`).
+# The others are round (bowls, cups, bottles, cans) or look the same turned by half a turn (boxes).
+CATEGORIES_WITH_HEADING = ("mug",)
 VISIBLE_PIXELS = 300
 MIN_DEPTH_M = 0.1
 MAX_DEPTH_M = 4.0
