@@ -130,3 +130,82 @@ def test_a_walk_longer_than_the_bound_keeps_an_even_sample_of_its_depths():
     assert views.max_depths // 2 <= len(views.depths) == len(kept) <= views.max_depths
     assert kept == list(range(0, 100, views.stride)) and views.stride == 8
     assert len(views) == 100 and views.sight(np.array([1.2, 0.1, 0.8]), *SIZE).in_view == 100
+
+
+def _box_at(place: np.ndarray, pose: np.ndarray, background_m: float = 9.0) -> np.ndarray:
+    """A depth image of `background_m` with a box's face standing at `place` (a mug's size, its face
+    3 cm nearer than the place's center): something in the place that perception took no object of."""
+    world_to_camera = np.linalg.inv(pose)
+    corners = np.array([[x, y, z] for x in (-0.04, 0.04) for y in (-0.04, 0.04) for z in (-0.05, 0.05)]) + place
+    points = corners @ world_to_camera[:3, :3].T + world_to_camera[:3, 3]
+    u, v = K[0, 0] * points[:, 0] / points[:, 2] + K[0, 2], K[1, 1] * points[:, 1] / points[:, 2] + K[1, 2]
+    center = world_to_camera[:3, :3] @ place + world_to_camera[:3, 3]
+    depth = np.full((480, 640), background_m, np.float32)
+    depth[int(v.min()):int(v.max()) + 1, int(u.min()):int(u.max()) + 1] = center[2] - 0.03
+    return depth
+
+
+def test_a_place_seen_through_is_seen_empty_and_one_whose_depth_ends_in_it_is_not():
+    place = np.array([1.2, 0.0, 0.8])
+    empty, stood = SessionViews(SightRule()), SessionViews(SightRule())
+    for k in range(4):                                 # four viewpoints, 5 cm apart
+        pose = look_at([0.0, 0.05 * k, 1.3], place)
+        empty.add(k, np.full((480, 640), 9.0, np.float32), K, pose)
+        stood.add(k, _box_at(place, pose), K, pose)
+    seen, occupied = empty.sight(place, *SIZE), stood.sight(place, *SIZE)
+    assert seen.shown and seen.seen_empty and (seen.well, seen.empty) == (4, 4)
+    # the box hides nothing (its face is within the margin of the place's front), so the place is
+    # shown as well as the empty one, but no ray passed through it
+    assert occupied.shown and occupied.pixels == seen.pixels
+    assert not occupied.seen_empty and (occupied.well, occupied.empty) == (4, 0) and occupied.stopped > 0.8
+    assert "not seen empty" in occupied.describe_occupied("source")
+    # the table under an empty place: the depth ends on it only below the place's center height
+    table = np.full((480, 640), 9.0, np.float32)
+    table[int(K[1, 2]) + 8:] = 1.2                     # the lower rows: a surface just behind the place's foot
+    floor = SessionViews(SightRule())
+    floor.add(0, table, K, look_at([0.0, 0.0, 1.3], place))
+    assert floor.sight(place, *SIZE).seen_empty
+
+
+def _added_where_the_source_had(stood: bool, source_object: bool) -> tuple[set[int], dict[int, str]]:
+    """A table of four mugs seen by both sessions; the target has mug 20 added at its middle. In the
+    source's depth something stands there (`stood`), and its map has an object there (`source_object`,
+    a mug unlike 20: a switch) or none. The reported and the withheld mugs, with the reasons."""
+    table = np.array([0.0, 0.0])
+    mugs = {k + 1: np.r_[table + offset, 0.8] for k, offset in enumerate([(-0.2, -0.15), (0.2, -0.1), (-0.15, 0.2),
+                                                                             (0.25, 0.2)])}
+    place = np.r_[table, 0.8]
+    source = dict(mugs) | ({30: place} if source_object else {})
+    target = dict(mugs) | {20: place}
+    codes = {i: _code(100 + i) for i in set(source) | set(target)}
+    rng = np.random.default_rng(0)
+    detector = ChangeDetector(DetectorConfig(registration=RegistrationConfig(pairs=4)))
+    for session, layout, first in (("source", source, 0), ("target", target, 20)):
+        for view in range(10):
+            frame, eye = first + view, [-1.2, 0.02 * view, 1.3]
+            pose = look_at(eye, place)
+            depth = _box_at(place, pose) if session == "source" and stood else np.full((480, 640), 9.0, np.float32)
+            detector.add_view(session, frame, depth, K, pose)  # type: ignore[arg-type]
+            measurements = [Measurement(frame, i, codes[i] + rng.normal(scale=0.02, size=16),
+                                        c + rng.normal(scale=0.003, size=3), 0.8) for i, c in layout.items()]
+            (detector.add_source if session == "source" else detector.add_target)(measurements)
+    decisions = [e for e in detector.finish() if hasattr(e, "kind")] + list(detector.changed.values()) \
+        + list(detector.unseen.values())
+    return ({d.instance_ids[0] for d in reported_changes(decisions)},
+            {d.instance_ids[0]: d.withheld for d in decisions if d.withheld is not None})
+
+
+def test_an_added_mug_where_the_source_saw_something_it_took_no_object_of_is_withheld():
+    """`EvidenceConfig.seen_empty`: "added" needs the source to have seen the place empty. Where the
+    source's depth ended on something standing there and its map has no object there (a real thing
+    just under perception's gate, say), the claim is withheld with the reason; where the source saw
+    the place empty it is reported; where the source's map has a different object there (a switch),
+    what stood there is that object, and the claim stands."""
+    assert _added_where_the_source_had(stood=False, source_object=False) == ({20}, {})
+    reported, withheld = _added_where_the_source_had(stood=True, source_object=False)
+    assert reported == set() and set(withheld) == {20}
+    assert "not seen empty" in withheld[20] and "map has no object there" in withheld[20]
+    reported, withheld = _added_where_the_source_had(stood=True, source_object=True)
+    assert 20 in reported and 20 not in withheld
+    off = DetectorConfig().without("evidence").evidence
+    assert not off.seen_empty and DetectorConfig.paper().evidence.sight_radius_m == 0

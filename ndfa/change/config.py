@@ -162,6 +162,11 @@ class EvidenceConfig:
     # Off: radius 0.
     sight_radius_m: float = 0.05
     sight_height_m: float = 0.11
+    # ... and seen empty there: a place whose depth ended on something standing in it (most of the
+    # frames that showed it well), with no object of that session's map there to be what stood in
+    # it, was not seen empty, and the change is withheld with the reason (`ndfa.change.sight`,
+    # docs/detector.md). Off: False (shown is enough).
+    seen_empty: bool = True
 
 
 @dataclass(frozen=True)
@@ -228,7 +233,7 @@ class DetectorConfig:
                "priors": PriorConfig(enabled=False),
                "waiting": WaitingConfig(min_measurements=1, confirm_measurements=1, neighbours=False),
                "evidence": EvidenceConfig(in_place_m=0.0, observed_height_m=0.0, observed_reach_m=0.0, move_similarity=None,
-                                            sight_radius_m=0.0),
+                                            sight_radius_m=0.0, seen_empty=False),
                "rotation": RotationConfig(threshold_deg=None)}
         values = {name: getattr(self, name) for name in ("association", "registration", "decision") + ADDITIONS}
         return DetectorConfig(**(values | {name: off[name] for name in additions}))

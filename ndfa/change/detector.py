@@ -92,12 +92,30 @@ class ChangeDetector:
         return self.views[session].sight(place_world, evidence.sight_radius_m, evidence.sight_height_m)
 
     def _unshown(self, session: Session, place_world: np.ndarray) -> str | None:
-        """Why a change at `place_world` is withheld (`session`, the other one, did not show the
-        place), or None when it was shown or the test is off (`EvidenceConfig.sight_radius_m` 0)."""
-        if self.config.evidence.sight_radius_m <= 0:
+        """Why a change at `place_world` is withheld: `session`, the other one, did not show the
+        place, or showed it but not empty while its map holds no object there that stood in it
+        (`EvidenceConfig.seen_empty`); None when it saw the place empty, or the test is off
+        (`EvidenceConfig.sight_radius_m` 0)."""
+        evidence = self.config.evidence
+        if evidence.sight_radius_m <= 0:
             return None
         seen = self.sight(session, place_world)
-        return None if seen.shown else f"its place was {seen.describe(session)}"
+        if not seen.shown:
+            return f"its place was {seen.describe(session)}"
+        if not evidence.seen_empty or seen.seen_empty or self._stands_at(session, place_world):
+            return None
+        return f"its place was {seen.describe_occupied(session)}"
+
+    def _stands_at(self, session: Session, place_world: np.ndarray) -> bool:
+        """Whether `session`'s map holds an object standing in the place (its center within two
+        `sight_radius_m` horizontally and `sight_height_m` in height: two such objects would touch):
+        what the depth ended on there is then that object, and a change claimed against it (a
+        different object there: a switch) stands."""
+        evidence = self.config.evidence
+        session_map = self.source if session == "source" else self.target
+        return any(np.linalg.norm(horizontal(o.center_world - place_world)) <= 2 * evidence.sight_radius_m
+                   and abs(o.center_world[2] - place_world[2]) <= evidence.sight_height_m
+                   for o in session_map.objects.values())
 
     def add_source(self, frame: list[Measurement]) -> list[Event]:
         """One source frame's measurements: intra-session update of the source map."""

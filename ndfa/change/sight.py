@@ -20,6 +20,21 @@ than `OCCLUSION_MARGIN_M` nearer than the sample, or missing (a black screen, th
 sensor's band at an edge: nothing says what is behind). Where the place was empty the depth there
 is the table or the wall behind it, which hides nothing.
 
+Shown is not yet shown *empty*: a claim of a change says the other session saw no object there,
+and a place whose depth ended on something standing in it was not seen empty, whatever perception
+made of that something (an object just below its gate, one seen too few times to be tested, one
+cut or half hidden in every view). So `sight` also asks, of each frame that showed the place well
+enough (its pixels reaching the rule's minimum), whether its depth passed through the place: of the
+cylinder's camera-facing samples at or above the place's center height (lower ones meet the
+support itself at grazing views) and not hidden, a sample is *seen through* when the measured depth
+lies more than the cylinder's radius beyond it (the ray crossed the place's front half and met
+nothing), and *stopped* when it ends closer (on a surface standing in the place). A frame shows
+something standing in the place when more of them are stopped than seen through, and the place
+empty otherwise; the place counts as seen empty when at least half the frames that showed it well
+showed it empty (`Sight.seen_empty`). The detector asks it only where
+the other session's map holds no object at the place to explain what stood there (a switch:
+`ndfa.change.detector`).
+
 Memory stays bounded in the recording's length: every frame's camera is kept (128 bytes), the
 depth of at most `MAX_DEPTHS` frames. A frame whose camera stands within `SAME_VIEW_M` of a kept
 frame's (`view_distance`: the cameras' distance plus their turn in radians times `TURN_SCALE_M`)
@@ -73,7 +88,11 @@ class Sight:
     """What a session's frames showed of one place. `shown`: the best frame reaches the rule's
     pixels; `pixels`: the best frame's expected pixels (0 when never in view); `frame_index`,
     `distance_m`, `unhidden`: that frame's, its distance to the place and the share of the
-    object's facing surface not hidden; `in_view`: frames with the place whole in view and in range."""
+    object's facing surface not hidden; `in_view`: frames with the place whole in view and in range;
+    `well`: frames (of those whose depth is kept) whose pixels reach the rule's minimum, `empty`: of
+    those, the ones whose depth passed through the place (the module docstring says how);
+    `stopped`: the share of the upper facing samples the depth ended on in the best such frame that
+    did not show it empty (NaN when every one did)."""
 
     shown: bool
     pixels: float
@@ -83,6 +102,23 @@ class Sight:
     distance_m: float = float("nan")
     unhidden: float = float("nan")
     min_pixels: int = VISIBLE_PIXELS
+    well: int = 0
+    empty: int = 0
+    stopped: float = float("nan")
+    stopped_frame: int | None = None
+
+    @property
+    def seen_empty(self) -> bool:
+        """Whether the frames that showed the place well mostly saw it empty (true when none
+        showed it well, or when no frames are known: a replay)."""
+        return 2 * self.empty >= self.well
+
+    def describe_occupied(self, session: str) -> str:
+        """One line: why the place, though shown, does not count as seen empty by `session`."""
+        return (f"shown but not seen empty: the {session}'s depth ended inside it in {self.well - self.empty} of the "
+                f"{self.well} frames that showed it well (frame {self.stopped_frame}: {self.stopped:.0%} of its upper "
+                f"surface stopped), and the {session}'s map has no object there: something stood there that was not "
+                f"taken as an object")
 
     def describe(self, session: str) -> str:
         """One line: why the place counts as shown by `session`, or not."""
@@ -101,7 +137,7 @@ class Sight:
 
         return {"shown": self.shown, "pixels": round(float(self.pixels), 1), "frames": self.frames,
                 "in_view": self.in_view, "frame": self.frame_index, "distance_m": number(self.distance_m),
-                "unhidden": number(self.unhidden)}
+                "unhidden": number(self.unhidden), "well": self.well, "empty": self.empty}
 
 
 @dataclass
@@ -186,14 +222,25 @@ class SessionViews:
         measured = np.stack([self.depths[k][rows[f], cols[f]] for k, f in zip(kept, frames)]).astype(np.float32)
         free = (measured > 0) & (measured >= z[frames] - OCCLUSION_MARGIN_M)
         unhidden = (free & facing[frames]).sum(axis=1) / np.maximum(facing[frames].sum(axis=1), 1)
+        # Seen through or stopped: the upper facing samples not hidden (the module docstring).
+        upper = (facing[frames] & (samples[:, 2] >= float(np.asarray(place_world)[2]) - 1e-9)[None]) & free
+        through = upper & (measured > z[frames] + radius_m)
+        n_through, n_upper = through.sum(axis=1), upper.sum(axis=1)
+        empty = n_through >= n_upper - n_through    # no more stopped than seen through (none: no evidence)
         offsets = np.asarray(place_world, dtype=float) - cameras[frames]
         distance = np.linalg.norm(offsets, axis=1)
         elevation = np.abs(offsets[:, 2]) / np.maximum(distance, 1e-9)   # sin of the sight line's slope
         area = 2 * radius_m * height_m * np.sqrt(1 - elevation**2) + np.pi * radius_m**2 * elevation
         pixels = self.K[0, 0] * self.K[1, 1] * area / np.maximum(distance, 1e-9) ** 2 * unhidden
         best = int(np.argmax(pixels))
+        well = pixels >= rule.min_pixels
+        occupied = np.flatnonzero(well & ~empty)
+        worst = int(occupied[np.argmax(pixels[occupied])]) if len(occupied) else None
         return Sight(bool(pixels[best] >= rule.min_pixels), float(pixels[best]), len(self), int(in_view.sum()),
-                     self.indices[frames[best]], float(distance[best]), float(unhidden[best]), rule.min_pixels)
+                     self.indices[frames[best]], float(distance[best]), float(unhidden[best]), rule.min_pixels,
+                     int(well.sum()), int((well & empty).sum()),
+                     float("nan") if worst is None else float(1 - n_through[worst] / max(n_upper[worst], 1)),
+                     None if worst is None else self.indices[frames[worst]])
 
 
 def view_distance(pose: np.ndarray, poses: np.ndarray) -> np.ndarray:

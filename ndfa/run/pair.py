@@ -69,17 +69,18 @@ class PairResult:
     @property
     def unshown(self) -> list[DecisionEvent]:
         """The changes the detector withheld because the other session's frames did not show their
-        places (`DecisionEvent.withheld`, `ndfa.change.sight`), as the detector made them."""
+        places, or showed something standing there that its map has no object of
+        (`DecisionEvent.withheld`, `ndfa.change.sight`), as the detector made them."""
         return [d for d in self.changes_decided if d.withheld is not None]
 
     def note_unshown(self) -> None:
-        """After the passes: a note on the changes withheld because their places were not shown."""
+        """After the passes: a note on the changes withheld because their places were not seen empty."""
         unshown = self.unshown
         if unshown:
             self.notes.append(
                 f"{len(unshown)} change(s) withheld, not reported: the other session's frames did not show their "
-                "places well enough to have found an object there (too far, hidden, or never in view), so the "
-                "difference is no evidence of a change: " + "; ".join(
+                "places empty (too far, hidden, never in view, or something stood there that it took no object "
+                "of), so the difference is no evidence of a change: " + "; ".join(
                     f"{d.session} object {d.object_id} {d.kind}: {d.withheld}" for d in unshown))
 
     @property
