@@ -4,6 +4,8 @@ that walks straight while it pans."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -17,7 +19,7 @@ from ndfa.trajectory.degeneracy import (
     unseen_information,
 )
 from ndfa.trajectory.rgbd import HYBRID, POINT_TO_PLANE
-from ndfa.trajectory.rgbd_view import View
+from ndfa.trajectory.rgbd_view import View, local_contrast
 
 K = np.array([[290.0, 0.0, 160.0], [0.0, 290.0, 120.0], [0.0, 0.0, 1.0]])
 
@@ -160,18 +162,64 @@ def test_an_untextured_frame_facing_a_wall_meets_hybrid_when_it_has_colour(monke
 def test_frames_crossing_a_faint_wall_by_hybrid_become_keyframes(monkeypatch):
     # Hybrid on a faint wall lands a few millimetres off, more the farther its keyframe: each such
     # frame is made a keyframe (frame to frame through the wall); off, they share the first keyframe.
+    # The first frame on the wall meets its keyframe (off the wall) in their colour; the frames
+    # after it, whose keyframe is on the wall too, in their local contrast (`local_contrast`).
+    compared = []
+
     def register(view, keyframe, initial, term, config):
+        if term == HYBRID:
+            compared.append((view.textured, keyframe.textured))  # stands for "local contrast" below
         shift = 0.003 if term == HYBRID else 0.1
         return initial @ twist_pose((0.0, 0.0, 0.0), (shift, 0.0, 0.0)), 0.9
 
+    def contrast(view, sigma_px, gain):
+        assert (sigma_px, gain) == (8.0, 4.0)
+        return dataclasses.replace(view, textured=True)
+
     monkeypatch.setattr(rgbd, "register_dense", register)
+    monkeypatch.setattr(rgbd, "local_contrast", contrast)
     monkeypatch.setattr(rgbd, "depth_information", lambda *args: np.eye(6))
     faint = View(rgbd=None, features=None, K=None, plane_information=np.eye(6),
                  unseen_information=unseen_information(wall(), K), median_depth_m=1.2, valid_fraction=1.0, textured=False)
     for keyframes, expected in ((True, 4), (False, 1)):
         odometry = rgbd.RgbdOdometry(rgbd.RgbdOdometryConfig(features=None, loop_closure=False,
                                                              faint_wall_keyframes=keyframes))
+        compared.clear()
         for _ in range(4):
             odometry._poses.append(odometry._track(faint)[0])
         assert odometry.faint_wall_frames == 3 and len(odometry.keyframes) == expected
         assert not odometry._unseen  # its slide measured by hybrid, not kept from the prediction
+        assert compared == [(False, False), (True, True), (True, True)]
+    # Off (0 px), the colour as it is throughout.
+    odometry = rgbd.RgbdOdometry(rgbd.RgbdOdometryConfig(features=None, loop_closure=False, faint_wall_contrast_px=0.0))
+    compared.clear()
+    for _ in range(4):
+        odometry._poses.append(odometry._track(faint)[0])
+    assert compared == [(False, False)] * 3
+
+
+def test_local_contrast_removes_shading_that_moves_with_the_camera():
+    # A wall with faint texture (2 grey levels) under a light on the camera: brightness falls off
+    # 60 grey levels from the image's centre to its corners. The local contrast keeps the texture,
+    # amplified, and drops the fall-off; depth and the rest of the view are untouched; made once.
+    import open3d as o3d
+
+    rows, cols = np.mgrid[0:240, 0:320].astype(np.float32)
+    falloff = 60.0 * ((rows - 120.0) ** 2 + (cols - 160.0) ** 2) / (120.0 ** 2 + 160.0 ** 2)
+    texture = 2.0 * np.sign(np.sin(cols / 3.0) * np.sin(rows / 3.0))
+    gray = np.clip(180.0 - falloff + texture, 0, 255).astype(np.uint8)
+    depth = wall()[..., None]
+    view = View(rgbd=o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(np.repeat(gray[..., None], 3, axis=2)),
+                                              o3d.t.geometry.Image(depth)),
+                features=None, K=None, plane_information=np.eye(6), unseen_information=np.eye(6),
+                median_depth_m=1.2, valid_fraction=1.0, textured=False)
+    seen = local_contrast(view, 8.0, 4.0)
+    image = seen.rgbd.color.as_tensor().numpy()[..., 0].astype(float)
+    inner = (slice(30, 210), slice(30, 290))  # away from the blur's border
+    centre, corner_block = image[100:140, 140:180], image[30:70, 30:70]
+    assert abs(gray[100:140, 140:180].mean() - gray[30:70, 30:70].mean()) > 20.0
+    assert abs(centre.mean() - corner_block.mean()) < 2.0  # the fall-off is gone
+    assert 6.0 < image[inner].std() < 10.0  # the texture (2 levels either way) kept, times 4
+    assert np.corrcoef(image[inner].ravel(), texture[inner].ravel())[0, 1] > 0.8
+    np.testing.assert_array_equal(seen.rgbd.depth.as_tensor().numpy(), depth)
+    assert seen.median_depth_m == view.median_depth_m and local_contrast(view, 8.0, 4.0) is seen

@@ -21,7 +21,9 @@ Per frame:
    Term used: degenerate and textured -> intensity alone (the depth term would only pull the slide
    toward the guess); untextured (dark, or no colour) -> point-to-plane alone (the intensity term
    would fit noise; but facing a bare wall, hybrid is tried too and the result nearer the
-   prediction wins: faint texture below the test still pins the slide); otherwise the hybrid of both.
+   prediction wins: faint texture below the test still pins the slide; past the wall's first frame
+   hybrid compares the images' local contrast, as the camera's own shading outweighs faint
+   texture); otherwise the hybrid of both.
 3. Dense registration to the keyframe (not the previous frame: errors then add up per keyframe,
    not per frame) from the guess. From a feature guess, a result that leaves it by more than a few
    centimetres or degrees fell into another minimum, and the feature estimate is kept. From the
@@ -59,7 +61,7 @@ from ndfa.trajectory.features import FeatureMotion, estimate_motion
 from ndfa.trajectory.keyframe_pairs import refine_with_keyframe_pairs
 from ndfa.trajectory.pose_graph import PoseEdge, PoseGraphConfig, optimize_pose_graph
 from ndfa.trajectory.rgbd_config import HYBRID, INTENSITY, NO_TERM, POINT_TO_PLANE, RgbdOdometryConfig
-from ndfa.trajectory.rgbd_view import View, depth_information, prepare_view, register_dense
+from ndfa.trajectory.rgbd_view import View, depth_information, local_contrast, prepare_view, register_dense
 
 __all__ = ["HYBRID", "INTENSITY", "NO_TERM", "POINT_TO_PLANE", "RgbdOdometry", "RgbdOdometryConfig"]
 
@@ -274,14 +276,19 @@ class RgbdOdometry:
         """T_keyframe_frame by dense registration from the constant-velocity prediction (no feature
         estimate: too few matches), its fitness and term."""
         config = self.config
-        result, fitness = register_dense(view, keyframe, predicted, term, config)
+        # The frame after one tracked across a faint wall, until features take over: its keyframe is
+        # on the wall too, and both images' colour is faint texture under the camera's own shading.
+        # The first frame on the wall meets its keyframe off the wall in their colour (in local
+        # contrast that keyframe's strong edges clip: docs/odometry.md).
+        after_wall = self._after_faint_wall
+        result, fitness = self._register(view, keyframe, predicted, term, after_wall)
         if term != INTENSITY and _jump(result, predicted) > config.cross_check_m:
             # Dense odometry on a few planes has false minima a few centimetres off; the camera
             # moves smoothly, so of the two terms' results the one nearer the prediction wins.
             other = POINT_TO_PLANE if term == HYBRID else HYBRID
             faint = other == HYBRID and not view.textured and self._faint_texture(view, keyframe)
             if other == POINT_TO_PLANE or view.textured or faint:
-                candidate, candidate_fitness = register_dense(view, keyframe, predicted, other, config)
+                candidate, candidate_fitness = self._register(view, keyframe, predicted, other, after_wall)
                 if _jump(candidate, predicted) < _jump(result, predicted):
                     result, fitness, term = candidate, candidate_fitness, other
                     self._faint_wall = faint
@@ -292,6 +299,16 @@ class RgbdOdometry:
             self.rejected_frames += 1
             return predicted, fitness, term
         return result, fitness, term
+
+    def _register(self, view: View, keyframe: View, initial: np.ndarray, term: str,
+                  on_faint_wall: bool) -> tuple[np.ndarray | None, float]:
+        """`register_dense`; `on_faint_wall`, the intensity term compares the images' local contrast
+        (`faint_wall_contrast_px`, `rgbd_view.local_contrast`)."""
+        config = self.config
+        if on_faint_wall and term != POINT_TO_PLANE and config.faint_wall_contrast_px > 0.0:
+            view = local_contrast(view, config.faint_wall_contrast_px, config.faint_wall_contrast_gain)
+            keyframe = local_contrast(keyframe, config.faint_wall_contrast_px, config.faint_wall_contrast_gain)
+        return register_dense(view, keyframe, initial, term, config)
 
     def _faint_texture(self, view: View, keyframe: View) -> bool:
         """Whether an untextured frame's point-to-plane result should meet hybrid's (`hybrid_where_unseen`):

@@ -92,6 +92,12 @@ class RgbdOdometryConfig:
         tracked from the prediction until features take over, becomes a keyframe: hybrid's error
         on the faint texture grows with the baseline (2.9-5.7 cm on 5-frame keyframe edges against
         0.3-0.7 cm frame to frame there).
+    faint_wall_contrast_px, faint_wall_contrast_gain: on those frames (a faint wall, and the
+        frames after it until features take over) the intensity term compares the images' local
+        contrast, the intensity less its Gaussian blur over this many pixels of the subsampled
+        image, times the gain (`rgbd_view.local_contrast`): a light on the camera, vignetting or
+        auto-exposure shade the image smoothly with the camera, and on faint texture that pulls
+        the term towards no motion (docs/odometry.md). 0: the colour as it is.
     color_camera: the colour camera when the colour is not registered to the depth (a recording's
         meta says so: `ndfa.core.color_camera`, `session.rgbd_config_for`); each frame's colour is then
         carried onto its depth pixels before features and the intensity term use it. None: registered.
@@ -143,6 +149,8 @@ class RgbdOdometryConfig:
     unseen_ratio: float = 0.005
     hybrid_where_unseen: bool = True
     faint_wall_keyframes: bool = True
+    faint_wall_contrast_px: float = 8.0
+    faint_wall_contrast_gain: float = 4.0
     velocity_in_world: bool = True
     color_camera: ColorCamera | None = None
 

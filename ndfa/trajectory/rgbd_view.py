@@ -3,8 +3,9 @@ odometry and loop closure use both)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -27,7 +28,7 @@ class View:
     valid_fraction: float
     textured: bool
     coloured: bool = True  # False: the frame had no colour (its image is zeros)
-
+    contrast: View | None = field(default=None, repr=False)  # `local_contrast`'s, once made
 
 
 def prepare_view(frame: Frame, config: RgbdOdometryConfig) -> View:
@@ -67,6 +68,29 @@ def prepare_view(frame: Frame, config: RgbdOdometryConfig) -> View:
                  valid_fraction=float(valid.mean()),
                  textured=frame.rgb is not None and textured_fraction(rgb, valid, config.gradient_threshold) >= config.textured_fraction,
                  coloured=frame.rgb is not None)
+
+def local_contrast(view: View, sigma_px: float, gain: float) -> View:
+    """The view with its colour replaced by its local contrast: the intensity less its Gaussian
+    blur over `sigma_px` pixels (of the view's image), times `gain`, about mid-grey; depth as it was.
+    Made once per view and kept on it.
+
+    Why: the intensity term assumes a surface's brightness does not change with the viewpoint. A
+    light on the camera, vignetting or auto-exposure change it smoothly across the image, with the
+    camera; where the texture is faint that smooth pattern outweighs it, and the term is pulled
+    towards no motion against the pattern (docs/odometry.md, "Local contrast on faint walls")."""
+    if view.contrast is None:
+        import cv2
+        import open3d as o3d
+
+        rgb = view.rgbd.color.as_tensor().numpy()  # type: ignore[attr-defined]
+        gray = rgb.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
+        detail = gray - cv2.GaussianBlur(gray, (0, 0), sigmaX=sigma_px)
+        image = np.clip(128.0 + gain * detail + 0.5, 0.0, 255.0).astype(np.uint8)
+        rgbd = o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(np.ascontiguousarray(np.repeat(image[..., None], 3, axis=2))),
+                                        view.rgbd.depth)  # type: ignore[attr-defined]
+        view.contrast = dataclasses.replace(view, rgbd=rgbd)
+    return view.contrast
+
 
 def register_dense(source: View, target: View, initial: np.ndarray, term: str,
                config: RgbdOdometryConfig) -> tuple[np.ndarray | None, float]:
