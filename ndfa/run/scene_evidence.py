@@ -43,6 +43,7 @@ from ndfa.run.cloud_align import (
     SceneEvidenceConfig,
     apply_transform,
     global_alignment,
+    icp_coarse_to_fine,
     icp_yaw,
     overlap,
     upright,
@@ -187,9 +188,7 @@ def _rival_fitness(source_cloud: np.ndarray, target_cloud: np.ndarray, source_up
                for step in ((d, 0, 0), (-d, 0, 0), (0, d, 0), (0, -d, 0))]
     best = 0.0
     for start in starts:
-        rival = start @ transform
-        for distance in (4 * align.icp_distance_m, 2 * align.icp_distance_m, align.icp_distance_m):
-            rival = icp_yaw(source_cloud, target_cloud, rival, dataclasses.replace(align, icp_distance_m=distance))
+        rival = icp_coarse_to_fine(source_cloud, target_cloud, start @ transform, align)
         back = np.linalg.norm(apply_transform(rival, probe) - apply_transform(transform, probe), axis=1).max()
         if back <= 2 * align.icp_distance_m:
             continue
