@@ -165,6 +165,30 @@ def test_a_place_seen_through_is_seen_empty_and_one_whose_depth_ends_in_it_is_no
     floor = SessionViews(SightRule())
     floor.add(0, table, K, look_at([0.0, 0.0, 1.3], place))
     assert floor.sight(place, *SIZE).seen_empty
+    # a table top the place sinks into (drift between the sessions set it 3 cm low), seen from above:
+    # most of the upper samples' rays end in the place, but on a flat surface: nothing stands there
+    pose = look_at([0.5, 0.0, 1.8], place)
+    sunk = SessionViews(SightRule())
+    sunk.add(0, _table_at(place[2] + 0.03, pose), K, pose)
+    on_table = sunk.sight(place, *SIZE)
+    assert on_table.shown and on_table.seen_empty
+    assert not _stood_on_table(place, pose).seen_empty     # a box standing on that table is something
+
+
+def _table_at(height_m: float, pose: np.ndarray) -> np.ndarray:
+    """The depth image of a horizontal plane at `height_m` (9 m where a pixel's ray misses it)."""
+    v, u = np.mgrid[0:480, 0:640]
+    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones((480, 640))], axis=-1)
+    down = rays @ pose[:3, :3].T                        # the rays in the world, per unit of camera depth
+    depth = (height_m - pose[2, 3]) / np.where(down[..., 2] < -1e-9, down[..., 2], np.nan)
+    return np.where(np.isfinite(depth) & (depth > 0), depth, 9.0).astype(np.float32)
+
+
+def _stood_on_table(place: np.ndarray, pose: np.ndarray):
+    views = SessionViews(SightRule())
+    depth = np.minimum(_table_at(place[2] + 0.03, pose), _box_at(place + [0, 0, 0.08], pose))
+    views.add(0, depth, K, pose)
+    return views.sight(place, *SIZE)
 
 
 def _added_where_the_source_had(stood: bool, source_object: bool) -> tuple[set[int], dict[int, str]]:

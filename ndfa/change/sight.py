@@ -28,9 +28,10 @@ enough (its pixels reaching the rule's minimum), whether its depth passed throug
 cylinder's camera-facing samples at or above the place's center height (lower ones meet the
 support itself at grazing views) and not hidden, a sample is *seen through* when the measured depth
 lies more than the cylinder's radius beyond it (the ray crossed the place's front half and met
-nothing), and *stopped* when it ends closer (on a surface standing in the place). A frame shows
-something standing in the place when more of them are stopped than seen through, and the place
-empty otherwise; the place counts as seen empty when at least half the frames that showed it well
+nothing), and *stopped* when it ends closer (on a surface in the place). A frame shows something
+standing in the place when more of them are stopped than seen through and the surface the depth
+ended on inside the place rises (`STANDING_M`: not a table top that drift between the sessions set
+the place into), and the place empty otherwise; the place counts as seen empty when at least half the frames that showed it well
 showed it empty (`Sight.seen_empty`). The detector asks it only where
 the other session's map holds no object at the place to explain what stood there (a switch:
 `ndfa.change.detector`).
@@ -69,6 +70,12 @@ MAX_DEPTHS = 1024
 SAME_VIEW_M = 0.01
 # A turn of the camera by one radian counts as a step of this many metres (a point 1 m away moves as far).
 TURN_SCALE_M = 1.0
+# Something stands in a place when the surface the depth ended on inside it rises at least this
+# much (10th to 90th percentile of the ended points' heights): a table top seen in the place (the
+# place set a few cm too low by drift between the sessions, or its foot) lies flat within the
+# depth's noise (the Kinect's disparity step at 3 m, ~2.5 cm along the ray, under 1.5 cm in height
+# at the usual downward views); a mug's face seen there spans 5-7 cm.
+STANDING_M = 0.03
 
 
 @dataclass(frozen=True)
@@ -226,7 +233,15 @@ class SessionViews:
         upper = (facing[frames] & (samples[:, 2] >= float(np.asarray(place_world)[2]) - 1e-9)[None]) & free
         through = upper & (measured > z[frames] + radius_m)
         n_through, n_upper = through.sum(axis=1), upper.sum(axis=1)
-        empty = n_through >= n_upper - n_through    # no more stopped than seen through (none: no evidence)
+        # ... and what stopped them rises: the heights of the points where the facing rays ended
+        # inside the place (any height), from the 10th to the 90th percentile
+        stopped = facing[frames] & free & (measured <= z[frames] + radius_m)
+        ended = points[frames] * (measured / np.where(z[frames] > 1e-6, z[frames], np.inf))[..., None]
+        heights = np.einsum("fj,fsj->fs", poses[frames, 2, :3], ended) + poses[frames, 2, 3][:, None]
+        rise = np.array([np.subtract(*np.percentile(h[m], [90, 10])) if m.sum() > 1 else 0.0
+                         for h, m in zip(heights, stopped)])
+        # no more stopped than seen through (none: no evidence), or what stopped them lies flat
+        empty = (n_through >= n_upper - n_through) | (rise < STANDING_M)
         offsets = np.asarray(place_world, dtype=float) - cameras[frames]
         distance = np.linalg.norm(offsets, axis=1)
         elevation = np.abs(offsets[:, 2]) / np.maximum(distance, 1e-9)   # sin of the sight line's slope
