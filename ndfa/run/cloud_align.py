@@ -128,8 +128,7 @@ def turn_search(source_cloud: np.ndarray, target_cloud: np.ndarray, found: np.nd
                 config: AlignConfig = AlignConfig()) -> tuple[float, float, np.ndarray]:
     """(fitness, rmse, transform): `found` (target -> source), or better. On clouds bent by the
     odometry's drift each part of the scene fits at a slightly different turn, and ICP can stall
-    where the smaller part fits (the kitchen's planted seed 1: fitness 0.79 at 0.1 deg; turned 2 deg
-    and refined, 0.81 at 1.4 deg, 4 cm nearer the cameras' truth; docs/registration.md). So `found`
+    where the parts that fit worse fit (docs/registration.md, "The turn search"). So `found`
     is turned by each of `turn_search_deg`, both ways, about the target's center, refined by
     `icp_coarse_to_fine`, and the best overlap wins."""
     fitness, rmse = overlap(source_cloud, target_cloud, found, config.icp_distance_m)
