@@ -69,6 +69,7 @@ def prepare_view(frame: Frame, config: RgbdOdometryConfig) -> View:
                  textured=frame.rgb is not None and textured_fraction(rgb, valid, config.gradient_threshold) >= config.textured_fraction,
                  coloured=frame.rgb is not None)
 
+
 def local_contrast(view: View, sigma_px: float, gain: float) -> View:
     """The view with its colour replaced by its local contrast: the intensity less its Gaussian
     blur over `sigma_px` pixels (of the view's image), times `gain`, about mid-grey; depth as it was.
