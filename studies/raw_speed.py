@@ -6,6 +6,7 @@ pass's CPU goes, the levers tried, and what grows with a recording's length.
     python studies/raw_speed.py stride MASKED_TARGET.mcap [STEP]      # segmentation recall and CPU, stride 2 vs 3
     python studies/raw_speed.py gate RAW_TARGET.mcap [STEP]           # the objectness gate on the coarse grid only
     python studies/raw_speed.py normals RAW_TARGET.mcap [STEP]        # right_angles at fewer query points
+    python studies/raw_speed.py speedup RAW_TARGET.mcap [STEP] [REV]  # segment_frame now vs at git REV: CPU, masks
     python studies/raw_speed.py growth MASKED_DIR                     # tracemalloc over a target pass
     python studies/raw_speed.py repeat SHORT_DIR LONG_DIR TIMES       # a long recording: the frames repeated
 
@@ -151,6 +152,41 @@ def _right_angles_at(heights: np.ndarray, flat: np.ndarray, neighbours: int, mos
     return float(np.abs(np.mean(np.exp(4j * np.arctan2(normal[wall, 1], normal[wall, 0])))))
 
 
+def speedup(path: str, step: str = "4", rev: str = "7eea446") -> None:
+    """`segment_frame` of this tree against the one of git revision `rev` (its ndfa/perception
+    imported as a package of its own), alternating on the same frames (true poses): process CPU
+    per frame of each, and whether the masks are the same."""
+    import importlib
+    import subprocess
+    import tempfile
+
+    package = Path(tempfile.mkdtemp()) / "before_perception"
+    package.mkdir()
+    listed = subprocess.run(["git", "ls-tree", "--name-only", rev, "ndfa/perception/"], capture_output=True,
+                            text=True, check=True).stdout.split()
+    for name in listed:
+        text = subprocess.run(["git", "show", f"{rev}:{name}"], capture_output=True, text=True, check=True).stdout
+        (package / Path(name).name).write_text(text.replace("ndfa.perception.", "before_perception."))
+    sys.path.insert(0, str(package.parent))
+    before = importlib.import_module("before_perception.segmentation")
+    frames = true_posed(path, int(step))
+    runs = {f"before ({rev})": lambda f: before.segment_frame(f), "now": lambda f: segment_frame(f)}
+    cpu: dict[str, list[float]] = {label: [] for label in runs}
+    masks: dict[str, list[np.ndarray]] = {}
+    for _ in range(3):  # alternating: both see the same load
+        for label, run in runs.items():
+            started = time.process_time()
+            masks[label] = [run(frame) for frame in frames]
+            cpu[label].append((time.process_time() - started) / len(frames) * 1e3)
+    for label, values in cpu.items():
+        print(f"{label}: {np.median(values):.1f} ms CPU per frame (median of 3; {min(values):.1f}-{max(values):.1f})")
+    old, new = masks.values()
+    differ = [i for i, (a, b) in enumerate(zip(old, new)) if not np.array_equal(a, b)]
+    pixels = sum(int((a != b).sum()) for a, b in zip(old, new))
+    segments = [sum(len(np.unique(m)) - 1 for m in ms) for ms in (old, new)]
+    print(f"{len(frames)} frames: masks differ in {len(differ)} ({pixels} pixels); segments {segments[0]} -> {segments[1]}")
+
+
 def growth(directory: str) -> None:
     from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
     from ndfa.run.detect import run_detection
@@ -194,7 +230,7 @@ def repeat(short: str, long: str, times: str) -> None:
 
 
 if __name__ == "__main__":
-    commands = {f.__name__: f for f in (segmentation, alignment, stride, gate, normals, growth, repeat)}
+    commands = {f.__name__: f for f in (segmentation, alignment, stride, gate, normals, speedup, growth, repeat)}
     if len(sys.argv) < 2 or sys.argv[1] not in commands:
         sys.exit(__doc__)
     commands[sys.argv[1]](*sys.argv[2:])

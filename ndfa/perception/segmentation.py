@@ -235,7 +235,7 @@ def _kept_clusters(points: np.ndarray, depths: np.ndarray, cluster_of_point: np.
         shape = cluster_shape(heights, flat, depths[members])
         reason = _size_rejection(shape, flat, config)
         if reason is None and config.objectness is not None:
-            shape, reason = judge(heights, flat, depths[members], config.objectness, camera_flat)
+            shape, reason = judge(heights, flat, depths[members], config.objectness, camera_flat, shape)
             if reason == "long" and shape.length_m <= config.split_max_length_m:
                 halves = _split(heights, flat, depths[members], camera_flat, config)
                 if halves is not None:
