@@ -15,15 +15,18 @@ def dbscan(points: np.ndarray, eps: float, min_points: int) -> np.ndarray:
     if len(points) == 0:
         return np.zeros(0, dtype=np.int64)
     pairs = cKDTree(points).query_pairs(eps, output_type="ndarray")
-    neighbours = 1 + np.bincount(pairs[:, 0], minlength=len(points)) + np.bincount(pairs[:, 1], minlength=len(points))
+    first, second = pairs[:, 0].copy(), pairs[:, 1].copy()
+    neighbours = 1 + np.bincount(first, minlength=len(points)) + np.bincount(second, minlength=len(points))
     core = neighbours >= min_points
     cluster = np.full(len(points), -1, dtype=np.int64)
     if core.any():
-        both = pairs[core[pairs[:, 0]] & core[pairs[:, 1]]]
-        graph = coo_matrix((np.ones(len(both), dtype=np.int8), (both[:, 0], both[:, 1])), shape=(len(points),) * 2)
-        _, component = connected_components(graph, directed=False)
+        first_core, second_core = core[first], core[second]
+        both = first_core & second_core
+        graph = coo_matrix((np.ones(int(both.sum())), (first[both], second[both])), shape=(len(points),) * 2)
+        # Weakly connected components of the one-way edges: the components of the undirected graph.
+        _, component = connected_components(graph, directed=True, connection="weak")
         cluster[core] = component[core]
-        for a, b in ((0, 1), (1, 0)):  # border points: a non-core point next to a core point
-            border = pairs[core[pairs[:, a]] & ~core[pairs[:, b]]]
-            cluster[border[:, b]] = cluster[border[:, a]]
+        for a, b, a_core, b_core in ((first, second, first_core, second_core), (second, first, second_core, first_core)):
+            border = a_core & ~b_core  # border points: a non-core point next to a core point
+            cluster[b[border]] = cluster[a[border]]
     return cluster

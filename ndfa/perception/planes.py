@@ -51,10 +51,11 @@ def find_horizontal_planes(points: np.ndarray, up: np.ndarray, config: Segmentat
     searchable = np.ones(len(sample), dtype=bool)
     search_up = up
     heights = sample @ search_up
+    order = np.argsort(heights)  # sorted once per direction: a subset of sorted heights is sorted
     for _ in range(2 * config.max_planes):
         if len(planes) == config.max_planes or searchable.sum() < min_sample_points:
             break
-        sorted_heights = np.sort(heights[searchable])
+        sorted_heights = heights[order[searchable[order]]]
         grid = np.arange(sorted_heights[0], sorted_heights[-1] + config.plane_distance_m, config.plane_distance_m / 2)
         counts = (np.searchsorted(sorted_heights, grid + config.plane_distance_m, side="right")
                   - np.searchsorted(sorted_heights, grid - config.plane_distance_m, side="left"))
@@ -80,6 +81,7 @@ def find_horizontal_planes(points: np.ndarray, up: np.ndarray, config: Segmentat
         if len(planes) == 1:
             search_up = normal
             heights = sample @ search_up
+            order = np.argsort(heights)
         searchable &= np.abs(sample @ normal - offset) > config.band_height_m
     return _parallel(planes, points, config) if len(planes) > 1 else planes
 
@@ -89,12 +91,14 @@ def _parallel(planes: list[Plane], points: np.ndarray, config: SegmentationConfi
     largest; usually the floor): a plane's tilt is known to about noise / extent, and a table top
     fitted alone was off by 1-2 degrees on the `paper` target (the floor's by 0.1 against the
     true pose), which lifted the far side of the table into the objects and merged its mugs."""
-    spreads = [_narrow_spread(points[p.inliers][::_THIN], p.normal) for p in planes]
+    inliers = [points[p.inliers] for p in planes]
+    spreads = [_narrow_spread(own[::_THIN], p.normal) for own, p in zip(inliers, planes)]
     normal = planes[int(np.argmax(spreads))].normal
+    along = points @ normal
     out = []
-    for plane in planes:
-        offset = float(points[plane.inliers].mean(axis=0) @ normal)
-        out.append(Plane(normal, offset, np.abs(points @ normal - offset) <= config.plane_distance_m))
+    for own in inliers:
+        offset = float(own.mean(axis=0) @ normal)
+        out.append(Plane(normal, offset, np.abs(along - offset) <= config.plane_distance_m))
     return out
 
 

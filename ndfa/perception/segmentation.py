@@ -52,11 +52,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import maximum_filter
 from scipy.spatial import cKDTree
 
 from ndfa.core import conventions
 from ndfa.core.frame import Frame
-from ndfa.core.geometry import backproject
 from ndfa.perception.dbscan import dbscan
 from ndfa.perception.objectness import ClusterShape, cluster_shape, judge
 from ndfa.perception.planes import Plane, find_horizontal_planes, plane_axes
@@ -94,32 +94,37 @@ def explain_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig(
     stride = config.stride or max(1, width // 320)
     rows, cols = np.mgrid[0:height:stride, 0:width:stride]
     rows, cols = rows.ravel(), cols.ravel()
-    keep = conventions.depth_in_range(frame.depth[rows, cols], config.min_depth_m, config.max_depth_m)
-    rows, cols = rows[keep], cols[keep]
+    sampled = frame.depth[::stride, ::stride].ravel()
+    keep = conventions.depth_in_range(sampled, config.min_depth_m, config.max_depth_m)
+    rows, cols, depths = rows[keep], cols[keep], sampled[keep]
     if len(rows) < config.min_plane_points:
         return labels, verdicts
-    points = _world_points(frame, rows, cols)
+    points = _world_points(frame, rows, cols, depths)
 
     planes = find_horizontal_planes(points, up, config, camera=frame.pose_world_camera[:3, 3])
     if not planes:
         return labels, verdicts
     up = planes[0].normal  # the planes' common normal: it corrects a slightly tilted pose
-    min_heights = _min_heights(frame.depth[rows, cols], config)
+    min_heights = _min_heights(depths, config)
     candidate, plane_of_point = _candidates(points, min_heights, planes, up, config)
     if not candidate.any():
         return labels, verdicts
     cluster_points = points[candidate]
     cluster_planes = plane_of_point[candidate]
     cluster_of_point = dbscan(cluster_points, config.dbscan_eps_m, config.dbscan_min_points)
-    judged = _kept_clusters(cluster_points, frame.depth[rows[candidate], cols[candidate]], cluster_of_point,
+    candidate_rows, candidate_cols = rows[candidate], cols[candidate]
+    judged = _kept_clusters(cluster_points, depths[candidate], cluster_of_point,
                             cluster_planes, planes, up, frame.pose_world_camera[:3, 3], config)
     kept = []
+    depth_box: tuple[int, int, int, int] | None = None  # `_depth_box`, found when first needed
     for cluster, verdict in judged:
-        cluster_rows = rows[candidate][cluster_of_point == cluster]
-        cluster_cols = cols[candidate][cluster_of_point == cluster]
+        members = cluster_of_point == cluster
+        cluster_rows, cluster_cols = candidate_rows[members], candidate_cols[members]
         if verdict.rejected is None and _hidden_above(frame.depth, cluster_rows, cluster_cols, config):
             verdict = ClusterVerdict(verdict.shape, "hidden", split=verdict.split)
-        if verdict.rejected is None and _cut_by_border(cluster_rows, cluster_cols, frame.depth, config):
+        if verdict.rejected is None and config.image_margin_px > 0:
+            depth_box = _depth_box(frame.depth) if depth_box is None else depth_box
+        if verdict.rejected is None and _cut_by_border(cluster_rows, cluster_cols, depth_box, config):
             verdict = ClusterVerdict(verdict.shape, "cut", split=verdict.split)
         if verdict.rejected is None:
             kept.append(cluster)
@@ -134,8 +139,8 @@ def explain_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig(
     for label, cluster in enumerate(kept, start=1):
         label_of_point[cluster_of_point == cluster] = label
     labelled = label_of_point > 0
-    sample_rows = rows[candidate][labelled]
-    sample_cols = cols[candidate][labelled]
+    sample_rows = candidate_rows[labelled]
+    sample_cols = candidate_cols[labelled]
     labels[sample_rows, sample_cols] = label_of_point[labelled]
     if stride > 1:
         _fill(frame, labels, cluster_points[labelled], label_of_point[labelled],
@@ -153,14 +158,19 @@ def _noise_sigma(depth: np.ndarray | float, config: SegmentationConfig) -> np.nd
     return config.noise_base_m + config.noise_quadratic_per_m * np.asarray(depth, dtype=np.float64) ** 2
 
 
-def _world_points(frame: Frame, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    camera = backproject(frame.K, rows, cols, frame.depth[rows, cols])
-    pose = frame.pose_world_camera
-    # Column by column: a (N, 3) @ (3, 3) product went through threaded BLAS and took 30 ms on a
-    # busy 2-core machine, 10x this.
-    rotation = pose[:3, :3]
-    world: np.ndarray = (camera[:, :1] * rotation[:, 0] + camera[:, 1:2] * rotation[:, 1]
-                         + camera[:, 2:] * rotation[:, 2] + pose[:3, 3])
+def _world_points(frame: Frame, rows: np.ndarray, cols: np.ndarray, depth: np.ndarray | None = None) -> np.ndarray:
+    """The world points of pixels (rows, cols) whose depths are `depth` (None: read from the frame):
+    `backproject`'s camera points moved by the pose, one output column at a time (a (N, 3) @ (3, 3)
+    product went through threaded BLAS and took 30 ms on a busy 2-core machine; one column at a time
+    on contiguous arrays is half the cost of broadcasting over (N, 3) columns, with the same sums)."""
+    z = np.asarray(frame.depth[rows, cols] if depth is None else depth, dtype=np.float64)
+    K, pose = frame.K, frame.pose_world_camera
+    x = (cols - K[0, 2]) / K[0, 0] * z
+    y = (rows - K[1, 2]) / K[1, 1] * z
+    world = np.empty((len(z), 3))
+    for axis in range(3):
+        rotation = pose[axis, :3]
+        world[:, axis] = x * rotation[0] + y * rotation[1] + z * rotation[2] + pose[axis, 3]
     return world
 
 
@@ -172,45 +182,61 @@ def _candidates(points: np.ndarray, min_heights: np.ndarray, planes: list[Plane]
     plane_of_point = np.full(len(points), -1, dtype=np.int64)
     axes = plane_axes(up)
     margin = int(np.ceil(config.footprint_margin_m / config.footprint_cell_m))
-    steps = np.arange(-margin, margin + 1)
-    neighbours = (steps[:, None] * _KEY_SPAN + steps[None, :]).ravel()  # key offsets of the cells within the margin
+    # The planes share their normal (`find_horizontal_planes`): one projection gives every height.
+    along = points @ up if all(np.array_equal(p.normal, up) for p in planes) else None
     for index, plane in enumerate(planes):
-        h = plane.height(points)
+        h = plane.height(points) if along is None else along - plane.offset
         band = np.flatnonzero(~candidate & (h >= min_heights) & (h <= config.band_height_m))
         if len(band) == 0:
             continue
-        plane_cells = np.unique(_cell_keys(points[plane.inliers] @ axes.T, config.footprint_cell_m))
-        footprint = np.unique(plane_cells[:, None] + neighbours[None])
         band_flat = points[band] @ axes.T
-        band_cells = _cell_keys(band_flat, config.footprint_cell_m)
-        chosen = band[np.isin(band_cells, footprint) & ~_under_tall(band_flat, h[band], config)]
+        over = _over_footprint(points[plane.inliers] @ axes.T, band_flat, config.footprint_cell_m, margin)
+        over[over] = ~_under_tall(band_flat[over], band_flat, h[band], config)
+        chosen = band[over]
         candidate[chosen] = True
         plane_of_point[chosen] = index
     return candidate, plane_of_point
 
 
-def _under_tall(flat: np.ndarray, heights: np.ndarray, config: SegmentationConfig) -> np.ndarray:
-    """Which band points stand in a column that reaches above an object's height: a point higher
-    than `max_object_height_m` lies within `column_radius_m` of them horizontally. Such columns hold
+def _over_footprint(inliers_flat: np.ndarray, flat: np.ndarray, cell: float, margin: int) -> np.ndarray:
+    """Which 2-D points lie in a grid cell (of side `cell`) within `margin` cells (a square) of a
+    cell holding a plane inlier."""
+    inlier_cells = np.floor(inliers_flat / cell).astype(np.int64)
+    if len(inlier_cells) == 0:
+        return np.zeros(len(flat), dtype=bool)
+    low = inlier_cells.min(axis=0) - margin
+    shape = inlier_cells.max(axis=0) + margin + 1 - low
+    occupied = np.zeros(tuple(shape), dtype=bool)
+    occupied[tuple((inlier_cells - low).T)] = True
+    footprint = maximum_filter(occupied, size=2 * margin + 1, mode="constant")
+    cells = np.floor(flat / cell).astype(np.int64) - low
+    inside = ((cells >= 0) & (cells < shape)).all(axis=1)
+    over = np.zeros(len(flat), dtype=bool)
+    over[inside] = footprint[cells[inside, 0], cells[inside, 1]]
+    return over
+
+
+def _under_tall(flat: np.ndarray, band_flat: np.ndarray, band_heights: np.ndarray, config: SegmentationConfig
+                ) -> np.ndarray:
+    """Which points (horizontal coordinates `flat`) stand in a column that reaches above an
+    object's height: a point of the band (`band_flat`, `band_heights`) higher than
+    `max_object_height_m` lies within `column_radius_m` of them horizontally. Such columns hold
     parts of taller things (walls, cabinet fronts, legs), dropped before clustering, which they
     would otherwise dominate. A radius, not grid cells: whether a wall's foot shared a cell with
     the wall above it depended on where the cell edges fell, which a tenth of a degree of levelling
     moves by a centimetre a few metres out (docs/segmentation.md, "Columns")."""
-    tall = heights > config.max_object_height_m
-    if not tall.any():
+    tall = band_heights > config.max_object_height_m
+    if not tall.any() or len(flat) == 0:
         return np.zeros(len(flat), dtype=bool)
-    distance, _ = cKDTree(flat[tall]).query(flat, distance_upper_bound=config.column_radius_m)
+    tall_flat = band_flat[tall]
+    # Only the tall points within the radius of the points' bounding box can be near one of them.
+    low, high = flat.min(axis=0) - config.column_radius_m, flat.max(axis=0) + config.column_radius_m
+    tall_flat = tall_flat[((tall_flat >= low) & (tall_flat <= high)).all(axis=1)]
+    if len(tall_flat) == 0:
+        return np.zeros(len(flat), dtype=bool)
+    distance, _ = cKDTree(tall_flat).query(flat, distance_upper_bound=config.column_radius_m)
     under: np.ndarray = np.isfinite(distance)
     return under
-
-
-_KEY_SPAN = 1 << 24  # cells per axis in a cell key: 5 cm cells cover +-400 km
-
-
-def _cell_keys(flat: np.ndarray, cell: float) -> np.ndarray:
-    """One int64 key per 2-D point: its grid cell (row-major), so that cell sets are 1-D arrays."""
-    ij = np.floor(flat / cell).astype(np.int64) + _KEY_SPAN // 2
-    return ij[:, 0] * _KEY_SPAN + ij[:, 1]
 
 
 def _kept_clusters(points: np.ndarray, depths: np.ndarray, cluster_of_point: np.ndarray, plane_of_point: np.ndarray,
@@ -287,29 +313,36 @@ def _hidden_above(depth: np.ndarray, rows: np.ndarray, cols: np.ndarray, config:
     columns, first = np.unique(cols[order], return_index=True)
     tops = rows[order][first]
     own = depth[tops, columns]
-    above = np.full(len(columns), np.inf)
-    looked = np.zeros(len(columns), dtype=int)  # valid pixels looked at so far, per column
-    # The nearest of the first few valid depths up the column, past a band without depth.
-    for step in range(1, config.occluder_look_px + config.occluder_band_px + 1):
-        row = tops - step
-        values = np.where(row >= 0, depth[np.maximum(row, 0), columns], 0.0)
-        counted = (values > 0) & (looked < config.occluder_look_px)
-        above = np.where(counted, np.minimum(above, values), above)
-        looked += counted
+    # The nearest of the first few valid depths up the column, past a band without depth: all the
+    # steps up at once (step, column).
+    steps = np.arange(1, config.occluder_look_px + config.occluder_band_px + 1)
+    row = tops[None, :] - steps[:, None]
+    values = np.where(row >= 0, depth[np.maximum(row, 0), columns[None, :]], 0.0)
+    valid = values > 0
+    looked = np.cumsum(valid, axis=0) - valid  # valid pixels looked at before this step, per column
+    counted = valid & (looked < config.occluder_look_px)
+    above = np.where(counted, values, np.inf).min(axis=0, initial=np.inf)
     hidden = above < own - config.occluder_gap_m
     return bool(hidden.mean() > 0.5)
 
 
-def _cut_by_border(rows: np.ndarray, cols: np.ndarray, depth: np.ndarray, config: SegmentationConfig) -> bool:
-    """Whether the cluster reaches within `image_margin_px` of the border of the pixels with depth
-    (the bounding box of the rows and columns holding any)."""
-    margin = config.image_margin_px
-    if margin <= 0:
-        return False
+def _depth_box(depth: np.ndarray) -> tuple[int, int, int, int]:
+    """The first and last rows and columns holding any pixel with depth."""
     valid = depth > 0
     valid_rows, valid_cols = np.flatnonzero(valid.any(axis=1)), np.flatnonzero(valid.any(axis=0))
-    return bool((rows < valid_rows[0] + margin).any() or (rows > valid_rows[-1] - margin).any()
-                or (cols < valid_cols[0] + margin).any() or (cols > valid_cols[-1] - margin).any())
+    return int(valid_rows[0]), int(valid_rows[-1]), int(valid_cols[0]), int(valid_cols[-1])
+
+
+def _cut_by_border(rows: np.ndarray, cols: np.ndarray, depth_box: tuple[int, int, int, int] | None,
+                   config: SegmentationConfig) -> bool:
+    """Whether the cluster reaches within `image_margin_px` of the border of the pixels with depth
+    (`depth_box`: the bounding box of the rows and columns holding any)."""
+    margin = config.image_margin_px
+    if margin <= 0 or depth_box is None:
+        return False
+    first_row, last_row, first_col, last_col = depth_box
+    return bool(rows.min() < first_row + margin or rows.max() > last_row - margin
+                or cols.min() < first_col + margin or cols.max() > last_col - margin)
 
 
 def _fill(frame: Frame, labels: np.ndarray, points: np.ndarray, point_labels: np.ndarray,
@@ -331,17 +364,18 @@ def _fill(frame: Frame, labels: np.ndarray, points: np.ndarray, point_labels: np
     rows, cols = rows[inside], cols[inside]
     unlabelled = labels[rows, cols] == 0
     rows, cols = rows[unlabelled], cols[unlabelled]
-    valid = conventions.depth_in_range(frame.depth[rows, cols], config.min_depth_m, config.max_depth_m)
-    rows, cols = rows[valid], cols[valid]
+    depth = frame.depth[rows, cols]
+    valid = conventions.depth_in_range(depth, config.min_depth_m, config.max_depth_m)
+    rows, cols, depth = rows[valid], cols[valid], depth[valid]
     if len(rows) == 0:
         return
-    pixel_points = _world_points(frame, rows, cols)
+    pixel_points = _world_points(frame, rows, cols, depth)
     distance, nearest = cKDTree(points).query(pixel_points, distance_upper_bound=config.fill_distance_m)
     close = np.isfinite(distance)
     nearest = nearest[close]
     plane = plane_of_point[nearest]
     normals = np.stack([p.normal for p in planes])[plane]
     offsets = np.array([p.offset for p in planes])[plane]
-    min_heights = _min_heights(frame.depth[rows[close], cols[close]], config)
+    min_heights = _min_heights(depth[close], config)
     above = np.einsum("ij,ij->i", pixel_points[close], normals) - offsets >= min_heights
     labels[rows[close][above], cols[close][above]] = point_labels[nearest[above]]
