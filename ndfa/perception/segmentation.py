@@ -198,21 +198,22 @@ def _candidates(points: np.ndarray, min_heights: np.ndarray, planes: list[Plane]
     return candidate, plane_of_point
 
 
-def _over_footprint(inliers_flat: np.ndarray, flat: np.ndarray, cell: float, margin: int) -> np.ndarray:
-    """Which 2-D points lie in a grid cell (of side `cell`) within `margin` cells (a square) of a
-    cell holding a plane inlier."""
-    inlier_cells = np.floor(inliers_flat / cell).astype(np.int64)
-    if len(inlier_cells) == 0:
+def _over_footprint(marked_flat: np.ndarray, flat: np.ndarray, cell: float, margin: int) -> np.ndarray:
+    """Which 2-D points (`flat`) lie in a grid cell (of side `cell`) within `margin` cells (a
+    square) of a cell holding a point of `marked_flat`. Column by column: numpy's reductions and
+    indexing along the short axis of a (N, 2) array cost several times more."""
+    if len(marked_flat) == 0:
         return np.zeros(len(flat), dtype=bool)
-    low = inlier_cells.min(axis=0) - margin
-    shape = inlier_cells.max(axis=0) + margin + 1 - low
-    occupied = np.zeros(tuple(shape), dtype=bool)
-    occupied[tuple((inlier_cells - low).T)] = True
-    footprint = maximum_filter(occupied, size=2 * margin + 1, mode="constant")
-    cells = np.floor(flat / cell).astype(np.int64) - low
-    inside = ((cells >= 0) & (cells < shape)).all(axis=1)
+    marked = [np.floor(marked_flat[:, axis] / cell).astype(np.int64) for axis in (0, 1)]
+    low = [int(m.min()) - margin for m in marked]
+    size = [int(m.max()) + margin + 1 - lo for m, lo in zip(marked, low)]
+    occupied = np.zeros(size[0] * size[1], dtype=bool)
+    occupied[(marked[0] - low[0]) * size[1] + (marked[1] - low[1])] = True
+    near = maximum_filter(occupied.reshape(size), size=2 * margin + 1, mode="constant")
+    cells = [np.floor(flat[:, axis] / cell).astype(np.int64) - lo for axis, lo in zip((0, 1), low)]
+    inside = (cells[0] >= 0) & (cells[0] < size[0]) & (cells[1] >= 0) & (cells[1] < size[1])
     over = np.zeros(len(flat), dtype=bool)
-    over[inside] = footprint[cells[inside, 0], cells[inside, 1]]
+    over[inside] = near[cells[0][inside], cells[1][inside]]
     return over
 
 
@@ -229,13 +230,13 @@ def _under_tall(flat: np.ndarray, band_flat: np.ndarray, band_heights: np.ndarra
     if not tall.any() or len(flat) == 0:
         return np.zeros(len(flat), dtype=bool)
     tall_flat = band_flat[tall]
-    # Only the tall points within the radius of the points' bounding box can be near one of them.
-    low, high = flat.min(axis=0) - config.column_radius_m, flat.max(axis=0) + config.column_radius_m
-    tall_flat = tall_flat[((tall_flat >= low) & (tall_flat <= high)).all(axis=1)]
-    if len(tall_flat) == 0:
-        return np.zeros(len(flat), dtype=bool)
-    distance, _ = cKDTree(tall_flat).query(flat, distance_upper_bound=config.column_radius_m)
-    under: np.ndarray = np.isfinite(distance)
+    # A tall point within the radius lies in the point's cell of that side or a neighbouring one:
+    # only the points there are searched.
+    near = np.flatnonzero(_over_footprint(tall_flat, flat, config.column_radius_m, 1))
+    under = np.zeros(len(flat), dtype=bool)
+    if len(near):
+        distance, _ = cKDTree(tall_flat).query(flat[near], distance_upper_bound=config.column_radius_m)
+        under[near] = np.isfinite(distance)
     return under
 
 
