@@ -320,7 +320,7 @@ def _hidden_above(depth: np.ndarray, rows: np.ndarray, cols: np.ndarray, config:
     row = tops[None, :] - steps[:, None]
     values = np.where(row >= 0, depth[np.maximum(row, 0), columns[None, :]], 0.0)
     valid = values > 0
-    looked = np.cumsum(valid, axis=0) - valid  # valid pixels looked at before this step, per column
+    looked: np.ndarray = np.cumsum(valid, axis=0) - valid  # valid pixels looked at before this step, per column
     counted = valid & (looked < config.occluder_look_px)
     above = np.where(counted, values, np.inf).min(axis=0, initial=np.inf)
     hidden = above < own - config.occluder_gap_m
