@@ -70,14 +70,14 @@ def find_horizontal_planes(points: np.ndarray, up: np.ndarray, config: Segmentat
         # Least squares on the inliers, then the inliers of the refitted plane; the wider second
         # window takes in the parts of a plane that a tilted pose lifted out of the first.
         for width in _REFIT_WINDOWS:
-            fitted = _fit_plane(sample[:, inliers], search_up)
+            fitted = _fit_plane(np.compress(inliers, sample, axis=1), search_up)
             if fitted is None or fitted[0] @ up < max_tilt_cos:
                 break
             normal, offset = fitted
             inliers = searchable & (np.abs(normal @ sample - offset) <= width * config.plane_distance_m)
         if (inliers.sum() < min_sample_points
                 or camera @ normal - offset <= 0.0           # seen from below: nothing on it can be seen
-                or _narrow_spread(sample[:, inliers], normal) < config.min_plane_spread_m):
+                or _narrow_spread(np.compress(inliers, sample, axis=1), normal) < config.min_plane_spread_m):
             searchable &= ~(window | inliers)
             continue
         planes.append(Plane(normal, float(offset), np.abs(normal @ columns - offset) <= config.plane_distance_m))
@@ -95,7 +95,7 @@ def _parallel(planes: list[Plane], columns: np.ndarray, config: SegmentationConf
     fitted alone was off by 1-2 degrees on the `paper` target (the floor's by 0.1 against the
     true pose), which lifted the far side of the table into the objects and merged its mugs.
     `columns`: the points as rows (3, N)."""
-    inliers = [columns[:, p.inliers] for p in planes]
+    inliers = [np.compress(p.inliers, columns, axis=1) for p in planes]
     spreads = [_narrow_spread(own[:, ::_THIN], p.normal) for own, p in zip(inliers, planes)]
     normal = planes[int(np.argmax(spreads))].normal
     along = normal @ columns
