@@ -150,6 +150,8 @@ def explain_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig(
 
 def _min_heights(depth: np.ndarray, config: SegmentationConfig) -> np.ndarray:
     """How far above its plane a point at this depth must be to count as an object (step 3)."""
+    if config.noise_sigmas == 0:  # the default: the depths (all in range, finite) do not matter
+        return np.full(len(depth), config.min_height_m)
     sigma = _noise_sigma(depth, config)
     return np.maximum(config.min_height_m, config.noise_sigmas * sigma)
 
@@ -230,12 +232,14 @@ def _under_tall(flat: np.ndarray, band_flat: np.ndarray, band_heights: np.ndarra
     if not tall.any() or len(flat) == 0:
         return np.zeros(len(flat), dtype=bool)
     tall_flat = band_flat[tall]
-    # A tall point within the radius lies in the point's cell of that side or a neighbouring one:
-    # only the points there are searched.
-    near = np.flatnonzero(_over_footprint(tall_flat, flat, config.column_radius_m, 1))
-    under = np.zeros(len(flat), dtype=bool)
+    # Exact, with fewer searches: a point sharing a cell of side radius / 1.5 with a tall point lies
+    # within 0.95 radius of it; a tall point within the radius lies in the point's cell of side
+    # radius or a neighbouring one, so only the points there are searched.
+    radius = config.column_radius_m
+    under = _over_footprint(tall_flat, flat, radius / 1.5, 0)
+    near = np.flatnonzero(~under & _over_footprint(tall_flat, flat, radius, 1))
     if len(near):
-        distance, _ = cKDTree(tall_flat).query(flat[near], distance_upper_bound=config.column_radius_m)
+        distance, _ = cKDTree(tall_flat).query(flat[near], distance_upper_bound=radius)
         under[near] = np.isfinite(distance)
     return under
 
