@@ -67,6 +67,35 @@ def test_right_poses_are_good_and_drifting_ones_unusable():
     assert slight.verdict == GOOD and verdict.error_cm < slight.error_cm < 5.0 < wrong.error_cm
 
 
+def _with_screen(pose: np.ndarray) -> np.ndarray:
+    """The box room's depth with a screen on the +x wall (0.8 x 0.6 m at eye height) whose depth is
+    a reflection 0.6 m behind the glass along each camera's view: it moves with the viewpoint."""
+    depth = _room_depth(pose)
+    rows, cols = np.mgrid[0:60, 0:80]
+    rays = np.stack([(cols - K[0, 2]) / K[0, 0], (rows - K[1, 2]) / K[1, 1], np.ones(cols.shape)], axis=-1)
+    with np.errstate(invalid="ignore"):  # the rays along a wall have no depth (-inf, left out by the sketch)
+        world = (rays * depth[..., None]) @ pose[:3, :3].T + pose[:3, 3]
+    screen = (world[..., 0] > 1.99) & (np.abs(world[..., 1]) < 0.4) & (np.abs(world[..., 2] - 1.2) < 0.3)
+    return np.where(screen, depth + 0.6, depth)
+
+
+def test_one_surface_disagreeing_alone_is_not_a_pose_error():
+    # Right poses; the screen is dark on the first pass (frames 0-11: its glass in depth) and
+    # reflects from frame 12 on: where the two passes meet at it, the glass of one stands in space
+    # the other saw empty, on a tenth of the view. The deepest 5 % of the pairs read that; the
+    # depth a quarter of the overlap reaches does not.
+    truth = _circling()
+    sketches = {k: make_sketch((_with_screen(pose) if k >= 12 else _room_depth(pose)).astype(np.float32), K)
+                for k, pose in enumerate(truth)}
+    screen = gather_evidence(truth, sketches, object(), list(range(len(truth))))
+    # A drift whose deepest 5 % read alike: it moves every surface, so the bulk of the overlap too.
+    step = make_pose(axis_angle_to_matrix(np.radians([0.0, 0.0, 0.2])), np.array([0.005, 0.0, 0.0]))
+    drift = _evidence(truth, [np.linalg.matrix_power(step, k) @ pose for k, pose in enumerate(truth)])
+    assert screen.revisit_local_conflict_cm > 2.0 and drift.revisit_local_conflict_cm > 2.0
+    assert screen.revisit_conflict_cm < 0.5 < 10.0 < drift.revisit_conflict_cm
+    assert judge(screen).verdict == GOOD and judge(drift).verdict == DOUBTFUL
+
+
 @pytest.mark.parametrize("towards", [0.3, -0.3])
 def test_a_jump_between_two_frames_is_unusable(towards):
     # Frame 30 looks along +y: a jump towards the wall in view, or away from it (each shows one way).

@@ -50,6 +50,11 @@ class ConsistencyConfig:
     max_pairs: at most this many pairs of each kind are checked, spread evenly over the candidates.
     min_overlap: a pair counts when at least this fraction of i's points lands on j's valid depth.
         (consecutive frames below it are "unlinked" in `ndfa.trajectory.quality`).
+    shared_share: a pair's shared conflict (`PairCheck.shared_conflict_m`) is the depth at least this
+        share of its overlap reaches into the space the other frame saw empty. A wrong relative pose
+        moves every surface: a translation towards them all of the overlap, a turn about a line
+        through the view half of it (the other half moves away, hidden); one surface that disagrees
+        alone (a screen's reflection, a moved object) is a small part (docs/pose_quality.md).
     """
 
     tau_m: float = 0.10
@@ -59,6 +64,7 @@ class ConsistencyConfig:
     neighbour_travel_m: float = 0.2
     max_pairs: int = 200
     min_overlap: float = 0.2
+    shared_share: float = 0.25
 
 
 @dataclass(frozen=True)
@@ -101,6 +107,8 @@ class PairCheck:
     by more than tau at every pixel around (free-space violations). conflict_m: the 95th percentile
     over the overlap of how far a point stands in front of j's depth (0 where it is not): how deep
     i's surfaces reach into the space j saw empty, a few millimetres of noise with right poses.
+    shared_conflict_m: the same at the share `ConsistencyConfig.shared_share` of the overlap (the
+    75th percentile): how deep the bulk of i's surfaces reach, not one surface of them.
     """
 
     i: int
@@ -108,9 +116,11 @@ class PairCheck:
     overlap: int
     violating: int
     conflict_m: float
+    shared_conflict_m: float = 0.0
 
 
-def check_pair(sketch_i: DepthSketch, sketch_j: DepthSketch, j_from_i: np.ndarray, tau_m: float) -> PairCheck | None:
+def check_pair(sketch_i: DepthSketch, sketch_j: DepthSketch, j_from_i: np.ndarray, tau_m: float,
+               shared_share: float = ConsistencyConfig.shared_share) -> PairCheck | None:
     """i's points in j's camera (`j_from_i` = T_j_i, (4, 4)) against j's depth; None when none land."""
     points = sketch_i.points @ j_from_i[:3, :3].T.astype(np.float32) + j_from_i[:3, 3].astype(np.float32)
     z = points[:, 2]
@@ -133,8 +143,9 @@ def check_pair(sketch_i: DepthSketch, sketch_j: DepthSketch, j_from_i: np.ndarra
             around = sketch_j.depth[rows + dy, cols + dx]
             nearest = np.fmin(nearest, np.where(np.isfinite(around), around, np.inf))
     in_front = np.maximum(nearest - z, 0.0)
+    conflict, shared = np.quantile(in_front, [0.95, 1.0 - shared_share])
     return PairCheck(0, 0, overlap=int(len(z)), violating=int((in_front > tau_m).sum()),
-                     conflict_m=float(np.quantile(in_front, 0.95)))
+                     conflict_m=float(conflict), shared_conflict_m=float(shared))
 
 
 def revisit_pairs(poses: np.ndarray, median_depths: np.ndarray, config: ConsistencyConfig) -> list[tuple[int, int]]:
@@ -170,7 +181,7 @@ def check_pairs(sketches: list[DepthSketch], poses: np.ndarray, pairs: list[tupl
     inverse = np.linalg.inv(poses)
     for i, j in pairs:
         for a, b in ((i, j), (j, i)):
-            check = check_pair(sketches[a], sketches[b], inverse[b] @ poses[a], config.tau_m)
+            check = check_pair(sketches[a], sketches[b], inverse[b] @ poses[a], config.tau_m, config.shared_share)
             if check is not None and check.overlap >= config.min_overlap * max(1, len(sketches[a].points)):
                 checks.append(replace(check, i=a, j=b))
     return checks
