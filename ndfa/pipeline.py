@@ -26,7 +26,7 @@ from ndfa.core.geometry import transform_points
 from ndfa.ndf.encoder import EncoderConfig, NDFEncoder, ObjectCode
 from ndfa.ndf.reuse import CodeReuse, ReuseConfig
 from ndfa.perception.observations import Observation, ObservationConfig, SkippedObservation, extract_observations
-from ndfa.perception.segmentation import segment_frame
+from ndfa.perception.segmentation import PlaneTracker, segment_frame
 from ndfa.perception.segmentation_config import GATES, SegmentationConfig
 
 
@@ -81,7 +81,8 @@ class ObservedFrame:
 
 class ChangeDetectionPipeline:
     """perceive -> encode -> decide, one frame at a time. The first two are per frame and hold no
-    state (a caller may run them ahead, in other threads: `ndfa.run.detect`); `decide` feeds the
+    state but what a caller hands them for a session (its plane tracker, its recent codes; a
+    caller may run them ahead, in other threads: `ndfa.run.detect`); `decide` feeds the
     detector, in frame order. `process` is the three in a row."""
 
     def __init__(self, config: PipelineConfig = PipelineConfig(), encoder: NDFEncoder | None = None) -> None:
@@ -103,6 +104,15 @@ class ChangeDetectionPipeline:
         reuse off, `PipelineConfig.reuse`): one per session, its frames in order."""
         return CodeReuse(self.encoder, self.config.reuse) if self.config.reuse.enabled else None
 
+    def new_plane_tracker(self) -> PlaneTracker | None:
+        """What a session's pass hands to `perceive` so that a segmented frame's support planes
+        are tracked from the previous frame's (`SegmentationConfig.plane_search_every`): one per
+        session, its frames in order. None: no segmentation, or a full search in every frame."""
+        segmentation = self.segmentation
+        if segmentation is None or segmentation.plane_search_every == 1:
+            return None
+        return PlaneTracker(segmentation.plane_search_every)
+
     def process(self, session: Session, frame: Frame, detector: ChangeDetector,
                 full_reconstruction: bool = True) -> list[Event]:
         """One frame's events. full_reconstruction False (for a caller without sinks): each
@@ -111,15 +121,16 @@ class ChangeDetectionPipeline:
         `mean_occupancy` and `reconstruction_world` are then the coarse grid's."""
         return self.decide(session, self.encode(self.perceive(frame), full_reconstruction), detector)
 
-    def perceive(self, frame: Frame) -> ObservedFrame:
-        """The frame's observations: of its masks, else of its segmentation (if on)."""
+    def perceive(self, frame: Frame, tracker: PlaneTracker | None = None) -> ObservedFrame:
+        """The frame's observations: of its masks, else of its segmentation (if on); `tracker`
+        (`new_plane_tracker`, the session's frames in order): its planes tracked."""
         started = time.perf_counter()
         stage_ms = {}
         segmentation = self.segmentation
         segmented = frame.instances is None and segmentation is not None
         if segmented:
             assert segmentation is not None
-            frame = replace(frame, instances=segment_frame(frame, segmentation))
+            frame = replace(frame, instances=segment_frame(frame, segmentation, tracker))
             stage_ms["segmentation"] = (time.perf_counter() - started) * 1e3
             started = time.perf_counter()
         observations, skipped = extract_observations(frame, self.config.observation)

@@ -7,6 +7,7 @@ pass's CPU goes, the levers tried, and what grows with a recording's length.
     python studies/raw_speed.py gate RAW_TARGET.mcap [STEP]           # the objectness gate on the coarse grid only
     python studies/raw_speed.py normals RAW_TARGET.mcap [STEP]        # right_angles at fewer query points
     python studies/raw_speed.py speedup RAW_TARGET.mcap [STEP] [REV]  # segment_frame now vs at git REV: CPU, masks
+    python studies/raw_speed.py tracking TARGET.mcap [PERIOD]         # planes tracked from frame to frame vs searched
     python studies/raw_speed.py growth MASKED_DIR                     # tracemalloc over a target pass
     python studies/raw_speed.py repeat SHORT_DIR LONG_DIR TIMES       # a long recording: the frames repeated
 
@@ -28,7 +29,7 @@ from scipy.spatial import cKDTree
 
 from ndfa.io.recording import RecordingReader, RecordingWriter
 from ndfa.perception import objectness
-from ndfa.perception.segmentation import segment_frame
+from ndfa.perception.segmentation import PlaneTracker, segment_frame
 from ndfa.perception.segmentation_config import SegmentationConfig
 
 
@@ -187,6 +188,43 @@ def speedup(path: str, step: str = "4", rev: str = "7eea446") -> None:
     print(f"{len(frames)} frames: masks differ in {len(differ)} ({pixels} pixels); segments {segments[0]} -> {segments[1]}")
 
 
+def tracking(path: str, period: str = "10") -> None:
+    """Planes tracked from frame to frame (`PlaneTracker`, a full search every `period` frames)
+    against a full search in every frame: `segment_frame` on every frame (true poses), alternating,
+    process CPU per frame, the masks' differences; with a masked recording also the segmentation
+    recall of both."""
+    from ndfa.eval import segmentation as evaluation
+
+    frames = true_posed(path, 1)
+    config = SegmentationConfig()
+    trackers: dict[str, PlaneTracker | None] = {}
+    cpu: dict[str, list[float]] = {"full search": [], f"tracked, full search every {period}": []}
+    masks: dict[str, list[np.ndarray]] = {}
+    for _ in range(3):
+        for label in cpu:
+            tracker = trackers[label] = PlaneTracker(int(period)) if label != "full search" else None
+            started = time.process_time()
+            masks[label] = [segment_frame(frame, config, tracker) for frame in frames]
+            cpu[label].append((time.process_time() - started) / len(frames) * 1e3)
+    for label, values in cpu.items():
+        tracker = trackers[label]
+        searched = "" if tracker is None else f"; full searches in {tracker.searches} of {tracker.frames} frames"
+        print(f"{label}: {np.median(values):.1f} ms CPU per frame (median of 3; {min(values):.1f}-{max(values):.1f})"
+              f"{searched}")
+    old, new = masks.values()
+    differ = sum(not np.array_equal(a, b) for a, b in zip(old, new))
+    pixels = sum(int((a != b).sum()) for a, b in zip(old, new))
+    print(f"masks differ in {differ} of {len(frames)} frames ({pixels} pixels)")
+    if frames[0].instances is not None:
+        for label in cpu:  # segmentation_recall segments the frames in order: the tracker sees them so
+            tracker = PlaneTracker(int(period)) if label != "full search" else None
+            evaluation.segment_frame = lambda frame, config, t=tracker: segment_frame(frame, config, t)  # type: ignore[misc]
+            r = evaluation.segmentation_recall(frames, config)
+            print(f"{label}: recovered {r.recovered}/{r.observations} = {r.recall:.1%}, {r.segments} segments, "
+                  f"{r.spurious} spurious")
+        evaluation.segment_frame = segment_frame
+
+
 def growth(directory: str) -> None:
     from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
     from ndfa.run.detect import run_detection
@@ -230,7 +268,7 @@ def repeat(short: str, long: str, times: str) -> None:
 
 
 if __name__ == "__main__":
-    commands = {f.__name__: f for f in (segmentation, alignment, stride, gate, normals, speedup, growth, repeat)}
+    commands = {f.__name__: f for f in (segmentation, alignment, stride, gate, normals, speedup, tracking, growth, repeat)}
     if len(sys.argv) < 2 or sys.argv[1] not in commands:
         sys.exit(__doc__)
     commands[sys.argv[1]](*sys.argv[2:])

@@ -12,7 +12,9 @@ from ndfa.cli import app
 from ndfa.eval.runs import score_detection
 from ndfa.eval.segmentation import match_segments, relabel_to_truth, segmentation_recall
 from ndfa.io.recording import RecordingReader, RecordingWriter
-from ndfa.perception.segmentation import segment_frame
+from ndfa.perception.planes import Plane
+from ndfa.perception.segmentation import PlaneTracker, segment_frame
+from ndfa.perception.segmentation_config import SegmentationConfig
 from ndfa.run.detect import run_detection
 
 SAMPLE = Path(__file__).parents[1] / "recordings" / "sample"
@@ -57,6 +59,36 @@ def test_a_flat_floor_alone_gives_no_segments(sample_frames):
     depth = (1.5 + rng.normal(0, 0.003, (height, width))).astype(np.float32)
     flat = dataclasses.replace(frame, depth=depth, pose_world_camera=pose, instances=None, pose_world_camera_true=None)
     assert not segment_frame(flat).any()
+
+
+def test_tracked_planes_segment_as_the_searched_ones(sample_frames):
+    """A session's frames in order with a `PlaneTracker`: the planes are searched in the first frame
+    only (the next full search would be the 10th), and the segments are those of a full search."""
+    tracker = PlaneTracker(10)
+    searched = [segment_frame(frame) for frame in sample_frames]
+    tracked = [segment_frame(frame, SegmentationConfig(), tracker) for frame in sample_frames]
+    assert tracker.frames == len(sample_frames) >= 5 and tracker.searches == 1
+    labelled = sum(int((labels > 0).sum()) for labels in searched)
+    moved = sum(int(((a > 0) != (b > 0)).sum()) for a, b in zip(searched, tracked))
+    assert labelled > 1000 and moved <= 0.01 * labelled
+
+
+def test_a_tracked_plane_that_is_gone_brings_a_full_search(sample_frames):
+    """The previous frame's table top is not in this frame (a floor alone): the tracker searches
+    anew and finds the floor, then tracks the floor."""
+    frame = sample_frames[0]
+    height, width = frame.depth.shape
+    pose = np.eye(4)
+    pose[:3, :3] = [[1, 0, 0], [0, -1, 0], [0, 0, -1]]  # looking straight down from 1.5 m
+    pose[2, 3] = 1.5
+    depth = (1.5 + np.random.default_rng(0).normal(0, 0.003, (height, width))).astype(np.float32)
+    floor = dataclasses.replace(frame, depth=depth, pose_world_camera=pose, instances=None, pose_world_camera_true=None)
+    tracker = PlaneTracker(10)
+    tracker.previous, tracker.frames = [Plane(np.array([0.0, 0.0, 1.0]), 0.75, np.zeros(0, dtype=bool))], 1
+    segment_frame(floor, SegmentationConfig(), tracker)
+    assert tracker.searches == 1 and len(tracker.previous) == 1 and abs(tracker.previous[0].offset) < 0.01
+    segment_frame(floor, SegmentationConfig(), tracker)
+    assert tracker.searches == 1 and tracker.frames == 3 and abs(tracker.previous[0].offset) < 0.01
 
 
 def test_relabelling_keeps_matching_truth_ids_and_gives_fresh_ones_otherwise():
@@ -131,9 +163,7 @@ def test_a_walls_foot_is_no_candidate_whatever_the_worlds_heading(yaw_deg, shift
     """Regression (kitchen halves, estimated poses): the foot of the cabinets became objects, and
     "added" changes, when a tenth of a degree of levelling moved the 5 cm grid cells of the old
     tall-column test so that the foot and the sparse points above it fell in different cells."""
-    from ndfa.perception.planes import Plane
     from ndfa.perception.segmentation import _candidates
-    from ndfa.perception.segmentation_config import SegmentationConfig
 
     points, floor, foot = _wall_foot_scene(yaw_deg, shift)
     up = np.array([0.0, 0.0, 1.0])

@@ -45,7 +45,6 @@ def find_horizontal_planes(points: np.ndarray, up: np.ndarray, config: Segmentat
     """
     camera = np.full(3, np.inf) if camera is None else camera
     planes: list[Plane] = []
-    max_tilt_cos = np.cos(np.radians(config.plane_max_tilt_deg))
     # Coordinates as rows (3, N): numpy's means and products along the long axis of a (N, 3) array
     # cost several times more than along contiguous rows.
     columns = np.ascontiguousarray(points.T)
@@ -66,18 +65,8 @@ def find_horizontal_planes(points: np.ndarray, up: np.ndarray, config: Segmentat
             break
         level = grid[counts.argmax()]
         window = searchable & (np.abs(heights - level) <= config.plane_distance_m)
-        normal, offset, inliers = search_up, level, window
-        # Least squares on the inliers, then the inliers of the refitted plane; the wider second
-        # window takes in the parts of a plane that a tilted pose lifted out of the first.
-        for width in _REFIT_WINDOWS:
-            fitted = _fit_plane(np.compress(inliers, sample, axis=1), search_up)
-            if fitted is None or fitted[0] @ up < max_tilt_cos:
-                break
-            normal, offset = fitted
-            inliers = searchable & (np.abs(normal @ sample - offset) <= width * config.plane_distance_m)
-        if (inliers.sum() < min_sample_points
-                or camera @ normal - offset <= 0.0           # seen from below: nothing on it can be seen
-                or _narrow_spread(np.compress(inliers, sample, axis=1), normal) < config.min_plane_spread_m):
+        normal, offset, inliers = _refined(sample, searchable, search_up, level, window, search_up, up, config)
+        if not _acceptable(sample, inliers, normal, offset, camera, config):
             searchable &= ~(window | inliers)
             continue
         planes.append(Plane(normal, float(offset), np.abs(normal @ columns - offset) <= config.plane_distance_m))
@@ -87,6 +76,53 @@ def find_horizontal_planes(points: np.ndarray, up: np.ndarray, config: Segmentat
             order = np.argsort(heights)
         searchable &= np.abs(normal @ sample - offset) > config.band_height_m
     return _parallel(planes, columns, config) if len(planes) > 1 else planes
+
+
+def track_horizontal_planes(points: np.ndarray, previous: list[Plane], up: np.ndarray, config: SegmentationConfig,
+                            camera: np.ndarray | None = None) -> list[Plane] | None:
+    """The planes `previous` (of an earlier frame, in the same world frame) found again in these
+    points, as `find_horizontal_planes` finds a level (the inliers of its height window, refitted,
+    the same tests), without searching the heights for others; None when one of them fails a test
+    (the caller then searches in full). A plane that comes into view is found at the next full
+    search (`PlaneTracker`)."""
+    camera = np.full(3, np.inf) if camera is None else camera
+    columns = np.ascontiguousarray(points.T)
+    sample = np.ascontiguousarray(columns[:, ::_THIN])
+    searchable = np.ones(sample.shape[1], dtype=bool)
+    planes: list[Plane] = []
+    for plane in previous:
+        window = searchable & (np.abs(plane.normal @ sample - plane.offset) <= config.plane_distance_m)
+        normal, offset, inliers = _refined(sample, searchable, plane.normal, plane.offset, window, up, up, config)
+        if not _acceptable(sample, inliers, normal, offset, camera, config):
+            return None
+        planes.append(Plane(normal, float(offset), np.abs(normal @ columns - offset) <= config.plane_distance_m))
+        searchable &= np.abs(normal @ sample - offset) > config.band_height_m
+    return _parallel(planes, columns, config) if len(planes) > 1 else planes
+
+
+def _refined(sample: np.ndarray, searchable: np.ndarray, normal: np.ndarray, offset: float, inliers: np.ndarray,
+             search_up: np.ndarray, up: np.ndarray, config: SegmentationConfig
+             ) -> tuple[np.ndarray, float, np.ndarray]:
+    """A level's plane (normal, offset, its inliers among the `searchable` points of `sample`, as
+    rows (3, N)) refitted: least squares on the inliers, then the inliers of the refitted plane; the
+    wider second window takes in the parts of a plane that a tilted pose lifted out of the first.
+    A fit tilted more than `plane_max_tilt_deg` from `up` ends the refits."""
+    max_tilt_cos = np.cos(np.radians(config.plane_max_tilt_deg))
+    for width in _REFIT_WINDOWS:
+        fitted = _fit_plane(np.compress(inliers, sample, axis=1), search_up)
+        if fitted is None or fitted[0] @ up < max_tilt_cos:
+            break
+        normal, offset = fitted
+        inliers = searchable & (np.abs(normal @ sample - offset) <= width * config.plane_distance_m)
+    return normal, offset, inliers
+
+
+def _acceptable(sample: np.ndarray, inliers: np.ndarray, normal: np.ndarray, offset: float, camera: np.ndarray,
+                config: SegmentationConfig) -> bool:
+    """Whether a refitted level is a support plane: enough inliers, seen from above (nothing on a
+    plane seen from below can be seen), not a strip."""
+    return not (inliers.sum() < config.min_plane_points / _THIN or camera @ normal - offset <= 0.0
+                or _narrow_spread(np.compress(inliers, sample, axis=1), normal) < config.min_plane_spread_m)
 
 
 def _parallel(planes: list[Plane], columns: np.ndarray, config: SegmentationConfig) -> list[Plane]:

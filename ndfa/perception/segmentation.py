@@ -59,7 +59,7 @@ from ndfa.core import conventions
 from ndfa.core.frame import Frame
 from ndfa.perception.dbscan import dbscan
 from ndfa.perception.objectness import ClusterShape, cluster_shape, judge
-from ndfa.perception.planes import Plane, find_horizontal_planes, plane_axes
+from ndfa.perception.planes import Plane, find_horizontal_planes, plane_axes, track_horizontal_planes
 from ndfa.perception.segmentation_config import SegmentationConfig
 from ndfa.perception.split import split_in_two
 
@@ -77,12 +77,40 @@ class ClusterVerdict:
     split: bool = False
 
 
-def segment_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig()) -> np.ndarray:
-    """The frame's object instances as a (H, W) uint16 image: labels 1..N, 0 = no object."""
-    return explain_frame(frame, config)[0]
+class PlaneTracker:
+    """A session's support planes carried from frame to frame (its frames in order; one tracker
+    per session, as its poses share one world frame): a full search of the heights every
+    `search_every` frames and wherever a tracked plane fails, else the previous frame's planes
+    refitted (`SegmentationConfig.plane_search_every`; docs/speed.md, seg31). `searches`: the
+    frames searched in full, of `frames`."""
+
+    def __init__(self, search_every: int) -> None:
+        self.search_every = search_every
+        self.previous: list[Plane] = []
+        self.frames = 0
+        self.searches = 0
+
+    def planes(self, points: np.ndarray, up: np.ndarray, config: SegmentationConfig, camera: np.ndarray) -> list[Plane]:
+        """The frame's planes (`find_horizontal_planes`' arguments)."""
+        found = None
+        if self.previous and self.frames % self.search_every:
+            found = track_horizontal_planes(points, self.previous, up, config, camera)
+        if found is None:
+            self.searches += 1
+            found = find_horizontal_planes(points, up, config, camera=camera)
+        self.frames += 1
+        self.previous = found
+        return found
 
 
-def explain_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig()
+def segment_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig(),
+                  tracker: PlaneTracker | None = None) -> np.ndarray:
+    """The frame's object instances as a (H, W) uint16 image: labels 1..N, 0 = no object.
+    `tracker`: the session's `PlaneTracker` (None: the planes searched in full)."""
+    return explain_frame(frame, config, tracker)[0]
+
+
+def explain_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig(), tracker: PlaneTracker | None = None
                   ) -> tuple[np.ndarray, list[ClusterVerdict]]:
     """`segment_frame`'s labels, and a verdict for every cluster of at least `min_cluster_points`
     (why the others were not kept: for studies such as studies/segmentation_study.py)."""
@@ -101,7 +129,9 @@ def explain_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig(
         return labels, verdicts
     points = _world_points(frame, rows, cols, depths)
 
-    planes = find_horizontal_planes(points, up, config, camera=frame.pose_world_camera[:3, 3])
+    camera = frame.pose_world_camera[:3, 3]
+    planes = (find_horizontal_planes(points, up, config, camera=camera) if tracker is None
+              else tracker.planes(points, up, config, camera))
     if not planes:
         return labels, verdicts
     up = planes[0].normal  # the planes' common normal: it corrects a slightly tilted pose

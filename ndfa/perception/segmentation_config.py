@@ -78,6 +78,13 @@ class SegmentationConfig:
         depth (a Kinect v1 has none in its last 8 columns: a mug cut there looked whole). 0: off.
     objectness: the mug-likeness gate applied after the size filters (`ndfa.perception.objectness`):
         on real tables most clusters are clutter (magazines, counter edges, chair backs). None: off.
+    plane_search_every: with a `ndfa.perception.segmentation.PlaneTracker` (a session's frames in
+        order: `ndfa.pipeline.ChangeDetectionPipeline.new_plane_tracker`), the support planes'
+        heights are searched in full every this many frames, and in any frame where one of the
+        previous frame's planes, refitted to its points, fails the plane tests; between, those
+        refitted planes are the frame's (`ndfa.perception.planes.track_horizontal_planes`; a
+        plane coming into view waits for the next full search). 1: a full search in every frame.
+        Without a tracker (`segment_frame` alone) every frame is searched in full.
     split_max_length_m: a cluster the gate finds too long, with a footprint up to this long, is
         split in two by 2-means on its footprint (`ndfa.perception.split`: two mugs closer than
         `dbscan_eps_m` form one cluster); the halves are kept if both pass the gate. 0 (default):
@@ -118,6 +125,7 @@ class SegmentationConfig:
     image_margin_px: int = 4
     objectness: ObjectnessConfig | None = field(default_factory=ObjectnessConfig)
     split_max_length_m: float = 0.0
+    plane_search_every: int = 10
 
     def for_objects(self) -> SegmentationConfig:
         """These settings with the gate for objects of every category (`ObjectnessConfig.objects`)
@@ -130,5 +138,7 @@ class SegmentationConfig:
     def __post_init__(self) -> None:
         if self.stride is not None and self.stride < 1:
             raise ValueError(f"stride must be >= 1, got {self.stride}")
+        if self.plane_search_every < 1:
+            raise ValueError(f"plane_search_every must be >= 1, got {self.plane_search_every}")
         if not self.min_height_m < self.max_object_height_m < self.band_height_m:
             raise ValueError("need min_height_m < max_object_height_m < band_height_m")

@@ -16,6 +16,7 @@ from ndfa.core.events import SESSIONS, DecisionEvent, Event, FrameEvent, Observa
 from ndfa.core.frame import Frame
 from ndfa.io.recording import INSTANCES, RecordingReader
 from ndfa.io.recording.prefetch import prefetched
+from ndfa.perception.segmentation import PlaneTracker
 from ndfa.pipeline import ChangeDetectionPipeline, ObservedFrame
 from ndfa.run.align import RegistrationMode
 from ndfa.run.cloud_align import AlignConfig
@@ -90,17 +91,21 @@ def staged(pipeline: ChangeDetectionPipeline, frames: Iterator[Frame], world: Se
     """The frames read, perceived and encoded for `pipeline.decide`, in frame order. `overlap`:
     reading and perception run ahead in one thread, encoding in another
     (`ndfa.io.recording.prefetch`), while the caller decides. The stages hold no state (but the
-    session's recent codes, with `PipelineConfig.reuse`) and the detector sees the frames in
-    order, so the events are those of `pipeline.process`; the NDF's
+    session's plane tracker, `SegmentationConfig.plane_search_every`, and its recent codes, with
+    `PipelineConfig.reuse`) and the detector sees the frames in order, so the events are those of
+    `pipeline.process` (whose planes are searched in full in every frame) but for the tracked
+    planes; the NDF's
     runtime and much of numpy's work release the GIL, so on two cores the stages run at the same
     time (docs/speed.md)."""
     depth = 4 if overlap else 0
-    perceived = prefetched(_perceived(pipeline, frames, world), depth)
+    tracker = pipeline.new_plane_tracker()  # this session's; the perception stage is one thread, in frame order
+    perceived = prefetched(_perceived(pipeline, frames, world, tracker), depth)
     reuse = pipeline.new_code_reuse()  # this session's (`PipelineConfig.reuse`); the encoding stage is one thread, in frame order
     return prefetched((pipeline.encode(observed, full_reconstruction, reuse) for observed in perceived), depth)
 
 
-def _perceived(pipeline: ChangeDetectionPipeline, frames: Iterator[Frame], world: SessionWorld) -> Iterator[ObservedFrame]:
+def _perceived(pipeline: ChangeDetectionPipeline, frames: Iterator[Frame], world: SessionWorld,
+               tracker: PlaneTracker | None = None) -> Iterator[ObservedFrame]:
     """Each frame perceived, its stage timings led by "reading" (the reader's work for it:
     decompressing, decoding)."""
     while True:
@@ -109,7 +114,7 @@ def _perceived(pipeline: ChangeDetectionPipeline, frames: Iterator[Frame], world
         if frame is None:
             return
         reading_ms = (time.perf_counter() - started) * 1e3
-        observed = pipeline.perceive(world.apply(frame))
+        observed = pipeline.perceive(world.apply(frame), tracker)
         yield replace(observed, stage_ms={"reading": reading_ms} | observed.stage_ms)
 
 
