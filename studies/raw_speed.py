@@ -171,16 +171,23 @@ def speedup(path: str, step: str = "4", rev: str = "7eea446") -> None:
     sys.path.insert(0, str(package.parent))
     before = importlib.import_module("before_perception.segmentation")
     frames = true_posed(path, int(step))
-    runs = {f"before ({rev})": lambda f: before.segment_frame(f), "now": lambda f: segment_frame(f)}
+    runs = {f"before ({rev})": lambda f, _: before.segment_frame(f), "now": lambda f, _: segment_frame(f)}
+    if step == "1":  # consecutive frames: also as a session's pass segments them, its planes tracked
+        runs["now, planes tracked"] = lambda f, tracker: segment_frame(f, SegmentationConfig(), tracker)
     cpu: dict[str, list[float]] = {label: [] for label in runs}
     masks: dict[str, list[np.ndarray]] = {}
-    for _ in range(3):  # alternating: both see the same load
+    for _ in range(3):  # alternating: all see the same load
         for label, run in runs.items():
+            tracker = PlaneTracker(SegmentationConfig().plane_search_every)
             started = time.process_time()
-            masks[label] = [run(frame) for frame in frames]
+            masks[label] = [run(frame, tracker) for frame in frames]
             cpu[label].append((time.process_time() - started) / len(frames) * 1e3)
     for label, values in cpu.items():
         print(f"{label}: {np.median(values):.1f} ms CPU per frame (median of 3; {min(values):.1f}-{max(values):.1f})")
+    if "now, planes tracked" in masks:
+        tracked = masks.pop("now, planes tracked")
+        moved = sum(not np.array_equal(a, b) for a, b in zip(masks["now"], tracked))
+        print(f"planes tracked: masks differ from the full search's in {moved} of {len(frames)} frames")
     old, new = masks.values()
     differ = [i for i, (a, b) in enumerate(zip(old, new)) if not np.array_equal(a, b)]
     pixels = sum(int((a != b).sum()) for a, b in zip(old, new))
@@ -218,11 +225,11 @@ def tracking(path: str, period: str = "10") -> None:
     if frames[0].instances is not None:
         for label in cpu:  # segmentation_recall segments the frames in order: the tracker sees them so
             tracker = PlaneTracker(int(period)) if label != "full search" else None
-            evaluation.segment_frame = lambda frame, config, t=tracker: segment_frame(frame, config, t)  # type: ignore[misc]
+            setattr(evaluation, "segment_frame", lambda frame, config, t=tracker: segment_frame(frame, config, t))
             r = evaluation.segmentation_recall(frames, config)
             print(f"{label}: recovered {r.recovered}/{r.observations} = {r.recall:.1%}, {r.segments} segments, "
                   f"{r.spurious} spurious")
-        evaluation.segment_frame = segment_frame
+        setattr(evaluation, "segment_frame", segment_frame)
 
 
 def growth(directory: str) -> None:
