@@ -172,13 +172,13 @@ def speedup(path: str, step: str = "4", rev: str = "7eea446") -> None:
     before = importlib.import_module("before_perception.segmentation")
     frames = true_posed(path, int(step))
     runs = {f"before ({rev})": lambda f, _: before.segment_frame(f), "now": lambda f, _: segment_frame(f)}
-    if step == "1":  # consecutive frames: also as a session's pass segments them, its planes tracked
+    if step == "1":  # consecutive frames: also with the planes tracked (PlaneTracker, a full search every 10)
         runs["now, planes tracked"] = lambda f, tracker: segment_frame(f, SegmentationConfig(), tracker)
     cpu: dict[str, list[float]] = {label: [] for label in runs}
     masks: dict[str, list[np.ndarray]] = {}
     for _ in range(3):  # alternating: all see the same load
         for label, run in runs.items():
-            tracker = PlaneTracker(SegmentationConfig().plane_search_every)
+            tracker = PlaneTracker(10)
             started = time.process_time()
             masks[label] = [run(frame, tracker) for frame in frames]
             cpu[label].append((time.process_time() - started) / len(frames) * 1e3)

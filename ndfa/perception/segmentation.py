@@ -10,7 +10,9 @@ rest with DBSCAN; this is that, for one frame at a time:
    rather than random: the height window of `plane_distance_m` holding the most points wins, its inliers are refitted by least
    squares (which absorbs a tilt of the pose up to `plane_max_tilt_deg`), and the search repeats
    away from the accepted planes while a level holds enough points. Floor and table tops are
-   both found; at the end all planes take the normal of the widest one.
+   both found; at the end all planes take the normal of the widest one. With `plane_search_every`
+   above 1, a session's pass (`PlaneTracker`) refits the previous frame's planes instead, and
+   searches the heights in full every so many frames or where a refitted plane fails the tests.
 3. Candidates: points above a support plane by more than `min_height_m` and at most
    `band_height_m`, whose horizontal position lies over (or within `footprint_margin_m` of) that
    plane's own inliers, and with no point higher than `max_object_height_m` within

@@ -83,8 +83,10 @@ class SegmentationConfig:
         heights are searched in full every this many frames, and in any frame where one of the
         previous frame's planes, refitted to its points, fails the plane tests; between, those
         refitted planes are the frame's (`ndfa.perception.planes.track_horizontal_planes`; a
-        plane coming into view waits for the next full search). 1: a full search in every frame.
-        Without a tracker (`segment_frame` alone) every frame is searched in full.
+        plane coming into view waits for the next full search). 1 (default): a full search in
+        every frame. Off because at 10 it cost 2 false changes on `paper --raw --textures` (TP 12 /
+        FP 1 -> 3, in a cluster of close mugs) for 11-19 % of the segmentation's CPU (docs/speed.md,
+        seg31). Without a tracker (`segment_frame` alone) every frame is searched in full.
     split_max_length_m: a cluster the gate finds too long, with a footprint up to this long, is
         split in two by 2-means on its footprint (`ndfa.perception.split`: two mugs closer than
         `dbscan_eps_m` form one cluster); the halves are kept if both pass the gate. 0 (default):
@@ -125,7 +127,7 @@ class SegmentationConfig:
     image_margin_px: int = 4
     objectness: ObjectnessConfig | None = field(default_factory=ObjectnessConfig)
     split_max_length_m: float = 0.0
-    plane_search_every: int = 10
+    plane_search_every: int = 1
 
     def for_objects(self) -> SegmentationConfig:
         """These settings with the gate for objects of every category (`ObjectnessConfig.objects`)
