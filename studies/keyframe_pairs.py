@@ -4,7 +4,9 @@ true ATE, the pose-quality verdict without truth, CPU ms per frame (odometry + t
 
     .venv/bin/python studies/keyframe_pairs.py [--only=off,cap3] REC [REC ...]
 
-Variants: off (pairs off), cap3 (pairs on, 3 per keyframe), cap3v3 (the same on 3 cm points).
+Variants: off (pairs off), default (the tree's: only where the loops measured drift, 0.1 pairs per
+frame, 3 cm points), cap3 (every keyframe with its 3 nearest, 2 cm points, whatever the loops say: the
+pass as odo30 measured it), cap3v3 (the same on 3 cm points).
 """
 from __future__ import annotations
 
@@ -23,8 +25,9 @@ from ndfa.trajectory.quality import gather_evidence, judge
 from ndfa.trajectory.rgbd import RgbdOdometry
 from ndfa.trajectory.session import rgbd_config_for
 
-VARIANTS = {"off": dict(keyframe_pairs=False, pair_candidates=0), "cap3": dict(keyframe_pairs=True, pair_candidates=3),
-            "cap3v3": dict(keyframe_pairs=True, pair_candidates=3, pair_voxel_m=0.03)}
+ALWAYS = dict(keyframe_pairs=True, pair_min_drift=0.0, pairs_per_frame=0.0, pair_candidates=3)
+VARIANTS = {"off": dict(keyframe_pairs=False), "default": {}, "cap3": dict(ALWAYS, pair_voxel_m=0.02),
+            "cap3v3": dict(ALWAYS, pair_voxel_m=0.03)}
 
 
 def run(path: str) -> None:

@@ -37,17 +37,32 @@ def sees_every_direction(view: View, config: RgbdOdometryConfig) -> bool:
     return depth_degeneracy(view.unseen_information, view.median_depth_m) >= config.unseen_ratio
 
 
+def loop_drift(odometry: list[np.ndarray], travelled_m: list[float], edges: list[PoseEdge]) -> float | None:
+    """The median over the loop `edges` of how far each disagrees with the `odometry` poses
+    (translation, metres) per metre travelled between its two keyframes (`travelled_m`, from the
+    first); None without a loop edge."""
+    rates = []
+    for edge in edges:
+        if edge.loop:
+            chained = np.linalg.inv(odometry[edge.target]) @ odometry[edge.source]
+            residual = float(np.linalg.norm((np.linalg.inv(edge.target_from_source) @ chained)[:3, 3]))
+            rates.append(residual / max(abs(travelled_m[edge.source] - travelled_m[edge.target]), 1e-6))
+    return float(np.median(rates)) if rates else None
+
+
 def keyframe_pair_edges(views: list[View], poses: list[np.ndarray], edges: list[PoseEdge],
-                        config: RgbdOdometryConfig) -> list[PoseEdge]:
+                        config: RgbdOdometryConfig, travelled_m: list[float] | None = None,
+                        frames: int = 0) -> list[PoseEdge]:
     """Loop edges between the keyframes (`views`, their loop-closed `poses`, first camera's frame)
     that look at the same place (view centres within `loop_radius_m`, axes within
     `loop_angle_deg`), are not already joined by one of `edges`, and whose depth sees every
-    direction; each registered by point-to-plane from the relative pose the graph gives them."""
+    direction; each registered by coloured ICP from the relative pose the graph gives them. With
+    `travelled_m` (each keyframe's path length) and `frames` (the session's), at most
+    `pairs_per_frame` per frame, the pairs that span the longest path first."""
     joined = {(min(edge.source, edge.target), max(edge.source, edge.target)) for edge in edges}
     pinned = [sees_every_direction(view, config) for view in views]
     centres = [pose[:3, 3] + view.median_depth_m * pose[:3, 2] for view, pose in zip(views, poses, strict=True)]
-    added: list[PoseEdge] = []
-    clouds: dict[int, object] = {}  # by keyframe, built when a pair first needs it
+    pairs: list[tuple[int, int]] = []
     for new in range(len(views)):
         candidates = []
         for old in range(new - 1):
@@ -58,11 +73,18 @@ def keyframe_pair_edges(views: list[View], poses: list[np.ndarray], edges: list[
             if distance <= config.loop_radius_m and math.degrees(math.acos(axes)) <= config.loop_angle_deg:
                 candidates.append((distance, old))
         # The nearest views first: they overlap most; a cap keeps the pass linear in the keyframes.
-        for _, old in sorted(candidates)[:config.pair_candidates or None]:
-            initial = np.linalg.inv(poses[old]) @ poses[new]
-            edge = _register_pair(views, new, old, initial, config, clouds)
-            if edge is not None and np.linalg.norm(edge.target_from_source[:3, 3] - initial[:3, 3]) <= config.pair_max_correction_m:
-                added.append(edge)
+        pairs.extend((new, old) for _, old in sorted(candidates)[:config.pair_candidates or None])
+    if travelled_m is not None and frames and config.pairs_per_frame:
+        # The longest spans first: the chain's drift between them is the largest.
+        pairs.sort(key=lambda pair: -(travelled_m[pair[0]] - travelled_m[pair[1]]))
+        pairs = pairs[:max(1, int(config.pairs_per_frame * frames))]
+    added: list[PoseEdge] = []
+    clouds: dict[int, object] = {}  # by keyframe, built when a pair first needs it
+    for new, old in pairs:
+        initial = np.linalg.inv(poses[old]) @ poses[new]
+        edge = _register_pair(views, new, old, initial, config, clouds)
+        if edge is not None and np.linalg.norm(edge.target_from_source[:3, 3] - initial[:3, 3]) <= config.pair_max_correction_m:
+            added.append(edge)
     return added
 
 
@@ -113,10 +135,16 @@ def _cloud(view: View, voxel_m: float) -> object:
 
 
 def refine_with_keyframe_pairs(views: list[View], poses: list[np.ndarray], edges: list[PoseEdge],
-                               config: RgbdOdometryConfig) -> list[np.ndarray]:
+                               config: RgbdOdometryConfig, odometry: list[np.ndarray] | None = None,
+                               travelled_m: list[float] | None = None, frames: int = 0) -> list[np.ndarray]:
     """The keyframes' poses after the graph of `edges` and the pairs' edges is optimised from the
-    loop-closed `poses` (unchanged when no pair qualifies)."""
-    added = keyframe_pair_edges(views, poses, edges, config)
+    loop-closed `poses` (unchanged when no pair qualifies, or when the loops measured less drift
+    of the `odometry` poses than `pair_min_drift`; `travelled_m`: each keyframe's path length)."""
+    if config.pair_min_drift > 0.0:
+        drift = None if odometry is None or travelled_m is None else loop_drift(odometry, travelled_m, edges)
+        if drift is None or drift < config.pair_min_drift:
+            return [np.array(pose, dtype=float) for pose in poses]
+    added = keyframe_pair_edges(views, poses, edges, config, travelled_m, frames)
     if not added:
         return [np.array(pose, dtype=float) for pose in poses]
     graph = PoseGraphConfig(max_correspondence_distance_m=config.loop_max_correction_m)

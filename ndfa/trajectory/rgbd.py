@@ -35,8 +35,8 @@ Per frame:
    edge (pose_graph.py). Features need no guess, so loops are found however far the odometry
    drifted.
 
-`finish()` optimises the keyframe graph (opt-in: then again with every other pair of keyframes that
-look at the same place, keyframe_pairs.py) and returns every frame's pose: a non-keyframe keeps its
+`finish()` optimises the keyframe graph (where the loops measured drift, then again with more pairs of
+keyframes that look at the same place, keyframe_pairs.py) and returns every frame's pose: a non-keyframe keeps its
 pose relative to its keyframe, so it follows the keyframe's correction. Callers that write each
 frame as it comes can use `update`'s poses, the odometry alone (the importers instead write first
 and replace the poses with the whole-session estimate: rewrite.py).
@@ -163,7 +163,9 @@ class RgbdOdometry:
             corrected = optimize_pose_graph(odometry, self.edges, graph)
         if self.config.loop_closure and self.config.keyframe_pairs:
             views = [keyframe.view for keyframe in self.keyframes]
-            corrected = refine_with_keyframe_pairs(views, corrected, self.edges, self.config)
+            corrected = refine_with_keyframe_pairs(views, corrected, self.edges, self.config, odometry,
+                                                   [keyframe.travelled_m for keyframe in self.keyframes],
+                                                   len(self._poses))
         poses = []
         for pose, keyframe in zip(self._poses, self._keyframe_of):
             if keyframe >= 0:

@@ -50,13 +50,20 @@ class RgbdOdometryConfig:
         dense overlap, without).
     loop_max_correction_m: and a loop that corrects the estimate by more than this is refused.
     loop_candidates: at most this many candidates (the nearest) are registered per keyframe.
-    keyframe_pairs: after loop closure, register every pair of keyframes that look at the same
-        place (as a loop candidate) and whose depth sees every direction, and optimise the graph
-        again (`ndfa.trajectory.keyframe_pairs`). Opt-in: the 7-Scenes kitchen 3.71 -> 3.05 cm,
-        but 1.5-2.6x the CPU time per frame (docs/odometry.md); a pair that moves more than
-        `pair_max_correction_m` from where the loop-closed graph puts it is left out.
+    keyframe_pairs: after loop closure, register pairs of keyframes that look at the same place
+        (as a loop candidate) and whose depth sees every direction, and optimise the graph again
+        (`ndfa.trajectory.keyframe_pairs`); only where the loops measured the chain's drift at
+        `pair_min_drift` or more (docs/odometry.md, "Pairs where the loops measured drift").
+        A pair that moves more than `pair_max_correction_m` from where the loop-closed graph puts
+        it is left out.
+    pair_min_drift: the pass runs only when the median loop edge's residual before optimisation
+        (translation, metres) per metre travelled between its keyframes is at least this; a
+        session without a loop is left as it is. 0: always.
     pair_candidates: each keyframe is paired with at most this many older ones, the nearest view
         centres first (0: every one that qualifies).
+    pairs_per_frame: at most this many pairs per frame of the session are registered, those that
+        span the longest path first, so that the pass's time grows with the frames, not the
+        keyframes (0: every candidate).
     pair_voxel_m, pair_iterations: the pairs' coloured ICP runs on points thinned to one per
         `pair_voxel_m` cube, pairs within twice that, for at most `pair_iterations` iterations.
     anchor_to_first_pose: start the estimate at the first frame's given pose (see kiss.py).
@@ -132,10 +139,12 @@ class RgbdOdometryConfig:
     loop_min_inliers: int = 40
     loop_max_correction_m: float = 1.0
     loop_candidates: int = 2
-    keyframe_pairs: bool = False
+    keyframe_pairs: bool = True
     pair_max_correction_m: float = 0.1
-    pair_candidates: int = 0
-    pair_voxel_m: float = 0.02
+    pair_min_drift: float = 0.01
+    pair_candidates: int = 3
+    pairs_per_frame: float = 0.1
+    pair_voxel_m: float = 0.03
     pair_iterations: int = 30
     anchor_to_first_pose: bool = True
     features: FeatureConfig | None = field(default_factory=FeatureConfig)
