@@ -7,6 +7,7 @@ pass's CPU goes, the levers tried, and what grows with a recording's length.
     python studies/raw_speed.py gate RAW_TARGET.mcap [STEP]           # the objectness gate on the coarse grid only
     python studies/raw_speed.py normals RAW_TARGET.mcap [STEP]        # right_angles at fewer query points
     python studies/raw_speed.py speedup RAW_TARGET.mcap [STEP] [REV]  # segment_frame now vs at git REV: CPU, masks
+    python studies/raw_speed.py stages RAW_TARGET.mcap [STEP]         # segment_frame's CPU by function
     python studies/raw_speed.py tracking TARGET.mcap [PERIOD]         # planes tracked from frame to frame vs searched
     python studies/raw_speed.py growth MASKED_DIR                     # tracemalloc over a target pass
     python studies/raw_speed.py repeat SHORT_DIR LONG_DIR TIMES       # a long recording: the frames repeated
@@ -195,6 +196,43 @@ def speedup(path: str, step: str = "4", rev: str = "7eea446") -> None:
     print(f"{len(frames)} frames: masks differ in {len(differ)} ({pixels} pixels); segments {segments[0]} -> {segments[1]}")
 
 
+def stages(path: str, step: str = "4") -> None:
+    """`segment_frame`'s process CPU by function (each wrapped in a timer; nested ones count in
+    their callers too), on the recording's true poses."""
+    from collections import defaultdict
+
+    from ndfa.perception import objectness as gate
+    from ndfa.perception import segmentation as module
+
+    spent: dict[str, float] = defaultdict(float)
+
+    def timed(owner: object, name: str) -> None:
+        function = getattr(owner, name)
+
+        def wrapper(*args: object, **kwargs: object) -> object:
+            started = time.process_time()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                spent[name] += time.process_time() - started
+
+        setattr(owner, name, wrapper)
+
+    for name in ("find_horizontal_planes", "_candidates", "_under_tall", "dbscan", "_kept_clusters", "_hidden_above",
+                 "_fill", "_world_points"):
+        timed(module, name)
+    for name in ("right_angles", "lean"):
+        timed(gate, name)
+    frames = true_posed(path, int(step))
+    started = time.process_time()
+    for frame in frames:
+        module.segment_frame(frame)
+    total = time.process_time() - started
+    print(f"{len(frames)} frames, {total / len(frames) * 1e3:.1f} ms CPU per frame (timed)")
+    for name, seconds in sorted(spent.items(), key=lambda item: -item[1]):
+        print(f"  {name}: {seconds / len(frames) * 1e3:.2f} ms ({seconds / total:.0%})")
+
+
 def tracking(path: str, period: str = "10") -> None:
     """Planes tracked from frame to frame (`PlaneTracker`, a full search every `period` frames)
     against a full search in every frame: `segment_frame` on every frame (true poses), alternating,
@@ -275,7 +313,7 @@ def repeat(short: str, long: str, times: str) -> None:
 
 
 if __name__ == "__main__":
-    commands = {f.__name__: f for f in (segmentation, alignment, stride, gate, normals, speedup, tracking, growth, repeat)}
+    commands = {f.__name__: f for f in (segmentation, alignment, stride, gate, normals, speedup, stages, tracking, growth, repeat)}
     if len(sys.argv) < 2 or sys.argv[1] not in commands:
         sys.exit(__doc__)
     commands[sys.argv[1]](*sys.argv[2:])
