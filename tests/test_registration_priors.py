@@ -143,6 +143,28 @@ def test_a_prior_the_objects_do_not_support_never_vetoes_a_ransac_fit_of_many_ob
         np.testing.assert_allclose(detector.registration.transform, np.linalg.inv(offset), atol=0.02)
 
 
+def test_a_scene_alignment_whose_upright_surfaces_do_not_overlap_binds_no_ransac_fit():
+    """Random seed 1 raw: the room matched itself turned half a turn, 0.60 overall (its floor) but
+    0.46 upright, and as a binding prior it vetoed the object pairs' fit of 13 inliers."""
+    from ndfa.run.align import SceneAlignment, unbind_without_upright_overlap
+    from ndfa.run.scene_evidence import OwnEvidence
+
+    def alignment(method, upright_fitness: float) -> SceneAlignment:
+        evidence = OwnEvidence(False, "the upright surfaces overlap too little", upright_fitness, 0.03)
+        found = SceneAlignment(method, True, np.eye(4), 0.60, 0.03, (100, 100), 1.0, "FPFH + RANSAC", binding=True,
+                               evidence=evidence)
+        unbind_without_upright_overlap(found)
+        return found
+
+    turned_room = alignment("scene alignment", 0.46)
+    prior = turned_room.prior()
+    assert prior is not None and not prior.binding and not prior.standalone
+    assert "upright surfaces overlap below 0.5" in turned_room.reason
+    assert alignment("scene alignment", 0.75).prior().binding                      # upright overlap: it binds
+    assert alignment("shared world", 0.46).prior().binding                         # its own check asked it
+    assert alignment("scene alignment", float("nan")).prior().binding is False     # nothing upright to judge
+
+
 @pytest.mark.slow
 def test_the_papers_path_takes_no_prior_and_its_run_offers_none(tmp_path):
     from typer.testing import CliRunner

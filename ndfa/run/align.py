@@ -116,8 +116,23 @@ def registration_prior(source: RecordingReader, target: RecordingReader, worlds:
         # (given poses in different worlds can overlap that much by chance); its own evidence asks
         # what a found alignment must show, halves aligned from scratch and no rival included.
         result.evidence = own_evidence(source_cloud, target_cloud, result.transform, config)
+        unbind_without_upright_overlap(result)
     result.seconds = time.perf_counter() - started
     return result
+
+
+def unbind_without_upright_overlap(alignment: SceneAlignment) -> None:
+    """A found scene alignment binds RANSAC's fits (`binding`, from its overall fitness) only where
+    its upright surfaces overlap too: floors and table tops coincide under any turn or shift of
+    levelled worlds, so a rectangular room turned half a turn still overlaps 0.6 overall (random
+    seed 1 raw: upright 0.46, and it vetoed an object-pair fit of 13 inliers; docs/registration.md).
+    A shared world's own check already asks its upright surfaces (`check_shared_world`)."""
+    evidence = alignment.evidence
+    if alignment.method == "scene alignment" and alignment.binding and evidence is not None \
+            and not evidence.upright_overlap:
+        alignment.binding = False
+        alignment.reason += (f" (its upright surfaces overlap below {evidence.config.min_fitness}: "
+                             "RANSAC's fits need not agree with it)")
 
 
 def shared_world_transform(source: SessionWorld, target: SessionWorld) -> np.ndarray:

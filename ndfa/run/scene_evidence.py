@@ -82,6 +82,11 @@ class OwnEvidence:
     rival_fitness: float = float("nan")  # the best upright overlap of the alignment turned or shifted
     config: SceneEvidenceConfig = field(default_factory=SceneEvidenceConfig)
 
+    @property
+    def upright_overlap(self) -> bool:
+        """Whether the upright surfaces overlap by the first bar (`min_fitness`), whatever the rest."""
+        return bool(np.isfinite(self.upright_fitness) and self.upright_fitness >= self.config.min_fitness)
+
     def describe(self) -> str:
         """One line with every figure measured."""
         parts = [f"upright fitness {self.upright_fitness:.2f}"]
