@@ -66,6 +66,8 @@ def table(rows: list[dict]) -> None:
               f"{_f(e['revisit_conflict_cm'])} | {_f(e.get('revisit_local_conflict_cm'))} | {_f(e['neighbour_conflict_cm'])} | "
               f"{_f(e['step_conflict_cm'])} | {e['jumps']} | {_f(e.get('backward_disagreement_cm'), 2)} |")
     errors = [error if np.isfinite(error) else np.inf for error, _ in rejudged]
+    if len(rows) < 3:
+        return
     rho = spearmanr([row["ate_cm"] for row in rows], errors).statistic
     print(f"\n{len(rows)} sessions; Spearman rank correlation of the estimated error with the true ATE: {rho:.3f}")
     good = [k for k, (_, verdict) in enumerate(rejudged) if verdict == "good"]

@@ -94,6 +94,9 @@ def test_one_surface_disagreeing_alone_is_not_a_pose_error():
     assert screen.revisit_local_conflict_cm > 2.0 and drift.revisit_local_conflict_cm > 2.0
     assert screen.revisit_conflict_cm < 0.5 < 10.0 < drift.revisit_conflict_cm
     assert judge(screen).verdict == GOOD and judge(drift).verdict == DOUBTFUL
+    # But surfaces decimetres deep in space seen empty, however few, are a doubled wall or worse.
+    doubled = judge(dataclasses.replace(screen, revisit_local_conflict_cm=36.0))
+    assert doubled.verdict == DOUBTFUL and doubled.error_cm < 10.0 and "doubled surface" in doubled.describe()
 
 
 @pytest.mark.parametrize("towards", [0.3, -0.3])

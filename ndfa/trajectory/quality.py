@@ -196,6 +196,11 @@ class QualityThresholds:
         wrong the same way either way (the simulator's sessions: a scale 0.2-0.7 % too large, the
         true error 2.6-5 times the disagreement), and not much else on the 7-Scenes kitchen (about
         1 time): 2 ranks the calibration's sessions best while the kitchen stays good.
+    max_local_conflict_cm: revisits whose deepest 5 % reach this deep on average
+        (`PoseEvidence.revisit_local_conflict_cm`) make the poses doubtful at best: some surfaces
+        stand decimetres into space seen empty, a doubled wall where a drift stayed local (the
+        paper's raw source without loop closure: 35.7 cm at ATE 6.4 cm, its shared conflict 0.2 cm)
+        or many screens' reflections (the right office sessions: up to 8.4 cm).
     """
 
     doubtful_cm: float = 10.0
@@ -203,6 +208,7 @@ class QualityThresholds:
     min_pairs: int = 10
     max_unseen_run: int = 5
     backward_factor: float = 2.0
+    max_local_conflict_cm: float = 25.0
 
 
 @dataclass(frozen=True)
@@ -235,6 +241,9 @@ class PoseQuality:
             figure += f"; {e.jumps} jump(s) between consecutive frames (up to {e.step_conflict_cm:.0f} cm)"
         if e.unlinked:
             figure += f"; {e.unlinked} consecutive frame pair(s) with no overlap: nothing ties their poses"
+        if e.revisit_local_conflict_cm > QualityThresholds.max_local_conflict_cm:
+            figure += (f"; surfaces up to {e.revisit_local_conflict_cm:.0f} cm deep in space seen empty on part of the "
+                       "revisits' overlap (a doubled surface, or reflections)")
         if e.unseen_run:
             figure += (f"; {e.unseen_run} consecutive frame(s) whose depth saw only part of their motion (a bare "
                        "wall?), the rest guessed")
@@ -255,7 +264,8 @@ def judge(evidence: PoseEvidence, thresholds: QualityThresholds = QualityThresho
     the loop closures' median residual after the graph's optimisation (loops and odometry that
     disagree), and, when it was run, the backward estimate's disagreement times `backward_factor`
     (smooth drift). Consecutive frames that do not overlap leave the poses on either side unrelated,
-    and a run of frames whose motion was partly guessed (`max_unseen_run`) leaves them unmeasured:
+    and a run of frames whose motion was partly guessed (`max_unseen_run`) leaves them unmeasured,
+    and revisits whose deepest 5 % conflict deeply (`max_local_conflict_cm`) show a doubled surface:
     at best doubtful. With no pair to check, nothing contradicts the poses and nothing vouches for
     them: doubtful."""
     figures = [evidence.neighbour_conflict_cm, evidence.step_conflict_cm]
@@ -272,7 +282,8 @@ def judge(evidence: PoseEvidence, thresholds: QualityThresholds = QualityThresho
     if np.isfinite(evidence.backward_disagreement_cm):  # drift: what the conflict depths cannot see
         error = max(error, thresholds.backward_factor * evidence.backward_disagreement_cm)
     verdict = UNUSABLE if error > thresholds.unusable_cm else DOUBTFUL if error > thresholds.doubtful_cm else GOOD
-    if (evidence.unlinked or evidence.unseen_run >= thresholds.max_unseen_run) and verdict == GOOD:
+    local = evidence.revisit_pairs >= thresholds.min_pairs and evidence.revisit_local_conflict_cm > thresholds.max_local_conflict_cm
+    if (evidence.unlinked or evidence.unseen_run >= thresholds.max_unseen_run or local) and verdict == GOOD:
         verdict = DOUBTFUL
     return PoseQuality(evidence, error, verdict, basis)
 
