@@ -44,8 +44,8 @@ class PoseEvidence:
         the pair's two ways (`PairCheck.shared_conflict_m`, `_shared_conflict_cm`): what a pose
         error does, and one surface disagreeing alone does not.
     revisit_local_conflict_cm: the mean over the revisits (each way) of the deepest 5 %
-        (`PairCheck.conflict_m`), the revisit figure before 2026-12-06: above the shared one where
-        a few surfaces disagree alone (the office's screens, docs/pose_quality.md); not judged.
+        (`PairCheck.conflict_m`): above the shared one where a few surfaces disagree alone (the
+        office's screens, docs/pose_quality.md); judged only by `QualityThresholds.max_local_conflict_cm`.
     revisit_violation, neighbour_violation: share of the overlapping points seen through by the
         other frame (free-space violations; see `ndfa.trajectory.consistency`).
     step_conflict_cm: the largest conflict depth between consecutive frames (a jump of the estimate).
