@@ -59,6 +59,7 @@ from scipy.spatial import cKDTree
 
 from ndfa.core import conventions
 from ndfa.core.frame import Frame
+from ndfa.core.geometry import backproject
 from ndfa.perception.dbscan import dbscan
 from ndfa.perception.objectness import ClusterShape, cluster_shape, judge
 from ndfa.perception.planes import Plane, find_horizontal_planes, plane_axes, track_horizontal_planes
@@ -195,13 +196,11 @@ def _noise_sigma(depth: np.ndarray | float, config: SegmentationConfig) -> np.nd
 def _world_points(frame: Frame, rows: np.ndarray, cols: np.ndarray, depth: np.ndarray | None = None) -> np.ndarray:
     """The world points of pixels (rows, cols) whose depths are `depth` (None: read from the frame):
     `backproject`'s camera points moved by the pose, one output column at a time (a (N, 3) @ (3, 3)
-    product went through threaded BLAS and took 30 ms on a busy 2-core machine; one column at a time
-    on contiguous arrays is half the cost of broadcasting over (N, 3) columns, with the same sums)."""
-    z = np.asarray(frame.depth[rows, cols] if depth is None else depth, dtype=np.float64)
-    K, pose = frame.K, frame.pose_world_camera
-    x = (cols - K[0, 2]) / K[0, 0] * z
-    y = (rows - K[1, 2]) / K[1, 1] * z
-    world = np.empty((len(z), 3))
+    product went through threaded BLAS and took 30 ms on a busy 2-core machine)."""
+    camera = backproject(frame.K, rows, cols, frame.depth[rows, cols] if depth is None else depth)
+    x, y, z = camera[:, 0], camera[:, 1], camera[:, 2]
+    pose = frame.pose_world_camera
+    world = np.empty((len(camera), 3))
     for axis in range(3):
         rotation = pose[axis, :3]
         world[:, axis] = x * rotation[0] + y * rotation[1] + z * rotation[2] + pose[axis, 3]
