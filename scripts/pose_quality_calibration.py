@@ -58,13 +58,14 @@ def table(rows: list[dict]) -> None:
     rows = [row for row in rows if "ate_cm" in row]
     rejudged = [judge_row(row) for row in rows]
     print("| session | frames | true ATE (cm) | estimated error (cm) | verdict | revisit pairs | revisit conflict (cm) | "
-          "revisit deepest 5 % (cm) | neighbour conflict (cm) | step conflict max (cm) | jumps | backward disagreement (cm) |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+          "revisit deepest 5 % (cm) | neighbour conflict (cm) | step conflict max (cm) | step bulk max (cm) | jumps | "
+          "backward disagreement (cm) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for row, (error, verdict) in sorted(zip(rows, rejudged, strict=True), key=lambda item: item[0]["ate_cm"]):
         e = row["evidence"]
         print(f"| {row['session']} | {row['frames']} | {row['ate_cm']:.1f} | {error:.1f} | {verdict} | {e['revisit_pairs']} | "
               f"{_f(e['revisit_conflict_cm'])} | {_f(e.get('revisit_local_conflict_cm'))} | {_f(e['neighbour_conflict_cm'])} | "
-              f"{_f(e['step_conflict_cm'])} | {e['jumps']} | {_f(e.get('backward_disagreement_cm'), 2)} |")
+              f"{_f(e['step_conflict_cm'])} | {_f(e.get('step_shared_conflict_cm'))} | {e['jumps']} | {_f(e.get('backward_disagreement_cm'), 2)} |")
     errors = [error if np.isfinite(error) else np.inf for error, _ in rejudged]
     if len(rows) < 3:
         return

@@ -109,6 +109,47 @@ def test_a_jump_between_two_frames_is_unusable(towards):
     assert jumped.verdict == UNUSABLE and jumped.evidence.jumps >= 1 and jumped.evidence.step_conflict_cm > 20.0
 
 
+PILLARS = [(1.1 * np.cos(angle), 1.1 * np.sin(angle)) for angle in np.linspace(0.0, 2 * np.pi, 12, endpoint=False)]
+
+
+def _pillared_depth(pose: np.ndarray) -> np.ndarray:
+    """The box room's depth with twelve 12 cm square pillars, floor to ceiling, 1.1 m from its centre."""
+    rows, cols = np.mgrid[0:60, 0:80]
+    rays = np.stack([(cols - K[0, 2]) / K[0, 0], (rows - K[1, 2]) / K[1, 1], np.ones(cols.shape)], axis=-1)
+    directions, origin = rays @ pose[:3, :3].T, pose[:3, 3]
+    depth = _room_depth(pose)
+    for x, y in PILLARS:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            low = (np.array([x - 0.06, y - 0.06, 0.0]) - origin) / directions
+            high = (np.array([x + 0.06, y + 0.06, 2.5]) - origin) / directions
+        near = np.nanmax(np.minimum(low, high), axis=-1)
+        hit = (near <= np.nanmin(np.maximum(low, high), axis=-1)) & (near > 0)
+        depth = np.where(hit, np.minimum(depth, near), depth)
+    return depth
+
+
+def test_a_step_short_of_a_jump_counts_by_its_bulk_and_a_jump_by_its_deepest_surfaces():
+    # One slip of a right session (random seed 2's raw textured source, cal32: 2.2 cm and 0.5 deg
+    # at one step, ATE 1.0 cm): the step's deepest 5 % 3.2 cm, its bulk 0.0. The path absorbs it.
+    right = _evidence(_circling(), _circling())
+    slipped = judge(dataclasses.replace(right, step_conflict_cm=3.2, step_shared_conflict_cm=0.0, jumps=0))
+    assert slipped.verdict == GOOD and slipped.error_cm < 1.0
+    towards = judge(dataclasses.replace(right, step_conflict_cm=3.2, step_shared_conflict_cm=3.0, jumps=0))
+    assert towards.error_cm == pytest.approx(3.0)  # the bulk moved: it counts
+    unknown = judge(dataclasses.replace(right, step_conflict_cm=3.2, step_shared_conflict_cm=float("nan")))  # before cal32
+    assert unknown.error_cm == pytest.approx(3.2)
+    # A 5 cm slip sideways past the pillars: the walls (the bulk) hide it, the pillars' edges stand
+    # 46 cm into space the next frame saw empty, beyond tau: a jump, counted at that depth.
+    truth = _circling()
+    sketches = {k: make_sketch(_pillared_depth(pose).astype(np.float32), K) for k, pose in enumerate(truth)}
+    slide = make_pose(np.eye(3), np.array([0.05, 0.0, 0.0]))
+    jumped = gather_evidence([pose if k < 30 else slide @ pose for k, pose in enumerate(truth)], sketches, object(),
+                             list(range(len(truth))))
+    assert jumped.step_shared_conflict_cm < 1.0 and jumped.jumps >= 1
+    assert judge(jumped).verdict == UNUSABLE and judge(jumped).error_cm == jumped.step_conflict_cm
+    assert judge(gather_evidence(truth, sketches, object(), list(range(len(truth))))).verdict == GOOD
+
+
 def test_without_overlapping_frames_nothing_vouches_for_the_poses():
     truth = _circling(frames=2, turns=0.5)   # two frames looking in opposite directions
     quality = judge(_evidence(truth, truth))

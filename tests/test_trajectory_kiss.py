@@ -22,6 +22,7 @@ from ndfa.trajectory import (
     relative_pose_error,
     rewrite_poses,
 )
+from ndfa.trajectory.metrics import one_break_error
 
 
 def circle_trajectory(n: int = 40) -> np.ndarray:
@@ -51,6 +52,23 @@ def test_ate_of_a_known_perturbation():
     ate = absolute_trajectory_error(estimate, truth)
     # The alignment may absorb a little of the perturbation, never add to it.
     assert 0.009 < ate.rmse_m <= 0.0100001
+
+
+def test_one_break_forgives_one_jump_and_not_a_drift():
+    truth = circle_trajectory(60)
+    jumped = truth.copy()
+    jumped[25:, :3, 3] += np.array([0.05, 0.0, 0.0])  # one 5 cm jump: two right pieces
+    assert absolute_trajectory_error(jumped, truth).rmse_m > 0.02 and one_break_error(jumped, truth) < 1e-6
+    drifted = truth.copy()
+    drifted[:, :3, 3] += np.cumsum(np.random.default_rng(0).normal(0.0, 0.003, (len(truth), 3)), axis=0)
+    whole = absolute_trajectory_error(drifted, truth).rmse_m
+    assert 0.3 * whole < one_break_error(drifted, truth) < whole
+    # The same as aligning every cut's two pieces (each >= 6 frames, a tenth) and keeping the best.
+    pieces = [np.sqrt((k * absolute_trajectory_error(drifted[:k], truth[:k]).rmse_m ** 2
+                       + (60 - k) * absolute_trajectory_error(drifted[k:], truth[k:]).rmse_m ** 2) / 60)
+              for k in range(6, 55)]
+    assert one_break_error(drifted, truth) == pytest.approx(min(pieces), rel=1e-6)
+    assert one_break_error(drifted[:5], truth[:5]) == absolute_trajectory_error(drifted[:5], truth[:5]).rmse_m
 
 
 def test_rpe_of_a_constant_drift_per_frame_and_per_metre():

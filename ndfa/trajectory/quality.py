@@ -48,7 +48,10 @@ class PoseEvidence:
         office's screens, docs/pose_quality.md); judged only by `QualityThresholds.max_local_conflict_cm`.
     revisit_violation, neighbour_violation: share of the overlapping points seen through by the
         other frame (free-space violations; see `ndfa.trajectory.consistency`).
-    step_conflict_cm: the largest conflict depth between consecutive frames (a jump of the estimate).
+    step_conflict_cm: the largest conflict depth (deepest 5 %) between consecutive frames (a jump
+        of the estimate).
+    step_shared_conflict_cm: the largest shared conflict (`PairCheck.shared_conflict_m`, the bulk)
+        between consecutive frames: what a step short of a jump counts in `judge`.
     jumps: consecutive frames whose conflict depth exceeds the consistency check's tau.
     unlinked: consecutive frames that hardly overlap under the estimate (below `min_overlap`):
         nothing in the images ties their poses together.
@@ -60,8 +63,10 @@ class PoseEvidence:
         guess along a direction their depth could not see (a bare wall's slide and roll:
         `RgbdOdometry.unseen`); 0 for kiss-icp.
     backward_disagreement_cm: how far a second estimate, the same odometry over the frames in
-        reverse order, lies from the poses (RMSE after SE(3) alignment; `session.estimate_session_poses`
-        with `backward_frames`): its keyframes, and so its drift, are its own. NaN when not run.
+        reverse order, lies from the poses (`session.estimate_session_poses` with `backward_frames`):
+        its keyframes, and so its drift, are its own. The RMSE after SE(3) alignment with one break
+        allowed (`metrics.one_break_error`): a stretch where one of the two lost its way (a jump,
+        a slide along a bare wall) adds nothing, a drift along the path does. NaN when not run.
     """
 
     frames: int
@@ -83,6 +88,7 @@ class PoseEvidence:
     unseen_run: int = 0
     backward_disagreement_cm: float = float("nan")
     revisit_local_conflict_cm: float = float("nan")
+    step_shared_conflict_cm: float = float("nan")
 
     def to_dict(self) -> dict:
         return {key: (None if isinstance(value, float) and not np.isfinite(value) else value)
@@ -115,6 +121,8 @@ def gather_evidence(poses: Sequence[np.ndarray], sketches: dict[int, DepthSketch
                         neighbour_conflict_cm=_shared_conflict_cm(neighbours),
                         neighbour_violation=_violation(neighbours),
                         step_conflict_cm=100.0 * max((check.conflict_m for check in steps), default=float("nan")),
+                        step_shared_conflict_cm=100.0 * max((check.shared_conflict_m for check in steps),
+                                                            default=float("nan")),
                         jumps=len({min(check.i, check.j) for check in steps if check.conflict_m > config.tau_m}),
                         unlinked=unlinked,
                         keyframes=keyframes, loops=loops, graph_moved_cm=moved, loop_residual_cm=loop_residual,
@@ -260,15 +268,20 @@ def judge(evidence: PoseEvidence, thresholds: QualityThresholds = QualityThresho
     """The estimated error and the verdict. The error is the largest of the conflict depths: at the
     revisits (drift shows there; with at least `min_pairs` of them) and between neighbours (a broken
     registration), each the depth a quarter of a pair's overlap reaches (a pose error moves every
-    surface, a reflection one), and the largest between consecutive frames (a jump: the deepest 5 %),
-    the loop closures' median residual after the graph's optimisation (loops and odometry that
+    surface, a reflection one), and the largest between consecutive frames (a jump, beyond the
+    consistency check's tau: its deepest 5 %; short of one, the bulk as above), the loop closures' median residual after the graph's optimisation (loops and odometry that
     disagree), and, when it was run, the backward estimate's disagreement times `backward_factor`
     (smooth drift). Consecutive frames that do not overlap leave the poses on either side unrelated,
     and a run of frames whose motion was partly guessed (`max_unseen_run`) leaves them unmeasured,
     and revisits whose deepest 5 % conflict deeply (`max_local_conflict_cm`) show a doubled surface:
     at best doubtful. With no pair to check, nothing contradicts the poses and nothing vouches for
     them: doubtful."""
-    figures = [evidence.neighbour_conflict_cm, evidence.step_conflict_cm]
+    # A jump (deepest 5 % beyond tau) counts at its depth; short of that, a step counts as the
+    # revisits and neighbours do, by its bulk: one 2 cm slip that the path absorbs is not its error.
+    step = evidence.step_conflict_cm
+    if not evidence.jumps and np.isfinite(evidence.step_shared_conflict_cm):
+        step = evidence.step_shared_conflict_cm
+    figures = [evidence.neighbour_conflict_cm, step]
     basis = "neighbours"
     if evidence.revisit_pairs >= thresholds.min_pairs:
         figures.append(evidence.revisit_conflict_cm)

@@ -30,7 +30,7 @@ from ndfa.io.recording import RecordingReader
 from ndfa.trajectory.checks import InputCheckConfig, InputMonitor, InputReport, fill_untracked
 from ndfa.trajectory.consistency import DepthSketch, sketch_depth
 from ndfa.trajectory.kiss import DepthOdometry, OdometryConfig
-from ndfa.trajectory.metrics import absolute_trajectory_error
+from ndfa.trajectory.metrics import one_break_error
 from ndfa.trajectory.open3d_threads import open3d_threads
 from ndfa.trajectory.quality import PoseEvidence, gather_evidence, judge
 from ndfa.trajectory.rgbd import RgbdOdometry, RgbdOdometryConfig
@@ -140,10 +140,12 @@ def frames_backwards(reader: RecordingReader, step: int = 1, chunk: int = 48) ->
 
 def _backward_disagreement(frames: Iterable[Frame], poses: list[np.ndarray | None], timestamps: list[float],
                            config: RgbdOdometryConfig, sketches: dict[int, DepthSketch] | None = None) -> float:
-    """RMSE (cm, after SE(3) alignment) between `poses` (forward, None where not tracked) and the
-    same odometry's estimate from `frames`, the session's frames last first. The reverse run chooses
-    its own keyframes, so its drift is its own: where the two part, at least one drifted. Time runs
-    forward for it too (mirrored timestamps), so its motion model sees no gap.
+    """RMSE (cm, after SE(3) alignment, one break allowed: `metrics.one_break_error`) between
+    `poses` (forward, None where not tracked) and the same odometry's estimate from `frames`, the
+    session's frames last first. The reverse run chooses its own keyframes, so its drift is its own:
+    where the two part along the path, at least one drifted (where they part at one place, one of
+    them lost its way there: the step conflicts' matter). Time runs forward for it too (mirrored
+    timestamps), so its motion model sees no gap.
 
     With the frames' depth `sketches`, the backward estimate is judged as the forward one is: when
     it contradicts itself (not good), it broke where the forward run held, and says nothing of it
@@ -168,4 +170,4 @@ def _backward_disagreement(frames: Iterable[Frame], poses: list[np.ndarray | Non
                                  {p: sketch for p, sketch in sketches.items() if p in by_position}, odometry, fed)
         if not judge(judged).good:
             return float("nan")
-    return 100.0 * absolute_trajectory_error(backward, forward).rmse_m
+    return 100.0 * one_break_error(backward, forward)
