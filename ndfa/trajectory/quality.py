@@ -201,9 +201,9 @@ class QualityThresholds:
         along the only surface in view.
     backward_factor: the estimated error is at least this many times the backward estimate's
         disagreement (`PoseEvidence.backward_disagreement_cm`). The two share what the images get
-        wrong the same way either way (the simulator's sessions: a scale 0.2-0.7 % too large, the
-        true error 2.6-5 times the disagreement), and not much else on the 7-Scenes kitchen (about
-        1 time): 2 ranks the calibration's sessions best while the kitchen stays good.
+        wrong the same way either way (the simulator's sessions: a scale error, so the true error is
+        several times the disagreement), and less on the 7-Scenes kitchen, which stays good at 2
+        (docs/pose_quality.md: the calibration).
     max_local_conflict_cm: revisits whose deepest 5 % reach this deep on average
         (`PoseEvidence.revisit_local_conflict_cm`) make the poses doubtful at best: some surfaces
         stand decimetres into space seen empty, a doubled wall where a drift stayed local (the
