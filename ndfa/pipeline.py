@@ -29,6 +29,10 @@ from ndfa.perception.observations import Observation, ObservationConfig, Skipped
 from ndfa.perception.segmentation import PlaneTracker, segment_frame
 from ndfa.perception.segmentation_config import GATES, SegmentationConfig
 
+# The mean occupancy a segment's observation must reach, per gate (`PipelineConfig.min_segment_occupancy`):
+# the mugs' NDF's test of mug-likeness, and none for objects of every category.
+SEGMENT_OCCUPANCY = {"mugs": 0.63, "objects": 0.0}
+
 
 @dataclass(frozen=True)
 class PipelineConfig:
@@ -38,13 +42,16 @@ class PipelineConfig:
     planes removed, DBSCAN; `ndfa.perception.segmentation`) and the sinks see the segmented
     frame; None: such a frame gives no observations.
     min_segment_occupancy: an observation of a segmented frame (not of a mask) is used only if the
-        NDF's mean occupancy over its reconstruction reaches this: the NDF knows mugs, and clutter
-        of mug size that passed the segmentation's gate fits it worse (v1 weights, redkitchen: real
-        mug views 0.61-0.83, the rest median 0.63, a third below 0.6; docs/segmentation.md). NDF v2's
-        smaller decoder is less sure of everything (kitchen mug views 0.61-0.68+, median 0.68):
-        at 0.6 a 3-view counter segment became an object and was reported "added" on the kitchen
-        halves with given poses; 0.63 keeps it out, and each mug still one object (2026-12-02).
-        0: off.
+        NDF's mean occupancy over its reconstruction reaches this; None (the default): the gate's
+        own bar (`SEGMENT_OCCUPANCY`). With the mugs' gate it is a test of mug-likeness: the NDF
+        knows mugs, and clutter of mug size that passed the segmentation's gate fits it worse (v1
+        weights, redkitchen: real mug views 0.61-0.83, the rest median 0.63, a third below 0.6;
+        docs/segmentation.md). NDF v2's smaller decoder is less sure of everything (kitchen mug
+        views 0.61-0.68+, median 0.68): at 0.6 a 3-view counter segment became an object and was
+        reported "added" on the kitchen halves with given poses; 0.63 keeps it out, and each mug
+        still one object (2026-12-02). With the objects' gate there is no bar: a test of
+        mug-likeness turns away the other categories, and NDF v3's occupancy does not tell an
+        object from what is none (docs/categories.md, "The occupancy bar was the mugs'"). 0: off.
     reuse: whether an observation of a masked frame may take the code of a view of the same object
         encoded a frame or two before, when its view has barely changed (`ndfa.ndf.reuse`; off by
         default: the paper encodes every observation). Segmented frames are always encoded: a
@@ -57,7 +64,7 @@ class PipelineConfig:
     detector: DetectorConfig = field(default_factory=DetectorConfig)
     weights: Path | None = None      # NDF checkpoint; None: the shipped one
     segmentation: SegmentationConfig | None = field(default_factory=SegmentationConfig)
-    min_segment_occupancy: float = 0.63
+    min_segment_occupancy: float | None = None
     reuse: ReuseConfig = field(default_factory=ReuseConfig)
     gate: str = "auto"
 
@@ -92,6 +99,9 @@ class ChangeDetectionPipeline:
         self.gate = "objects" if objects else "mugs"  # what `config.gate` came to
         # The segmentation this pipeline runs on frames without masks (None: none).
         self.segmentation = config.segmentation.for_objects() if objects and config.segmentation else config.segmentation
+        # The bar a segment's mean occupancy must reach (`PipelineConfig.min_segment_occupancy`).
+        self.min_segment_occupancy = SEGMENT_OCCUPANCY[self.gate] if config.min_segment_occupancy is None \
+            else config.min_segment_occupancy
 
     def new_detector(self) -> ChangeDetector:
         """A change detector with this pipeline's parameters: one per pair of sessions."""
@@ -192,9 +202,9 @@ class ChangeDetectionPipeline:
             # `paper` scene such views gave centers several cm off); logged, not used.
             empty = code.mean_occupancy <= 0.0
             skip: str | None = "empty reconstruction" if empty else None
-            if not empty and observed.segmented and code.mean_occupancy < self.config.min_segment_occupancy:
+            if not empty and observed.segmented and code.mean_occupancy < self.min_segment_occupancy:
                 skip = (f"segment not mug-like: mean occupancy {code.mean_occupancy:.2f} "
-                        f"< {self.config.min_segment_occupancy}")
+                        f"< {self.min_segment_occupancy}")
             event = ObservationEvent(
                 session=session, frame_index=frame.index, instance_id=observation.instance_id,
                 n_pixels=observation.n_pixels, skipped=skip,

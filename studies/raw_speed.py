@@ -81,7 +81,7 @@ def gate(path: str, step: str = "3") -> None:
 
     pipeline = ChangeDetectionPipeline(PipelineConfig())
     encoder = pipeline.encoder
-    v0, threshold = encoder.config.v0, pipeline.config.min_segment_occupancy
+    v0, threshold = encoder.config.v0, pipeline.min_segment_occupancy
     decoded: list[np.ndarray] = []
     full_grid = encoder._grid_occupancy
 

@@ -288,3 +288,31 @@ def test_segments_the_ndf_does_not_fit_are_not_measured_but_masks_are(occupancy,
             assert all(e.skipped is None for e in observations)
         else:
             assert all(e.skipped and "not mug-like" in e.skipped for e in observations)
+
+
+class _CategoryEncoder(_FixedOccupancyEncoder):
+    """As `_FixedOccupancyEncoder`, for a model that names categories (NDF v3): the objects' gate."""
+
+    categories = ("mug", "bowl")
+
+
+@pytest.mark.parametrize("bar, used", [(None, True), (0.6, False)])
+def test_the_objects_gate_has_no_occupancy_bar_unless_one_is_set(bar, used):
+    """The occupancy bar is the mugs' gate's test of mug-likeness: with the objects' gate a segment
+    the NDF fills to 0.5 on average is measured (NDF v3's bowls and cans read 0.55-0.6, what is no
+    object 0.8: docs/categories.md), unless a bar is set."""
+    from ndfa.core.events import ObservationEvent
+    from ndfa.io.recording import RecordingReader
+    from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
+
+    sample = Path(__file__).parents[1] / "recordings" / "sample" / "source.mcap"
+    frame = dataclasses.replace(next(RecordingReader(sample).frames(4, 5)), instances=None)
+    pipeline = ChangeDetectionPipeline(PipelineConfig(min_segment_occupancy=bar), encoder=_CategoryEncoder(0.5))
+    assert pipeline.gate == "objects"
+    observations = [e for e in pipeline.process("source", frame, pipeline.new_detector(), full_reconstruction=False)
+                    if isinstance(e, ObservationEvent) and e.n_points > 0]
+    assert observations
+    assert all((e.skipped is None) == used for e in observations)
+    # the same segments with a mugs' model are not measured at that occupancy
+    mugs = ChangeDetectionPipeline(PipelineConfig(), encoder=_FixedOccupancyEncoder(0.5))
+    assert mugs.min_segment_occupancy == 0.63
