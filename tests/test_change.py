@@ -358,14 +358,16 @@ def _two_tables(rng, codes, unlike_first_views: int):
     return frames(0, 0, True), frames(100, unlike_first_views, False)
 
 
-@pytest.mark.parametrize("confirm, reported", [(3, {1}), (8, set())])
-def test_a_changed_verdict_waits_for_confirm_measurements(confirm, reported):
-    """Mug 1's first three target views are unlike it; a verdict on them would be a false report."""
+@pytest.mark.parametrize("confirm, in_place, reported", [(3, False, {1}), (8, False, set()), (3, True, set())])
+def test_a_changed_verdict_waits_for_confirm_measurements(confirm, in_place, reported):
+    """Mug 1's first three target views are unlike it; a verdict on them would be a false report.
+    `confirm_measurements` waits for more views; so does `in_place` (its source self stands where it
+    is: a verdict on the codes alone waits for every view), whatever `confirm_measurements` says."""
     rng = np.random.default_rng(5)
     codes = {i: _code(200 + i) for i in range(1, 7)}
     source_frames, target_frames = _two_tables(rng, codes, unlike_first_views=3)
-    detector = ChangeDetector(DetectorConfig(registration=RegistrationConfig(pairs=3),
-                                             waiting=WaitingConfig(confirm_measurements=confirm, min_measurements=3)))
+    waiting = WaitingConfig(confirm_measurements=confirm, min_measurements=3, in_place=in_place)
+    detector = ChangeDetector(DetectorConfig(registration=RegistrationConfig(pairs=3), waiting=waiting))
     for frame in source_frames:
         detector.add_source(frame)
     events = [e for frame in target_frames for e in detector.add_target(frame)] + detector.finish()

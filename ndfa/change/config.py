@@ -129,6 +129,11 @@ class WaitingConfig:
     # graph agrees with no match while it has fewer neighbours than the match, waits (decided at the
     # end at the latest). Off: False (decided at once).
     neighbours: bool = True
+    # A "changed" verdict on a target object with a source object standing in its place (within
+    # `EvidenceConfig.in_place_m` and the scatter slack) rests on the codes alone, and codes of one
+    # object seen from unlike sides can disagree: it waits for every view (decided at the end of the
+    # target). Off: False (decided as any other).
+    in_place: bool = True
 
 
 @dataclass(frozen=True)
@@ -167,6 +172,19 @@ class EvidenceConfig:
     # it, was not seen empty, and the change is withheld with the reason (`ndfa.change.sight`,
     # docs/detector.md). Off: False (shown is enough).
     seen_empty: bool = True
+    # Two sessions' views of an object are from a common side when their directions from the object
+    # about up lie within this many degrees (`ndfa.change.sides`): the NDF's codes and handle
+    # headings depend on the side seen. A turn ("rotated") is measured between the views from a
+    # common side, and one seen from none needs `RotationConfig.opposite_sides_factor` times the
+    # bar; an "added" object standing where another stood, their codes compared across no common
+    # side and not unrelated (`doubtful_share`), is withheld as doubtful (docs/shelves.md).
+    # A quarter turn: beyond it a view sees mostly what the other could not. Off: None.
+    side_deg: float | None = 90.0
+    # ... "not unrelated": a cosine above this share of delta_s (`AssociationConfig.shape_similarity`),
+    # halfway from unrelated codes (about 0: different mugs' median -0.05 on `shelves`) to the bar of
+    # the same object. One object's codes from opposite sides were measured down to 0.35 (`shelves`,
+    # object means) and 0.17 (the kitchen's white mug, means of four views; docs/detector.md, "Drift").
+    doubtful_share: float = 0.5
 
 
 @dataclass(frozen=True)
@@ -185,6 +203,11 @@ class RotationConfig:
     # The turn must pass `threshold_deg` by this many times the two objects' spreads combined
     # (sqrt(s_t^2 + s_s^2)): their headings' view-dependent bias does not average away. Off: 0.
     margin: float = 1.0
+    # A turn seen from no common side (`EvidenceConfig.side_deg`: the source from the front, the
+    # target from behind) must pass `threshold_deg` this many times over: a heading's view-dependent
+    # bias reverses with the side, so the two sessions' biases add instead of cancelling
+    # (docs/shelves.md). Below it the turn is withheld as doubtful. Off: 1.
+    opposite_sides_factor: float = 2.0
     # Both objects need at least this part of their views' category probability on categories
     # with a handle (`CATEGORIES_WITH_HEADING`): a box named "mug" by a plurality of its views
     # (0.43 mug against 0.33 box) has no handle whose turn could show. 0.5: more likely than not.
@@ -236,9 +259,9 @@ class DetectorConfig:
                                      follow_latest=False),
                "ransac": RansacConfig(candidates=1, min_inliers=0, enough_inliers=0, retry_frames=1, small_maps=False),
                "priors": PriorConfig(enabled=False),
-               "waiting": WaitingConfig(min_measurements=1, confirm_measurements=1, neighbours=False),
+               "waiting": WaitingConfig(min_measurements=1, confirm_measurements=1, neighbours=False, in_place=False),
                "evidence": EvidenceConfig(in_place_m=0.0, observed_height_m=0.0, observed_reach_m=0.0, move_similarity=None,
-                                            sight_radius_m=0.0, seen_empty=False),
+                                            sight_radius_m=0.0, seen_empty=False, side_deg=None),
                "rotation": RotationConfig(threshold_deg=None)}
         values = {name: getattr(self, name) for name in ("association", "registration", "decision") + ADDITIONS}
         return DetectorConfig(**(values | {name: off[name] for name in additions}))

@@ -13,7 +13,9 @@ Read it top to bottom as the paper's loop:
                                  source objects observed but never matched; a changed target
                                  object that matches a removed one by shape is reported as moved;
                                  an unchanged one whose handle turned about up, as rotated
-                                 (`ndfa.change.rotation`; beyond the paper)
+                                 (`ndfa.change.rotation`; beyond the paper); a changed one standing
+                                 where a source object stood, unless the two were seen from no
+                                 common side (`ndfa.change.sides`; beyond the paper)
 
 An "added" or "removed" change also needs the other session's frames to have shown its place
 (`add_view`, `ndfa.change.sight`; beyond the paper): where they did not, the change is decided
@@ -29,9 +31,11 @@ they differ from the paper's: `ndfa.change.config`, `docs/detector.md`.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
-from ndfa.change.associate import Association, Measurement, SessionMap, cosine_similarity
+from ndfa.change.associate import Association, Measurement, SessionMap, SessionObject, cosine_similarity
 from ndfa.change.config import DetectorConfig
 from ndfa.change.describe import graph_event, tree_event
 from ndfa.change.graph import local_graph
@@ -39,9 +43,10 @@ from ndfa.change.policy import DecisionPolicy
 from ndfa.change.register import Registration, RegistrationPrior, apply
 from ndfa.change.registrar import Registrar
 from ndfa.change.rotation import rotation_of
+from ndfa.change.sides import common_side, mean_azimuth_deg, view_azimuths
 from ndfa.change.sight import SessionViews, Sight, SightRule
 from ndfa.change.verdict import Verdict, decision_score, graph_verdict, removal_score, shape_verdict
-from ndfa.core.conventions import horizontal
+from ndfa.core.conventions import UNKNOWN_CATEGORY, horizontal
 from ndfa.core.events import SESSIONS, AssociationEvent, DecisionEvent, DecisionKind, Event, Session
 from ndfa.core.geometry import invert_pose
 
@@ -64,6 +69,9 @@ class ChangeDetector:
         self.observers: dict[int, set[int]] = {}
         self.matched: dict[int, int] = {}  # source object -> the target object first found consistent with it
         self.partners: dict[int, int] = {}  # target object -> the source object its latest "unchanged" test named
+        # target object found changed at the end with a source object standing in its place -> that
+        # source object: its decision is made in `finish`, once the removals and moves are known
+        self.in_place_of: dict[int, int] = {}
         self._last_frame = -1
 
     @property
@@ -167,6 +175,17 @@ class ChangeDetector:
         move_similarity = self.config.evidence.move_similarity
         moved_from = moves(sorted(self.changed), removed, self.target, self.source,
                            self.config.association.shape_similarity if move_similarity is None else move_similarity)
+        doubtful = self._doubtful_pairs(moved_from)
+        for target_id in sorted(self.in_place_of):
+            decision = self.changed[target_id]
+            if target_id in doubtful:
+                decision = replace(decision, withheld=doubtful[target_id])
+                self.unseen[target_id] = decision
+                del self.changed[target_id]
+            events.append(decision)
+        doubtful_removed = {self.in_place_of[t]: why for t, why in doubtful.items() if self.in_place_of[t] in removed}
+        removed = [i for i in removed if i not in doubtful_removed]
+        unshown |= doubtful_removed
         for target_id, source_id in moved_from.items():
             before = self.changed[target_id]
             events.append(DecisionEvent(
@@ -261,7 +280,8 @@ class ChangeDetector:
             target_graph = local_graph(object_id, target_ids, self.target.objects)
             verdict = graph_verdict(target_graph, center_source, source_ids, similarity, self.source.objects, rotation,
                                     shape_similarity, self.config, obj.center_scatter_m)
-        verdict = self.policy.settle(object_id, obj.n_measurements, verdict, final)
+        standing = self._in_place(obj, center_source, source_ids) if verdict.kind != "unchanged" else None
+        verdict = self.policy.settle(object_id, obj.n_measurements, verdict, final, standing)
         events: list[Event] = [
             graph_event(frame_index, c, center_source, self.source.objects[c.result.source_id].center_world, rotation)
             for c in verdict.comparisons]
@@ -274,8 +294,68 @@ class ChangeDetector:
             decision = self._decision(frame_index, object_id, "added", verdict, center_source,
                                       withheld=self._unshown("source", center_source))
             (self.changed if decision.withheld is None else self.unseen)[object_id] = decision
+            if self.config.waiting.in_place and decision.withheld is None and standing is not None:
+                # decided at the end on every view: whether it stands where another stood, see `finish`
+                self.in_place_of[object_id] = standing
+                return events
             return events + [decision]
         return events  # undecided: O waits (the policy holds it pending)
+
+    def _doubtful_pairs(self, moved_from: dict[int, int]) -> dict[int, str]:
+        """The "added" target objects standing in the place of a source object that no other target
+        object was found to be (removed, or matched by the added object itself before its later
+        views turned its verdict), neither the end of a move, the categories not differing, whose
+        codes were compared across no common side (`EvidenceConfig.side_deg`: fewer than
+        `WaitingConfig.min_measurements` views of either within it of the other's): one object seen
+        from opposite sides can give codes as unlike as two objects', so "replaced" is doubtful
+        unless the codes are nearer unrelated objects' (at most `EvidenceConfig.doubtful_share` of
+        delta_s). Target object -> why (the pair is withheld; `ndfa.change.sides`)."""
+        side_deg = self.config.evidence.side_deg
+        if side_deg is None:
+            return {}
+        doubtful: dict[int, str] = {}
+        for target_id, source_id in sorted(self.in_place_of.items()):
+            if target_id in moved_from or source_id in moved_from.values():
+                continue
+            if any(s == source_id and t != target_id and t not in self.changed and t not in self.unseen
+                   for t, s in self.partners.items()):
+                continue  # another target object is the source object, unchanged: this one is new beside it
+            target, source = self.target.objects[target_id], self.source.objects[source_id]
+            if UNKNOWN_CATEGORY not in (target.category, source.category) and target.category != source.category:
+                continue  # a cup where a bowl stood: the category says so from any side
+            sides = self._sides(target, source)
+            if sides is None:
+                continue
+            target_common, source_common = common_side(sides[0], sides[1], side_deg)
+            least = self.config.waiting.min_measurements
+            if target_common.sum() >= least and source_common.sum() >= least:
+                continue  # compared like with like: the codes' disagreement stands
+            similarity = float(cosine_similarity(target.shape_code, source.shape_code))
+            if similarity <= self.config.evidence.doubtful_share * self.config.association.shape_similarity:
+                continue  # nearer unrelated objects' codes than one object's: a replacement, from any side
+            doubtful[target_id] = (
+                f"doubtful: target object {target_id} stands where source object {source_id} stood, their "
+                f"codes unlike (cosine {similarity:.2f}), but the target saw it from {mean_azimuth_deg(sides[0]):+.0f} deg "
+                f"and the source from {mean_azimuth_deg(sides[1]):+.0f} deg, with {int(target_common.sum())} / "
+                f"{int(source_common.sum())} views from a common side (fewer than {least}): one object's codes from "
+                f"opposite sides can be as unlike as two objects'")
+        return doubtful
+
+    def _in_place(self, obj: SessionObject, center_source: np.ndarray, source_ids: list[int]) -> int | None:
+        """The nearest source object of `source_ids` standing in O's place: within
+        `EvidenceConfig.in_place_m` of T_rel t_O, widened by the two objects' scatter as the in-place
+        test is (`DriftConfig.scatter_factor`); None when none does or the test is off."""
+        in_place = self.config.evidence.in_place_m
+        if in_place <= 0:
+            return None
+        best, best_d = None, np.inf
+        for source_id in source_ids:
+            partner = self.source.objects[source_id]
+            slack = self.config.drift.scatter_factor * float(np.hypot(obj.center_scatter_m, partner.center_scatter_m))
+            d = float(np.linalg.norm(center_source - partner.center_world))
+            if d <= in_place + slack and d < best_d:
+                best, best_d = source_id, d
+        return best
 
     def _rotations(self) -> list[Event]:
         """At the end, when every view is in: the unchanged target objects whose handle turned
@@ -288,7 +368,8 @@ class ChangeDetector:
             if object_id in self.changed:
                 continue
             obj, partner = self.target.objects[object_id], self.source.objects[partner_id]
-            turned = rotation_of(obj, partner, rotation, self.config.rotation)
+            turned = rotation_of(obj, partner, rotation, self.config.rotation, self._sides(obj, partner),
+                                 self.config.evidence.side_deg)
             if turned is None:
                 continue
             events.append(DecisionEvent(
@@ -297,8 +378,20 @@ class ChangeDetector:
                         f"(headings from {turned.target.views} and {turned.source.views} views)"),
                 center_world=obj.center_world, center_source=apply(self.registration.transform, obj.center_world[None])[0],
                 partner_id=partner_id, instance_ids=obj.instance_ids, score=turned.score, angle_deg=turned.angle_deg,
-                category=obj.category))
+                category=obj.category, withheld=turned.withheld))
         return events
+
+    def _sides(self, target: SessionObject, source: SessionObject) -> tuple[np.ndarray, np.ndarray] | None:
+        """The azimuths (source world, `ndfa.change.sides`) of the views of a target and a source
+        object (one per entry of their `frames`); None when a camera is not known (a replay) or
+        there is no T_rel."""
+        if self.registration is None:
+            return None
+        cameras = self.views["target"].cameras(target.frames), self.views["source"].cameras(source.frames)
+        if cameras[0] is None or cameras[1] is None:
+            return None
+        return (view_azimuths(cameras[0], target.center_world, self.registration.transform[:3, :3]),
+                view_azimuths(cameras[1], source.center_world))
 
     def _decision(self, frame_index: int, object_id: int, kind: DecisionKind, verdict: Verdict,
                   center_source: np.ndarray, withheld: str | None = None) -> DecisionEvent:

@@ -4,7 +4,9 @@ A decision is reported once and never retracted, and online an object's first vi
 worst (at the edge of the image, half hidden). So an object is tested only from `min_measurements`
 measurements; an "undecided" verdict waits for its evidence, and a "changed" one on fewer than
 `confirm_measurements` measurements waits for more views ("unchanged" is never final, so it needs
-no wait). Waiting objects are `pending`: tested again when a new target object appears, and at
+no wait), and so does a "changed" one with a source object standing in the object's place
+(`in_place`, until the end: it rests on the codes alone, which one object's unlike views split).
+Waiting objects are `pending`: tested again when a new target object appears, and at
 the end of the target (`final`) decided with the evidence there is. Why these rules:
 `docs/detector.md`.
 """
@@ -31,11 +33,16 @@ class DecisionPolicy:
         else:
             self.pending.add(object_id)
 
-    def settle(self, object_id: int, n_measurements: int, verdict: Verdict, final: bool) -> Verdict:
-        """The verdict to act on now. "undecided" (the object waits, and is pending) or a decision."""
+    def settle(self, object_id: int, n_measurements: int, verdict: Verdict, final: bool,
+               standing: int | None = None) -> Verdict:
+        """The verdict to act on now. "undecided" (the object waits, and is pending) or a decision.
+        `standing`: the source object standing in the object's place, if any (`in_place`)."""
         if verdict.kind == "undecided" and final:
             assert verdict.otherwise is not None  # every "undecided" verdict says what it would otherwise be
             verdict = verdict.otherwise
+        if verdict.kind == "changed" and not final and self.config.in_place and standing is not None:
+            verdict = Verdict("undecided", f"changed, but source object {standing} stands in its place: decided on "
+                              "every view", comparisons=verdict.comparisons, otherwise=verdict, shortfall=verdict.shortfall)
         if verdict.kind == "changed" and not final and n_measurements < self.config.confirm_measurements:
             verdict = Verdict("undecided", f"changed on {n_measurements} measurements, fewer than "
                               f"{self.config.confirm_measurements}", comparisons=verdict.comparisons, otherwise=verdict)

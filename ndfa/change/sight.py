@@ -194,6 +194,15 @@ class SessionViews:
         self.kept.append(len(self.poses) - 1)
         self.depths.append(np.nan_to_num(coarse, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float16))
 
+    def cameras(self, frames: list[int]) -> np.ndarray | None:
+        """The camera centers (N, 3) of the given frames (this session's world); None when any of
+        them is not among the frames given (a replay gives none)."""
+        indices = np.asarray(self.indices, dtype=int)
+        position = np.searchsorted(indices, np.asarray(frames, dtype=int))
+        if not len(indices) or (position >= len(indices)).any() or (indices[np.minimum(position, len(indices) - 1)] != frames).any():
+            return None
+        return np.array([self.poses[i][:3, 3] for i in position]).reshape(-1, 3)
+
     def sight(self, place_world: np.ndarray, radius_m: float, height_m: float) -> Sight:
         """How well these frames showed an object of `radius_m` and `height_m` standing centred at
         `place_world` (this session's world; the module docstring says how)."""
