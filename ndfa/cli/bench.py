@@ -10,6 +10,7 @@ from rich.table import Table
 
 from ndfa.cli.app import app, console
 from ndfa.cli.checks import at_least, at_least_one, checkpoint, thread_count
+from ndfa.eval.revision import RAW_BEFORE_REF
 
 
 @app.command("bench")
@@ -26,20 +27,26 @@ def bench_command(
     step: int = typer.Option(1, help="segment: use every N-th frame.", callback=at_least_one),
     threads: int = typer.Option(1, help="detect, raw: torch's and ONNX Runtime's CPU threads (docs/speed.md).",
                                 callback=thread_count),
-    compare: bool = typer.Option(False, "--compare", help="detect: first the before (--before-runtime, --before-weights, "
-                                                          "every reconstruction decoded, the stages one after the "
-                                                          "other), then now, back to back. raw: the pass as git "
-                                                          "revision --before-ref ran it, alternating with now."),
-    before_ref: str = typer.Option("9004931", help="raw --compare: the git revision of this checkout whose raw pass is "
-                                                   "the before (default: main on the morning of 2026-12-03)."),
+    compare: bool = typer.Option(False, "--compare", help="detect: a before, then now, in turns (--repeat: before, "
+                                                          "now, before, now ...): the code of git revision "
+                                                          "--before-ref of this checkout, or without it this code "
+                                                          "with --before-runtime and --before-weights, every "
+                                                          "reconstruction decoded, the stages one after the other. "
+                                                          "raw: the pass as git revision --before-ref ran it, "
+                                                          "alternating with now."),
+    before_ref: Optional[str] = typer.Option(None, help="raw, detect --compare: the git revision of this checkout "
+                                                        f"whose pass is the before (raw's default: {RAW_BEFORE_REF}, "
+                                                        "main on the morning of 2026-12-03; detect: none)."),
     load: bool = typer.Option(False, "--load", help="detect, raw: now once more beside one busy process (while True: pass)."),
     runtime: str = typer.Option("auto", help="detect: the NDF's runtime now: auto, onnxruntime or torch."),
-    before_runtime: str = typer.Option("torch", help="detect --compare: the NDF's runtime before."),
-    before_weights: Optional[Path] = typer.Option(None, help="detect --compare: the NDF's weights before (default: the shipped ones).",
+    before_runtime: Optional[str] = typer.Option(None, help="detect --compare: the NDF's runtime before (default: "
+                                                            "torch; with --before-ref, --runtime)."),
+    before_weights: Optional[Path] = typer.Option(None, help="detect --compare: the NDF's weights before (default: "
+                                                             "the shipped ones; with --before-ref, that revision's).",
                                                   callback=checkpoint),
     frame_step: int = typer.Option(1, help="detect, raw: use every N-th frame.", callback=at_least_one),
-    repeat: int = typer.Option(1, help="detect, raw: run now (raw: and before) this many times; a column is the "
-                                       "run of median frames/s.",
+    repeat: int = typer.Option(1, help="detect, raw: run now and the before this many times, in turns; a column "
+                                       "is the run of median frames/s.",
                                callback=at_least_one),
     overlap: bool = typer.Option(True, "--overlap/--no-overlap",
                                  help="detect: now, the stages run at the same time in threads (else one after the other)."),
@@ -68,23 +75,24 @@ def bench_command(
                       f"{r.ms_per_frame:.1f} ms/frame ({r.cpu_ms_per_frame:.1f} ms CPU)")
         return
     if what == "raw":
-        _bench_raw(source, target, before_ref if compare else None, load=load, repeat=repeat, threads=threads,
-                   frame_step=frame_step)
+        _bench_raw(source, target, (before_ref or RAW_BEFORE_REF) if compare else None, load=load, repeat=repeat,
+                   threads=threads, frame_step=frame_step)
         return
     if what == "detect":
-        for option, value in (("--runtime", runtime), ("--before-runtime", before_runtime)):
+        for option, value in (("--runtime", runtime), ("--before-runtime", before_runtime or runtime)):
             if value not in RUNTIMES:
                 raise typer.BadParameter(f"{option} must be one of {', '.join(RUNTIMES)}, got {value!r}")
         rows = bench_detect_runs(source, target, threads=threads, compare=compare, load=load, frame_step=frame_step,
                                  runtime=runtime, weights=weights, before_runtime=before_runtime,
                                  before_weights=before_weights, overlap=overlap, repeat=repeat,
-                                 n_points=points, knn=neighbours, reuse_angle_deg=reuse_angle)
+                                 n_points=points, knn=neighbours, reuse_angle_deg=reuse_angle, before_ref=before_ref)
         first = rows[0]
         table = Table(title=f"ndfa bench detect: target pass of {target} (no sinks)",
                       caption=f"{first['frames']} frames, {threads} thread(s); {first['machine']}")
         table.add_column("ms / frame")
         for row in rows:
-            table.add_column(f"{row['label']} ({row['runtime']}, {Path(row['weights']).name})", justify="right")
+            at = f" at {row['ref']}" if "ref" in row else ""
+            table.add_column(f"{row['label']}{at} ({row['runtime']}, {Path(row['weights']).name})", justify="right")
         for stage in dict.fromkeys(stage for row in rows for stage in row["stage_ms"]):
             table.add_row(stage, *(f"{row['stage_ms'][stage]:.1f}" if stage in row["stage_ms"] else "-" for row in rows))
         table.add_row("wall time", *(f"{row['total_ms']:.1f}" for row in rows))
@@ -92,19 +100,22 @@ def bench_command(
         table.add_row("frames/s", *(f"{row['fps']:.1f}" for row in rows))
         table.add_row("CPU s (both passes)", *(f"{row['cpu_s']:.1f}" for row in rows))
         table.add_row("reconstructions", *(row["reconstruction"] for row in rows))
-        table.add_row("points / neighbours", *(f"{row['points']} / {row['neighbours']}" for row in rows))
+        table.add_row("points / neighbours", *(f"{row.get('points', '-')} / {row.get('neighbours', '-')}" for row in rows))
         table.add_row("codes reused within", *(f"{row['reuse_angle_deg']:g} deg" if row.get("reuse_angle_deg") else "off"
                                                for row in rows))
         table.add_row("TP / FP / FN", *("-" if row["score"] is None else "/".join(map(str, row["score"])) for row in rows))
         console.print(table)
         now = next(row for row in rows if row["label"] == "now")
-        if repeat > 1:
-            fps = sorted(now["fps_runs"])
-            console.print(f"now, {repeat} runs: frames/s median {now['fps']:.1f}, min {fps[0]:.1f}, max {fps[-1]:.1f} "
-                          f"({', '.join(f'{f:.1f}' for f in now['fps_runs'])})")
+        for row in rows:
+            if len(row.get("fps_runs", [])) > 1:
+                fps = sorted(row["fps_runs"])
+                console.print(f"{row['label']}, {repeat} runs: frames/s median {row['fps']:.1f}, min {fps[0]:.1f}, "
+                              f"max {fps[-1]:.1f} ({', '.join(f'{f:.1f}' for f in row['fps_runs'])})")
         if compare:
-            console.print(f"speed-up of the target pass over the before: {now['fps'] / rows[0]['fps']:.2f}x "
-                          f"(encoding {rows[0]['stage_ms']['encoding'] / now['stage_ms']['encoding']:.2f}x)")
+            before = rows[0]
+            encoding = before["stage_ms"].get("encoding", float("nan")) / now["stage_ms"]["encoding"]
+            console.print(f"speed-up of the target pass over the before: {now['fps'] / before['fps']:.2f}x "
+                          f"(encoding {encoding:.2f}x)")
         if load:
             console.print(f"beside one busy process: {now['fps'] / rows[-1]['fps']:.2f}x slower")
         scaling = Table(title="detection step (tree, association, graphs) vs map size")

@@ -6,7 +6,10 @@ ray casting, depth noise, writing a frame to MCAP and reading it back. Medians, 
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import functools
+import json
 import platform
 import tempfile
 import time
@@ -16,6 +19,7 @@ import numpy as np
 
 from ndfa.change.associate import Measurement
 from ndfa.change.detector import ChangeDetector
+from ndfa.eval.revision import alternate, beside_busy_process, revision_tree, run_in_tree
 from ndfa.io.ingest.synthetic import SESSION_START, render_objects
 from ndfa.io.recording import Frame, RecordingReader, RecordingWriter
 from ndfa.sim.presets import make_config
@@ -158,38 +162,62 @@ def bench_detect(source: Path, target: Path, threads: int = 1, frame_step: int =
             "machine": machine()}
 
 
+# Run in a child process by `bench_detect_of`, in an older revision's tree: that revision's `bench_detect`.
+_BENCH_DETECT_CHILD = """
+import json, sys
+from pathlib import Path
+from ndfa.eval.bench import bench_detect
+source, target, threads, frame_step, runtime, weights, overlap, out = sys.argv[1:]
+row = bench_detect(Path(source), Path(target), threads=int(threads), frame_step=int(frame_step), runtime=runtime,
+                   weights=Path(weights) if weights else None, overlap=overlap == "1")
+Path(out).write_text(json.dumps(row))
+"""
+
+
+def bench_detect_of(tree: Path, ref: str, source: Path, target: Path, threads: int = 1, frame_step: int = 1,
+                    runtime: str = "auto", weights: Path | None = None, overlap: bool = True) -> dict:
+    """`bench_detect` (reconstructions as decisions need) as the code of git revision `ref` of this
+    checkout runs it: its files in `tree` (`ndfa.eval.revision.revision_tree`), its `bench_detect`
+    in a child process; `weights` None: that revision's shipped ones. The row is the child's, its
+    timings taken inside the child as here (the child's start is not in them), with `ref`."""
+    out = tree / "bench_detect.json"
+    run_in_tree(tree, ref, ["-c", _BENCH_DETECT_CHILD, str(source.resolve()), str(target.resolve()), str(threads),
+                            str(frame_step), runtime, "" if weights is None else str(weights.resolve()),
+                            "1" if overlap else "0", str(out)], "bench_detect")
+    row = json.loads(out.read_text())
+    return row | {"ref": ref, "score": None if row["score"] is None else tuple(row["score"])}
+
+
 def bench_detect_runs(source: Path, target: Path, threads: int = 1, compare: bool = False, load: bool = False,
                       frame_step: int = 1, runtime: str = "auto", weights: Path | None = None,
-                      before_runtime: str = "torch", before_weights: Path | None = None,
+                      before_runtime: str | None = None, before_weights: Path | None = None,
                       overlap: bool = True, repeat: int = 1, n_points: int | None = None,
-                      knn: int | None = None, reuse_angle_deg: float = 0.0) -> list[dict]:
-    """`bench_detect` back to back in one process, each row labelled: with `compare` first the
-    "before" (`before_runtime` with `before_weights`, default the shipped ones, as the pass ran
-    before: every reconstruction decoded, the stages one after the other), then "now"
-    (`weights`, default the shipped ones, on `runtime`) `repeat` times, its row the run of median
-    frames/s with every run's in `fps_runs` (the overlapping stages vary from run to run); with
-    `load` "now" once more beside one busy process (`python -c 'while True: pass'`, started here
-    and stopped after), the question being whether the pass keeps its speed when the machine is
-    shared. `n_points`, `knn`: the encoder's now (`EncoderConfig`; None: the checkpoint's);
-    `reuse_angle_deg`: now's `ReuseConfig.angle_deg`."""
-    rows = []
-    if compare:
-        rows.append({"label": "before"} | bench_detect(source, target, threads, frame_step, before_runtime, before_weights,
-                                                       full_reconstruction=True, overlap=False))
-    now = {"overlap": overlap, "n_points": n_points, "knn": knn, "reuse_angle_deg": reuse_angle_deg}
-    runs = [bench_detect(source, target, threads, frame_step, runtime, weights, **now) for _ in range(repeat)]
-    median_run = sorted(runs, key=lambda run: run["fps"])[(len(runs) - 1) // 2]
-    rows.append({"label": "now"} | median_run | {"fps_runs": [run["fps"] for run in runs]})
+                      knn: int | None = None, reuse_angle_deg: float = 0.0, before_ref: str | None = None) -> list[dict]:
+    """`bench_detect` back to back, each row labelled: "now" (`weights`, default the shipped ones,
+    on `runtime`) `repeat` times, its row the run of median frames/s with every run's in
+    `fps_runs` (the overlapping stages vary from run to run). With `compare`, a "before" in turns
+    with now (`ndfa.eval.revision.alternate`: before, now, before, now, ...), also `repeat` times:
+    without `before_ref`, this code as the pass ran before: `before_runtime` (default torch) with
+    `before_weights` (default the shipped ones), every reconstruction decoded, the stages one after
+    the other; with `before_ref`, the code of that git revision of this checkout
+    (`bench_detect_of`) with `before_runtime` (default `runtime`), `before_weights` (default that
+    revision's shipped ones) and `overlap` as now's. With `load`, "now" once more beside one busy
+    process (`ndfa.eval.revision.beside_busy_process`). `n_points`, `knn`: the encoder's now
+    (`EncoderConfig`; None: the checkpoint's); `reuse_angle_deg`: now's `ReuseConfig.angle_deg`."""
+    settings = {"overlap": overlap, "n_points": n_points, "knn": knn, "reuse_angle_deg": reuse_angle_deg}
+    now = functools.partial(bench_detect, source, target, threads, frame_step, runtime, weights, **settings)
+    with contextlib.ExitStack() as stack:
+        before = None
+        if compare and before_ref is not None:
+            tree = stack.enter_context(revision_tree(before_ref))
+            before = functools.partial(bench_detect_of, tree, before_ref, source, target, threads, frame_step,
+                                       before_runtime or runtime, before_weights, overlap)
+        elif compare:
+            before = functools.partial(bench_detect, source, target, threads, frame_step, before_runtime or "torch",
+                                       before_weights, full_reconstruction=True, overlap=False)
+        rows = alternate(now, before, repeat)
     if load:
-        import subprocess
-        import sys
-
-        busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])
-        try:
-            rows.append({"label": "beside one busy process"} | bench_detect(source, target, threads, frame_step, runtime, weights, **now))
-        finally:
-            busy.kill()
-            busy.wait()
+        rows.append({"label": "beside one busy process"} | beside_busy_process(now))
     return rows
 
 

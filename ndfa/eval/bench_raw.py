@@ -15,12 +15,15 @@ are figures of the machine it ran on: compare rows of one run, not runs on diffe
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import functools
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ndfa.eval.bench import machine
+from ndfa.eval.revision import alternate, beside_busy_process, revision_tree, run_in_tree
 
 if TYPE_CHECKING:  # the NDF's torch loads only when a benchmark runs
     from ndfa.pipeline import PipelineConfig
@@ -73,78 +76,40 @@ def raw_pass(source: Path, target: Path, config: PipelineConfig | None = None, t
             "machine": machine()}
 
 
-def raw_pass_of(ref: str, source: Path, target: Path, threads: int = 1, frame_step: int = 1) -> dict:
+def raw_pass_of(tree: Path, ref: str, source: Path, target: Path, threads: int = 1, frame_step: int = 1) -> dict:
     """`ndfa detect SOURCE TARGET --json` as the code of git revision `ref` of this checkout runs it
-    (exported to a temporary directory, run in a child process): `wall_s`, `fps`, `cpu_s` (the
-    child's), `score`, and the stage timings its summary gives (`stage_ms_target`: ms per target
-    frame of the target pass). The wall and CPU time include the child's start (Python, the NDF's
-    loading: a few seconds), which the in-process `raw_pass` leaves out."""
+    (its files in `tree`, from `ndfa.eval.revision.revision_tree`; run in a child process):
+    `wall_s`, `fps`, `cpu_s` (the child's), `score`, and the stage timings its summary gives
+    (`stage_ms_target`: ms per target frame of the target pass). The wall and CPU time include the
+    child's start (Python, the NDF's loading: a few seconds), which the in-process `raw_pass` leaves out."""
     import json
-    import resource
-    import subprocess
-    import sys
-    import tempfile
 
-    from ndfa.core.errors import NdfaError
-
-    checkout = Path(__file__).resolve().parents[2]
-    with tempfile.TemporaryDirectory(prefix="ndfa-before-") as tmp:
-        archive = subprocess.run(["git", "-C", str(checkout), "archive", "--format=tar", ref], capture_output=True)
-        if archive.returncode != 0:
-            raise NdfaError(f"--before-ref {ref}: not a revision of {checkout} ({archive.stderr.decode().strip()})")
-        subprocess.run(["tar", "-x", "-C", tmp], input=archive.stdout, check=True)
-        summary = Path(tmp) / "summary.json"
-        command = [sys.executable, "-c", "from ndfa.cli import main; main()", "detect", str(source), str(target),
-                   "--threads", str(threads), "--frame-step", str(frame_step), "--json", str(summary)]
-        children = resource.getrusage(resource.RUSAGE_CHILDREN)
-        started = time.perf_counter()
-        done = subprocess.run(command, env=_environment(tmp), capture_output=True, text=True)
-        wall_s = time.perf_counter() - started
-        used = resource.getrusage(resource.RUSAGE_CHILDREN)
-        if done.returncode != 0:
-            raise NdfaError(f"--before-ref {ref}: ndfa detect failed: {done.stderr.strip().splitlines()[-1:]}")
-        result = json.loads(summary.read_text())
+    summary = tree / "summary.json"
+    wall_s, cpu_s = run_in_tree(tree, ref, ["-c", "from ndfa.cli import main; main()", "detect", str(source.resolve()),
+                                            str(target.resolve()), "--threads", str(threads),
+                                            "--frame-step", str(frame_step), "--json", str(summary)], "ndfa detect")
+    result = json.loads(summary.read_text())
     frames = int(result["frames"])
-    return {"frames": frames, "wall_s": wall_s, "fps": frames / wall_s,
-            "cpu_s": used.ru_utime + used.ru_stime - children.ru_utime - children.ru_stime,
+    return {"frames": frames, "wall_s": wall_s, "fps": frames / wall_s, "cpu_s": cpu_s,
             "stage_ms": {}, "stage_ms_target": result.get("stage_ms", {}),
             "score": (result["tp"], result["fp"], result["fn"]) if "tp" in result else None,
             "stages": "as ndfa detect ran them at that revision", "machine": machine()}
-
-
-def _environment(tree: str) -> dict[str, str]:
-    import os
-
-    return os.environ | {"PYTHONPATH": tree}
 
 
 def raw_pass_runs(source: Path, target: Path, now: PipelineConfig | None = None, before_ref: str | None = None,
                   load: bool = False, repeat: int = 1, threads: int = 1, frame_step: int = 1) -> list[dict]:
     """`raw_pass` with the config `now` (default: the shipped one) `repeat` times, each row
     labelled; with `before_ref` (a git revision of this checkout), the raw pass as that revision
-    ran it (`raw_pass_of`), alternating with now (before, now, before, now, ...: on a shared machine
-    both see the same load), so that their ratio holds where the absolute figures do not. A label's
-    row is its run of median frames/s, every run's in `fps_runs`. With `load`, now once more beside
-    one busy process (`python -c 'while True: pass'`, started here and stopped after)."""
-    runs: dict[str, list[dict]] = {"before": [], "now": []}
-    for _ in range(repeat):
+    ran it (`raw_pass_of`), alternating with now (`ndfa.eval.revision.alternate`). A label's row
+    is its run of median frames/s, every run's in `fps_runs`. With `load`, now once more beside
+    one busy process."""
+    now_run = functools.partial(raw_pass, source, target, now, threads, frame_step)
+    with contextlib.ExitStack() as stack:
+        before = None
         if before_ref is not None:
-            runs["before"].append(raw_pass_of(before_ref, source, target, threads, frame_step))
-        runs["now"].append(raw_pass(source, target, now, threads, frame_step))
-    rows = [{"label": label} | _median_run(label_runs) for label, label_runs in runs.items() if label_runs]
+            tree = stack.enter_context(revision_tree(before_ref))
+            before = functools.partial(raw_pass_of, tree, before_ref, source, target, threads, frame_step)
+        rows = alternate(now_run, before, repeat)
     if load:
-        import subprocess
-        import sys
-
-        busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])
-        try:
-            rows.append({"label": "now, beside one busy process"} | raw_pass(source, target, now, threads, frame_step))
-        finally:
-            busy.kill()
-            busy.wait()
+        rows.append({"label": "now, beside one busy process"} | beside_busy_process(now_run))
     return rows
-
-
-def _median_run(runs: list[dict]) -> dict:
-    median = sorted(runs, key=lambda run: run["fps"])[(len(runs) - 1) // 2]
-    return median | {"fps_runs": [run["fps"] for run in runs]}
