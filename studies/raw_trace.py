@@ -31,7 +31,8 @@ import polars as pl
 
 from ndfa.change.detector import DetectorConfig
 from ndfa.eval import position_score, runs
-from ndfa.eval.position_match import ReportedObject, align_worlds, match_object, score_by_position
+from ndfa.eval.position_match import align_worlds, match_object, score_by_position
+from ndfa.eval.position_score import reported_object, reports_of
 from ndfa.run.replay import replay
 
 
@@ -47,9 +48,8 @@ def describe_objects(maps: dict, cameras: dict, pose_true_run: dict, truth: dict
     lines = []
     for session, session_map in maps.items():
         for object_id, obj in sorted(session_map.objects.items()):
-            seen = [cameras[session][f] for f in obj.frames if f in cameras[session]]
-            local = align_worlds([r for r, _ in seen], [t for _, t in seen])[0] if seen else None
-            match = match_object(ReportedObject(session, object_id, obj.center_world, local), truth, pose_true_run[session])
+            reported = reported_object(maps, cameras, session, object_id, obj.center_world)
+            match = match_object(reported, truth, pose_true_run[session])
             item = match.instance_id
             category, change = names.get(item, ("-", "-")) if item is not None else ("-", "nothing")
             lines.append(f"{session} {object_id:3d} named {obj.category:7s} views {obj.n_measurements:3d} "
@@ -95,23 +95,8 @@ def run(source: str, target: str, out: Path, options: list[str]) -> None:
 
 def score_replay_by_position(result, trace: dict) -> tuple:
     maps = {"source": result.detector.source, "target": result.detector.target}
-    cameras, pose_true_run = trace["cameras"], trace["pose_true_run"]
-
-    def reported(session: str, object_id: int, fallback: np.ndarray) -> ReportedObject:
-        obj = maps[session].objects.get(object_id)
-        if obj is None:
-            return ReportedObject(session, object_id, fallback)
-        seen = [cameras[session][f] for f in obj.frames if f in cameras[session]]
-        local = align_worlds([r for r, _ in seen], [t for _, t in seen])[0] if seen else None
-        return ReportedObject(session, object_id, obj.center_world, local)
-
-    reports = []
-    for change in result.changes:
-        report = [reported(change.session, change.object_id, change.center_world)]
-        if change.kind == "moved" and change.partner_id is not None:
-            report.append(reported("source", change.partner_id, maps["source"].objects[change.partner_id].center_world))
-        reports.append(report)
-    return score_by_position(reports, trace["truth"], pose_true_run, kinds=[c.kind for c in result.changes])
+    reports = reports_of(result.changes, maps, trace["cameras"])
+    return score_by_position(reports, trace["truth"], trace["pose_true_run"], kinds=[c.kind for c in result.changes])
 
 
 def replay_traced(out: Path, config: DetectorConfig, observations: pl.DataFrame | None = None) -> tuple:

@@ -92,3 +92,8 @@ def test_a_failing_before_names_the_revision_and_the_child_s_last_line(tmp_path)
 def test_bench_detect_refuses_an_unknown_revision(ndfa):
     one_line(ndfa("bench", "detect", "--source", SAMPLE / "source.mcap", "--target", SAMPLE / "target.mcap",
                   "--compare", "--before-ref", "no-such-revision"), "--before-ref no-such-revision")
+
+
+def test_bench_refuses_a_before_ref_without_compare(ndfa):
+    one_line(ndfa("bench", "detect", "--source", SAMPLE / "source.mcap", "--target", SAMPLE / "target.mcap",
+                  "--before-ref", "HEAD"), "--before-ref", "--compare")

@@ -62,6 +62,8 @@ def bench_command(
     from ndfa.eval.bench import bench_detect_runs, bench_detection_scaling, bench_ndf, bench_sim
     from ndfa.ndf.runtime import RUNTIMES
 
+    if before_ref is not None and not compare:
+        raise typer.BadParameter("--before-ref names the revision --compare runs beside this code; give --compare too")
     if what == "segment":
         from ndfa.eval.segmentation import segmentation_recall
         from ndfa.io.recording import RecordingReader

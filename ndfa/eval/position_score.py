@@ -26,6 +26,30 @@ from ndfa.run.world import SessionWorld
 ALIGN_FRAMES = 100
 
 
+def reported_object(maps: dict, cameras: dict, session: str, object_id: int, fallback: np.ndarray) -> ReportedObject:
+    """`session`'s object `object_id` with its last center (as the objects table has it, not the one
+    at decision time) and the map into the true world fitted on the cameras (`cameras[session][frame]`:
+    run and true pose) of the frames that saw it; `fallback` when the map no longer holds it."""
+    obj = maps[session].objects.get(object_id)
+    if obj is None:
+        return ReportedObject(session, object_id, fallback)
+    seen = [cameras[session][f] for f in obj.frames if f in cameras[session]]
+    local = align_worlds([run for run, _ in seen], [true for _, true in seen])[0] if seen else None
+    return ReportedObject(session, object_id, obj.center_world, local)
+
+
+def reports_of(changes: list[DecisionEvent], maps: dict, cameras: dict) -> list[list[ReportedObject]]:
+    """Each change's reported objects: its own, and for a move the source object it left."""
+    reports = []
+    for change in changes:
+        report = [reported_object(maps, cameras, change.session, change.object_id, change.center_world)]
+        if change.kind == "moved" and change.partner_id is not None:
+            report.append(reported_object(maps, cameras, "source", change.partner_id,
+                                          maps["source"].objects[change.partner_id].center_world))
+        reports.append(report)
+    return reports
+
+
 def score_segmented_run(changes: list[DecisionEvent], detector: ChangeDetector,
                         readers: dict[str, RecordingReader], worlds: dict[str, SessionWorld],
                         notes: list[str]) -> PositionScore | None:
@@ -57,22 +81,7 @@ def score_segmented_run(changes: list[DecisionEvent], detector: ChangeDetector,
                 true_poses.append(true)
         pose_true_run[session], rmse[session] = align_worlds(run_poses, true_poses)
 
-    def reported(session: str, object_id: int, fallback: np.ndarray) -> ReportedObject:
-        # The object's last center (as the objects table has it), not the one at decision time,
-        # mapped by the cameras of the frames that saw it.
-        obj = maps[session].objects.get(object_id)
-        if obj is None:
-            return ReportedObject(session, object_id, fallback)
-        seen = [cameras[session][f] for f in obj.frames if f in cameras[session]]
-        local = align_worlds([run for run, _ in seen], [true for _, true in seen])[0] if seen else None
-        return ReportedObject(session, object_id, obj.center_world, local)
-
-    reports = []
-    for change in changes:
-        report = [reported(change.session, change.object_id, change.center_world)]
-        if change.kind == "moved" and change.partner_id is not None:
-            report.append(reported("source", change.partner_id, maps["source"].objects[change.partner_id].center_world))
-        reports.append(report)
+    reports = reports_of(changes, maps, cameras)
     truth = dict(readers["target"].ground_truth or {})
     # Each recording lists the sessions rendered up to it; the target's normally has both.
     visible: dict = {}
