@@ -16,7 +16,7 @@ from ndfa.sim.splits import TEST_SEEDS, make_split_object
 from ndfa.training import dataset as dataset_module
 from ndfa.training.batches import sample_batch
 from ndfa.training.dataset import DATASET_ARRAYS, generate_views, load_dataset, object_ids
-from ndfa.training.ndf_eval import per_category
+from ndfa.training.ndf_eval import per_category, per_track
 from ndfa.training.object_samples import object_center, object_samples
 from ndfa.training.views import ViewConfig
 
@@ -109,6 +109,26 @@ def test_the_headline_per_category():
     assert summary["category_accuracy_within_2m"] == 0.75
     assert "mug_views_within_2m" not in summary
 
+
+
+def test_tracks_fuse_views_and_vote_their_category():
+    # Object 0 (a mug) is seen as a cup in 3 of its 4 views, but the mug views are sure and the cup
+    # views are not: a track of 2 views names it a mug only when it holds a sure view. Object 1's
+    # codes agree; object 0's single views scatter, yet their mean stays its own.
+    per_view = {"category": np.array(["mug"] * 4 + ["cup"] * 4), "object_id": np.array([0] * 4 + [1] * 4),
+                "detector_regime": np.ones(8, dtype=bool),
+                "predicted_category": np.array(["mug", "cup", "cup", "cup"] + ["cup"] * 4),
+                "category_probability": np.array([0.99, 0.4, 0.4, 0.4] + [0.9] * 4)}
+    codes = np.array([[1.0, 0.3], [1.0, -0.3], [1.0, 0.2], [1.0, -0.2]] + [[0.0, 1.0]] * 4)
+    summary = per_track(per_view, codes, views_per_track=2, draws=20)
+    assert summary["track_objects"] == 2
+    assert summary["track_retrieval_top1"] == 1.0
+    assert summary["cup_track_category_accuracy"] == 1.0
+    # the sure mug view is in exactly one of each draw's two tracks: half the mug tracks are right
+    assert summary["mug_track_category_accuracy"] == 0.5
+    one_view = per_track(per_view, codes, views_per_track=1, draws=50)
+    assert one_view["mug_track_category_accuracy"] == pytest.approx(0.25, abs=0.15)
+    assert per_track(per_view, codes, views_per_track=5)["track_objects"] == 0  # 4 views: not two tracks of 5
 
 TINY = NDFConfig(hidden=8, latent=16, knn=8, encoder_blocks=1, decoder_width=32, decoder_blocks=1, code_dim=16, gram_channels=4,
                  decoder="frame", local_points=4, up_cue=True, view_cue=True, center_head="gated", categories=("bowl", "box"))

@@ -30,6 +30,12 @@ from ndfa.core.conventions import UNKNOWN_CATEGORY, UP_AXIS, horizontal
 from ndfa.core.events import ObservationEvent
 
 
+def likeliest(category_votes: dict[str, float]) -> str:
+    """The category with the largest summed vote (ties: the later name); `UNKNOWN_CATEGORY` when
+    there are no votes."""
+    return max(category_votes, key=lambda name: (category_votes[name], name)) if category_votes else UNKNOWN_CATEGORY
+
+
 @dataclass(frozen=True)
 class Measurement:
     """One encoded observation, in the session's world frame."""
@@ -84,8 +90,7 @@ class SessionObject:
     def category(self) -> str:
         """The category most of its measurements' probability went to; `UNKNOWN_CATEGORY` when none
         had one (a model without a category head)."""
-        return max(self.category_votes, key=lambda name: (self.category_votes[name], name)) \
-            if self.category_votes else UNKNOWN_CATEGORY
+        return likeliest(self.category_votes)
 
     @property
     def category_share(self) -> float:

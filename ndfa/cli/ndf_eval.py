@@ -43,7 +43,7 @@ def ndf_eval_command(
     import polars as pl
 
     from ndfa.training.dataset import generate_views
-    from ndfa.training.ndf_eval import evaluate_ndf
+    from ndfa.training.ndf_eval import TRACK_VIEWS, evaluate_ndf
     from ndfa.training.views import ViewConfig
 
     if split not in ("test", "train"):
@@ -79,6 +79,10 @@ def ndf_eval_command(
                     f" / {row[f'{name}_center_p90_mm_within_2m']:.1f} mm, retrieval top-1 "
                     f"{row.get(f'{name}_retrieval_top1_within_2m', float('nan')):.3f}"
                     + (f", category accuracy {row[f'{name}_category_accuracy_within_2m']:.3f}"
-                       if f"{name}_category_accuracy_within_2m" in row else ""))
+                       if f"{name}_category_accuracy_within_2m" in row else "")
+                    + (f"; tracks of {TRACK_VIEWS} views: retrieval top-1 {row[f'{name}_track_retrieval_top1']:.3f}"
+                       if f"{name}_track_retrieval_top1" in row else "")
+                    + (f", category accuracy {row[f'{name}_track_category_accuracy']:.3f}"
+                       if f"{name}_track_category_accuracy" in row else ""))
     write_parquet(pl.DataFrame(rows), out / "summary.parquet")
     console.print(f"tables in {out}")

@@ -19,7 +19,13 @@ encoded; the report gives
   (mugs within 1 cm in every box dimension, which a view cannot tell apart by size) merged;
 - with several categories, the same headline per category (prefixed by its name): center
   median and p90, retrieval top-1 (the nearest other view among all categories' views in the
-  regime shows the same object), and for a model with a category head its accuracy.
+  regime shows the same object), and for a model with a category head its accuracy;
+- the same per category for *tracks*, as the detector holds an object: `TRACK_VIEWS` of an
+  object's regime views fused (the mean of their unit codes, the category its views' votes name,
+  as `ndfa.change.associate.SessionObject` does), two disjoint tracks per object drawn
+  `TRACK_DRAWS` times; a track's retrieval hit is its nearest other track being the same
+  object's. One view of a mug with its handle hidden has a cup's or a can's shape; a pass sees
+  an object from several sides, and the track figures say what that gives.
 """
 
 from __future__ import annotations
@@ -30,6 +36,7 @@ import numpy as np
 import polars as pl
 import torch
 
+from ndfa.change.associate import likeliest
 from ndfa.core.conventions import VISIBLE_PIXELS
 from ndfa.core.geometry import invert_pose, transform_points
 from ndfa.ndf.encoder import CENTER_METHODS, FINE_GRID_RESOLUTION, EncoderConfig, NDFEncoder
@@ -43,6 +50,8 @@ from ndfa.training.views import ViewConfig
 NEAR_M = 2.0  # views with the mug this close to the camera (and VISIBLE_PIXELS points) make the headline
 TWIN_M = 0.01  # two mugs whose boxes differ by less than this in every dimension are box twins
 IOU_THRESHOLDS = (0.3, 0.4, 0.5, 0.6)  # occupancy thresholds of the IoU sweep
+TRACK_VIEWS = 5  # views fused into a track (an object's views in a pass are many more, from fewer sides)
+TRACK_DRAWS = 10  # random draws of two disjoint tracks per object
 
 
 def evaluate_ndf(
@@ -121,10 +130,12 @@ def evaluate_ndf(
     model = encoders["head"].model
     if model.category_head is not None:
         with torch.inference_mode():
-            per_view["predicted_category"] = np.array(CATEGORIES)[predicted_categories(model, model.category_logits(
-                torch.from_numpy(shape_codes.astype(np.float32))))]
+            logits = model.category_logits(torch.from_numpy(shape_codes.astype(np.float32)))
+            per_view["predicted_category"] = np.array(CATEGORIES)[predicted_categories(model, logits)]
+            per_view["category_probability"] = torch.softmax(logits, dim=1).max(dim=1).values.numpy()
     if len(np.unique(views["category"])) > 1 or model.category_head is not None:
         summary |= per_category(per_view, centers["head"], true_centers, shape_codes)
+        summary |= per_track(per_view, shape_codes)
     return summary, pl.DataFrame(per_view)
 
 
@@ -155,6 +166,56 @@ def per_category(per_view: dict[str, np.ndarray], centers: np.ndarray, true_cent
         if "predicted_category" in per_view:
             summary[f"{category}_category_accuracy_within_2m"] = float(np.mean(per_view["predicted_category"][regime] == category))
     return summary
+
+
+def per_track(per_view: dict[str, np.ndarray], shape_codes: np.ndarray, views_per_track: int = TRACK_VIEWS,
+              draws: int = TRACK_DRAWS, seed: int = 0) -> dict[str, float]:
+    """Retrieval top-1 and category accuracy of tracks (`views_per_track` regime views of one
+    object fused), over all categories and per category (`{category}_track_...`). Objects with
+    fewer than two tracks' worth of regime views are left out (their count: `track_objects`)."""
+    near = per_view["detector_regime"]
+    labels, truth = per_view["object_id"], per_view["category"]
+    rng = np.random.default_rng(seed)
+    units = shape_codes / np.maximum(np.linalg.norm(shape_codes, axis=1, keepdims=True), 1e-12)
+    objects = [o for o in np.unique(labels[near]) if np.sum(near & (labels == o)) >= 2 * views_per_track]
+    codes, track_labels, named, track_truth = [], [], [], []
+    for _ in range(draws):
+        for o in objects:
+            rows = rng.permutation(np.flatnonzero(near & (labels == o)))[:2 * views_per_track]
+            for track in (rows[:views_per_track], rows[views_per_track:]):
+                codes.append(units[track].mean(axis=0))
+                track_labels.append(o)
+                track_truth.append(truth[track[0]])
+                if "predicted_category" in per_view:
+                    named.append(voted_category(per_view["predicted_category"][track], per_view["category_probability"][track]))
+    summary: dict[str, float] = {"track_objects": float(len(objects))}
+    if len(objects) < 2:
+        return summary
+    # Nearest other track within the same draw: each draw is its own gallery.
+    per_draw = 2 * len(objects)
+    track_labels_array, truth_array = np.array(track_labels), np.array(track_truth)
+    hits = np.concatenate([track_labels_array[d:d + per_draw][nearest_other(np.array(codes[d:d + per_draw]))]
+                           == track_labels_array[d:d + per_draw] for d in range(0, len(codes), per_draw)])
+    right = np.array(named) == truth_array if named else None
+    summary["track_retrieval_top1"] = float(hits.mean())
+    if right is not None:
+        summary["track_category_accuracy"] = float(right.mean())
+    for category in CATEGORIES:
+        mine = truth_array == category
+        if mine.any():
+            summary[f"{category}_track_retrieval_top1"] = float(hits[mine].mean())
+            if right is not None:
+                summary[f"{category}_track_category_accuracy"] = float(right[mine].mean())
+    return summary
+
+
+def voted_category(categories: np.ndarray, probabilities: np.ndarray) -> str:
+    """The category a track's views name: each view's probability summed on its likeliest category,
+    the largest sum (`SessionObject.vote` and `.category`)."""
+    votes: dict[str, float] = {}
+    for category, probability in zip(categories.tolist(), probabilities.tolist()):
+        votes[category] = votes.get(category, 0.0) + probability
+    return likeliest(votes)
 
 
 def box_twins(split: str, views: dict[str, np.ndarray]) -> np.ndarray:
