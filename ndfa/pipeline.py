@@ -152,9 +152,11 @@ class ChangeDetectionPipeline:
         (`new_code_reuse`, the session's frames in order): a masked frame's observations may take
         earlier views' codes (`PipelineConfig.reuse`)."""
         started = time.perf_counter()
-        # The mean occupancy decides the objectness gate of segments and, with "best" fusion, which
-        # measurement an object keeps; elsewhere only whether the reconstruction is empty decides.
-        full = full_reconstruction or observed.segmented or self.config.detector.views.fusion == "best"
+        # The mean occupancy decides the objectness gate of segments (where it has a bar: not the
+        # objects' gate) and, with "best" fusion, which measurement an object keeps; elsewhere only
+        # whether the reconstruction is empty decides.
+        gated = observed.segmented and self.min_segment_occupancy > 0.0
+        full = full_reconstruction or gated or self.config.detector.views.fusion == "best"
         clouds = [o.points_camera for o in observed.observations]
         if reuse is not None and not observed.segmented:
             codes = reuse.encode(clouds, observed.frame.pose_world_camera, full)

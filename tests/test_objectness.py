@@ -307,12 +307,15 @@ def test_the_objects_gate_has_no_occupancy_bar_unless_one_is_set(bar, used):
 
     sample = Path(__file__).parents[1] / "recordings" / "sample" / "source.mcap"
     frame = dataclasses.replace(next(RecordingReader(sample).frames(4, 5)), instances=None)
-    pipeline = ChangeDetectionPipeline(PipelineConfig(min_segment_occupancy=bar), encoder=_CategoryEncoder(0.5))
+    encoder = _CategoryEncoder(0.5)
+    pipeline = ChangeDetectionPipeline(PipelineConfig(min_segment_occupancy=bar), encoder=encoder)
     assert pipeline.gate == "objects"
     observations = [e for e in pipeline.process("source", frame, pipeline.new_detector(), full_reconstruction=False)
                     if isinstance(e, ObservationEvent) and e.n_points > 0]
     assert observations
     assert all((e.skipped is None) == used for e in observations)
+    # Without a bar only whether a reconstruction is empty decides: it is decoded only that far.
+    assert encoder.full_reconstruction == [bar is not None]
     # the same segments with a mugs' model are not measured at that occupancy
     mugs = ChangeDetectionPipeline(PipelineConfig(), encoder=_FixedOccupancyEncoder(0.5))
     assert mugs.min_segment_occupancy == 0.63
