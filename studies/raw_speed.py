@@ -11,6 +11,9 @@ pass's CPU goes, the levers tried, and what grows with a recording's length.
     python studies/raw_speed.py tracking TARGET.mcap [PERIOD]         # planes tracked from frame to frame vs searched
     python studies/raw_speed.py growth MASKED_DIR                     # tracemalloc over a target pass
     python studies/raw_speed.py repeat SHORT_DIR LONG_DIR TIMES       # a long recording: the frames repeated
+    python studies/raw_speed.py encoding RAW_TARGET.mcap [STEP] [WEIGHTS]  # segments' encoding: full vs as decisions need, batches
+    python studies/raw_speed.py motion RECORDING.mcap...              # how far the camera moves from frame to frame
+    python studies/raw_speed.py voxel MASKED_TARGET.mcap [STEP] [SIDE]  # DBSCAN on voxels of SIDE metres: recall, CPU
 
 Speed figures are CPU times (`time.process_time`): on a shared machine wall times measure the others.
 """
@@ -312,8 +315,126 @@ def repeat(short: str, long: str, times: str) -> None:
         print(f"{session}: {count * int(times)} frames")
 
 
+def encoding(path: str, step: str = "2", weights: str = "") -> None:
+    """The encoding of a raw recording's segments (true poses; `weights` a checkpoint, default the
+    shipped one): process CPU per frame with the reconstructions decoded in full and only as far
+    as emptiness, alternating, and whether emptiness, categories and centers agree; the segments'
+    mean occupancy against the gate's bar; and frames encoded 1, 2 or 4 to a call."""
+    from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
+
+    frames = true_posed(path, int(step))
+    pipeline = ChangeDetectionPipeline(PipelineConfig(weights=Path(weights) if weights else None))
+    observed = [pipeline.perceive(frame) for frame in frames]
+    views = [(o.points_camera, f.frame.pose_world_camera) for f in observed for o in f.observations]
+    print(f"{len(frames)} frames, {len(views)} segments; gate {pipeline.gate}, bar {pipeline.min_segment_occupancy}")
+
+    def encoded(group: int, full: bool) -> list:
+        codes = []
+        for start in range(0, len(observed), group):
+            batch = [(o.points_camera, f.frame.pose_world_camera) for f in observed[start:start + group] for o in f.observations]
+            codes += pipeline.encoder.encode_batch([c for c, _ in batch], [p for _, p in batch], full)
+        return codes
+
+    runs = {"full, 1 frame a call": (1, True), "as far as emptiness": (1, False), "full, 2 frames a call": (2, True),
+            "full, 4 frames a call": (4, True)}
+    cpu: dict[str, list[float]] = {label: [] for label in runs}
+    codes = {}
+    for _ in range(3):  # alternating: all see the same load
+        for label, (group, full) in runs.items():
+            started = time.process_time()
+            codes[label] = encoded(group, full)
+            cpu[label].append((time.process_time() - started) / len(frames) * 1e3)
+    for label, values in cpu.items():
+        print(f"{label}: {np.median(values):.2f} ms CPU per frame (median of 3; {min(values):.2f}-{max(values):.2f})")
+    full, partial = codes["full, 1 frame a call"], codes["as far as emptiness"]
+    print("as far as emptiness vs full: emptiness agrees", sum((a.mean_occupancy > 0) == (b.mean_occupancy > 0)
+                                                               for a, b in zip(full, partial)),
+          f"of {len(full)}, categories", sum(a.category == b.category for a, b in zip(full, partial)),
+          ", centers apart at most", max(float(np.abs(a.center_world - b.center_world).max()) for a, b in zip(full, partial)))
+    occupancy = np.array([c.mean_occupancy for c in full])
+    bar = pipeline.min_segment_occupancy
+    print(f"mean occupancy: empty {int((occupancy <= 0).sum())}, under the bar {int(((occupancy > 0) & (occupancy < bar)).sum())}, "
+          f"within 0.05 of it {int((np.abs(occupancy - bar) < 0.05).sum())}; median {np.median(occupancy):.3f}")
+
+
+def motion(*paths: str) -> None:
+    """The camera's motion from one frame to the next (true poses where the recording has them):
+    translation and rotation percentiles, and the share of frames that moved less than 1 cm and 1
+    degree (the frames whose segmentation the previous frame's could stand for)."""
+    for path in paths:
+        poses = [f.pose_world_camera_true if f.pose_world_camera_true is not None else f.pose_world_camera
+                 for f in RecordingReader(path).frames()]
+        moved = np.array([np.linalg.norm(a[:3, 3] - b[:3, 3]) for a, b in zip(poses, poses[1:])])
+        turned = np.degrees(np.arccos(np.clip([(np.trace(a[:3, :3].T @ b[:3, :3]) - 1) / 2 for a, b in zip(poses, poses[1:])],
+                                              -1.0, 1.0)))
+        still = (moved < 0.01) & (turned < 1.0)
+        print(f"{path}: {len(poses)} frames; cm p10/50/90 {np.round(np.percentile(moved * 100, [10, 50, 90]), 2)}, "
+              f"degrees {np.round(np.percentile(turned, [10, 50, 90]), 2)}; under 1 cm and 1 degree: {still.mean():.0%}")
+
+
+def voxel_dbscan(points: np.ndarray, eps: float, min_points: int, side: float) -> np.ndarray:
+    """DBSCAN on a voxel grid (a lever measured, not kept): the points binned in voxels of `side`,
+    each voxel one point at its points' mean weighing as many, DBSCAN on those (a core voxel's
+    voxels within `eps` hold `min_points` points), and each point taking its voxel's cluster."""
+    from scipy.sparse.csgraph import connected_components
+
+    from ndfa.perception.dbscan import _graph
+
+    if len(points) == 0:
+        return np.zeros(0, dtype=np.int64)
+    cells = np.floor(points / side).astype(np.int64)
+    cells -= cells.min(axis=0)
+    span = cells.max(axis=0) + 1
+    _, voxel, counts = np.unique((cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2],
+                                 return_inverse=True, return_counts=True)
+    centres = np.stack([np.bincount(voxel, points[:, axis]) / counts for axis in range(3)], axis=1)
+    pairs = cKDTree(centres).query_pairs(eps, output_type="ndarray")
+    first, second = pairs[:, 0].copy(), pairs[:, 1].copy()
+    weight = counts + np.bincount(first, counts[second], len(counts)) + np.bincount(second, counts[first], len(counts))
+    core = weight >= min_points
+    cluster = np.full(len(counts), -1, dtype=np.int64)
+    if core.any():
+        first_core, second_core = core[first], core[second]
+        both = first_core & second_core
+        _, component = connected_components(_graph(first[both], second[both], len(counts)), directed=True,
+                                            connection="weak")
+        cluster[core] = component[core]
+        for a, b, a_core, b_core in ((first, second, first_core, second_core), (second, first, second_core, first_core)):
+            border = a_core & ~b_core
+            cluster[b[border]] = cluster[a[border]]
+    labels: np.ndarray = cluster[voxel]
+    return labels
+
+
+def voxel(path: str, step: str = "4", side: str = "0.0125") -> None:
+    """DBSCAN on voxels of `side` metres (`voxel_dbscan`) against the exact one, alternating, on a
+    masked recording: the segmentation's recall of the mug views and its spurious segments, and
+    `segment_frame`'s process CPU per frame."""
+    from ndfa.eval.segmentation import segmentation_recall
+    from ndfa.perception import segmentation as module
+
+    frames = list(RecordingReader(path).frames(step=int(step)))
+    exact = module.dbscan
+    variants = {"exact DBSCAN": exact,
+                f"DBSCAN on {side} m voxels": lambda p, eps, m: voxel_dbscan(p, eps, m, float(side))}
+    cpu: dict[str, list[float]] = {label: [] for label in variants}
+    for _ in range(3):
+        for label, variant in variants.items():
+            setattr(module, "dbscan", variant)
+            r = segmentation_recall(frames, SegmentationConfig())
+            cpu[label].append(r.cpu_ms_per_frame)
+    setattr(module, "dbscan", exact)
+    for label, values in cpu.items():
+        setattr(module, "dbscan", variants[label])
+        r = segmentation_recall(frames, SegmentationConfig())
+        print(f"{label}: recovered {r.recovered}/{r.observations} = {r.recall:.1%}, {r.segments} segments, "
+              f"{r.spurious} spurious; {np.median(values):.1f} ms CPU per frame (median of 3; {min(values):.1f}-{max(values):.1f})")
+    setattr(module, "dbscan", exact)
+
+
 if __name__ == "__main__":
-    commands = {f.__name__: f for f in (segmentation, alignment, stride, gate, normals, speedup, stages, tracking, growth, repeat)}
+    commands = {f.__name__: f for f in (segmentation, alignment, stride, gate, normals, speedup, stages, tracking, growth, repeat,
+                                        encoding, motion, voxel)}
     if len(sys.argv) < 2 or sys.argv[1] not in commands:
         sys.exit(__doc__)
     commands[sys.argv[1]](*sys.argv[2:])
