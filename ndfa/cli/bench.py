@@ -48,6 +48,8 @@ def bench_command(
     repeat: int = typer.Option(1, help="detect, raw: run now and the before this many times, in turns; a column "
                                        "is the run of median frames/s.",
                                callback=at_least_one),
+    workers: Optional[int] = typer.Option(None, help="raw: now, processes the run may use (`ndfa detect --workers`; "
+                                                     "default its default).", callback=thread_count),
     overlap: bool = typer.Option(True, "--overlap/--no-overlap",
                                  help="detect: now, the stages run at the same time in threads (else one after the other)."),
     points: Optional[int] = typer.Option(None, help="detect: now, points per observation the NDF encodes (default: "
@@ -78,7 +80,7 @@ def bench_command(
         return
     if what == "raw":
         _bench_raw(source, target, (before_ref or RAW_BEFORE_REF) if compare else None, load=load, repeat=repeat,
-                   threads=threads, frame_step=frame_step)
+                   threads=threads, frame_step=frame_step, workers=workers)
         return
     if what == "detect":
         for option, value in (("--runtime", runtime), ("--before-runtime", before_runtime or runtime)):
@@ -154,15 +156,16 @@ def bench_command(
 
 
 def _bench_raw(source: Path, target: Path, before_ref: str | None, load: bool, repeat: int, threads: int,
-               frame_step: int) -> None:
+               frame_step: int, workers: int | None) -> None:
     """`ndfa bench raw`: the table of `ndfa.eval.bench_raw.raw_pass_runs`."""
     from ndfa.eval.bench_raw import RAW_STAGES, raw_pass_runs
 
     rows = raw_pass_runs(source, target, before_ref=before_ref, load=load, repeat=repeat, threads=threads,
-                         frame_step=frame_step)
+                         frame_step=frame_step, workers=workers)
     now = next(row for row in rows if row["label"] == "now")
     table = Table(title=f"ndfa bench raw: {source.name} + {target.name} ({source.parent}), no sinks",
-                  caption=f"{now['frames']} frames (both sessions), {threads} thread(s), stages {now['stages']}; "
+                  caption=f"{now['frames']} frames (both sessions), {threads} thread(s), {now['workers']} process(es), "
+                          f"stages {now['stages']}; "
                           f"poses {', '.join(now['poses'])}; {now['machine']}")
     table.add_column("ms / frame (both sessions)")
     for row in rows:

@@ -31,6 +31,7 @@ from ndfa.io.recording import RecordingReader
 from ndfa.io.recording.ground_truth import changed_instances
 from ndfa.perception.segmentation_config import GATES
 from ndfa.run.align import REGISTRATION_MODES
+from ndfa.run.workers import WORKERS
 from ndfa.run.world import POSE_MODES, UP_MODES
 
 # The help quotes the detector's defaults: DetectorConfig imports without torch or scipy.
@@ -90,6 +91,10 @@ def detect_command(
                                                      "torch: default one per core). 1 keeps the pass steady when "
                                                      "other jobs share the cores (docs/speed.md).",
                                           callback=thread_count),
+    workers: int = typer.Option(WORKERS, help="Processes the run may use: with 2 or more, the poses of the sessions "
+                                              "after the first and the scene alignment run in another process ahead "
+                                              "of the passes (raw recordings); 1: all in this one "
+                                              "(ndfa.run.workers, docs/speed.md).", callback=thread_count),
     runtime: str = typer.Option("auto", help="Where the NDF runs: auto (ONNX Runtime when installed, else torch) | "
                                              "onnxruntime (faster; docs/speed.md) | torch (the reference)."),
     points: Optional[int] = typer.Option(None, help="Points per observation the NDF encodes (default: the "
@@ -158,7 +163,7 @@ def detect_command(
     if paper_parameters:
         registration = "objects"
     options = RunOptions(frame_step=frame_step, up=up, poses=poses, registration=registration,
-                         check_poses_backward=check_poses_backward)
+                         check_poses_backward=check_poses_backward, workers=workers)
     if len(recordings) > 2:
         _detect_sessions(recordings, config, pipeline, runtime, log, tables, json_out, no_images, options)
         return

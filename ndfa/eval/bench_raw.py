@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import functools
+import resource
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -34,11 +35,13 @@ RAW_STAGES = ("odometry", "up", "reading", "segmentation", "perception", "encodi
 
 
 def raw_pass(source: Path, target: Path, config: PipelineConfig | None = None, threads: int = 1, frame_step: int = 1,
-             overlap: bool = True) -> dict:
+             overlap: bool = True, workers: int | None = None) -> dict:
     """One `ndfa detect SOURCE TARGET` without sinks, timed: `stage_s` (seconds over the run, each
-    stage of `RAW_STAGES`), `stage_ms` (the same per frame of both sessions), `wall_s`, `fps`
-    (both sessions' frames / wall_s), `cpu_s` (this process's CPU time: the figure that another
-    job's share of the cores does not change), `score` (TP, FP, FN; None without ground truth)."""
+    stage of `RAW_STAGES`, wherever it ran: the worker's stages come back with their results,
+    `ndfa.run.workers`), `stage_ms` (the same per frame of both sessions), `wall_s`, `fps` (both
+    sessions' frames / wall_s), `cpu_s` (the CPU time of this process and of the worker processes it
+    waited for: the figure that another job's share of the cores does not change), `score` (TP, FP,
+    FN; None without ground truth)."""
     import torch
 
     # torch, with the NDF: here and not at the top, so that `ndfa bench sim` runs without it
@@ -51,11 +54,11 @@ def raw_pass(source: Path, target: Path, config: PipelineConfig | None = None, t
         config = PipelineConfig()
     config = dataclasses.replace(config, encoder=dataclasses.replace(config.encoder, threads=threads))
     pipeline = ChangeDetectionPipeline(config)  # the NDF loads before the clock starts, as `ndfa detect`'s does
-    cpu_started, started = time.process_time(), time.perf_counter()
-    result = run_detection(source, target, config, sinks=[], options=RunOptions(frame_step=frame_step),
+    cpu_started, started = _cpu_s(), time.perf_counter()
+    result = run_detection(source, target, config, sinks=[], options=RunOptions(frame_step=frame_step, **({} if workers is None else {"workers": workers})),
                            pipeline=pipeline, overlap=overlap)
     wall_s = time.perf_counter() - started
-    cpu_s = time.process_time() - cpu_started
+    cpu_s = _cpu_s() - cpu_started
     score_detection(result)
     stage_s = dict.fromkeys(RAW_STAGES, 0.0)
     for world in result.worlds.values():
@@ -72,8 +75,14 @@ def raw_pass(source: Path, target: Path, config: PipelineConfig | None = None, t
             "stage_ms": {stage: seconds / max(frames, 1) * 1e3 for stage, seconds in stage_s.items()},
             "score": None if score is None else (score.tp, score.fp, score.fn),  # type: ignore[attr-defined]
             "registration": result.describe_registration(), "poses": [w.pose_source for w in result.worlds.values()],
-            "stages": "at the same time" if overlap else "one after the other",
+            "stages": "at the same time" if overlap else "one after the other", "workers": workers or RunOptions().workers,
             "machine": machine()}
+
+
+def _cpu_s() -> float:
+    """CPU seconds of this process and of its children that have ended (the run's worker processes)."""
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + children.ru_utime + children.ru_stime
 
 
 def raw_pass_of(tree: Path, ref: str, source: Path, target: Path, threads: int = 1, frame_step: int = 1) -> dict:
@@ -97,13 +106,14 @@ def raw_pass_of(tree: Path, ref: str, source: Path, target: Path, threads: int =
 
 
 def raw_pass_runs(source: Path, target: Path, now: PipelineConfig | None = None, before_ref: str | None = None,
-                  load: bool = False, repeat: int = 1, threads: int = 1, frame_step: int = 1) -> list[dict]:
+                  load: bool = False, repeat: int = 1, threads: int = 1, frame_step: int = 1,
+                  workers: int | None = None) -> list[dict]:
     """`raw_pass` with the config `now` (default: the shipped one) `repeat` times, each row
     labelled; with `before_ref` (a git revision of this checkout), the raw pass as that revision
     ran it (`raw_pass_of`), alternating with now (`ndfa.eval.revision.alternate`). A label's row
     is its run of median frames/s, every run's in `fps_runs`. With `load`, now once more beside
-    one busy process."""
-    now_run = functools.partial(raw_pass, source, target, now, threads, frame_step)
+    one busy process. `workers`: now's (default `RunOptions.workers`); the before runs as its revision did."""
+    now_run = functools.partial(raw_pass, source, target, now, threads, frame_step, workers=workers)
     with contextlib.ExitStack() as stack:
         before = None
         if before_ref is not None:

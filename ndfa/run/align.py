@@ -37,7 +37,7 @@ from ndfa.core.geometry import backproject, make_pose, rotation_z
 from ndfa.io.recording import RecordingReader
 from ndfa.run.cloud_align import AlignConfig, apply_transform, global_alignment, overlap, upright, voxel_thin
 from ndfa.run.scene_evidence import OwnEvidence, own_evidence
-from ndfa.run.world import SessionWorld
+from ndfa.run.world import KeepDepth, KeptFrame, SessionWorld
 
 RegistrationMode = Literal["auto", "objects", "shared-world", "scene"]
 REGISTRATION_MODES: tuple[str, ...] = ("auto", "objects", "shared-world", "scene")
@@ -145,18 +145,29 @@ def shared_world_transform(source: SessionWorld, target: SessionWorld) -> np.nda
 
 
 def scene_cloud(reader: RecordingReader, world: SessionWorld, config: AlignConfig = AlignConfig()) -> np.ndarray:
-    """(N, 3) the session's depth fused over `config.frames` frames, in its levelled world, one point per voxel."""
-    step = max(1, len(reader) // config.frames)
+    """(N, 3) the session's depth fused over `config.frames` frames, in its levelled world, one point
+    per voxel; from the depth the odometry kept of them (`SessionWorld.kept_depth`) when it kept
+    them as `config` asks, else read from the recording (the same points)."""
+    keep = scene_depth(config)
+    if world.kept_depth is not None and world.kept_depth[0] == keep:
+        kept = world.kept_depth[1]
+    else:
+        kept = [KeptFrame(frame.index, frame.K, frame.pose_world_camera,
+                          frame.depth[::config.pixel_stride, ::config.pixel_stride])
+                for frame in reader.frames(step=keep.step(len(reader)))]
     clouds = []
-    for frame in reader.frames(step=step):
-        frame = world.apply(frame)
-        depth = frame.depth[::config.pixel_stride, ::config.pixel_stride]
-        rows, cols = np.nonzero((depth > MIN_DEPTH_M) & (depth < MAX_DEPTH_M))
-        points = backproject(frame.K, rows * config.pixel_stride, cols * config.pixel_stride, depth[rows, cols])
-        pose = frame.pose_world_camera
+    for frame in kept:
+        rows, cols = np.nonzero((frame.depth > MIN_DEPTH_M) & (frame.depth < MAX_DEPTH_M))
+        points = backproject(frame.K, rows * config.pixel_stride, cols * config.pixel_stride, frame.depth[rows, cols])
+        pose = world.camera_pose(frame.index, frame.pose)
         clouds.append(points @ pose[:3, :3].T + pose[:3, 3])
     cloud = np.concatenate(clouds) if clouds else np.zeros((0, 3))
     return voxel_thin(cloud, config.voxel_m)
+
+
+def scene_depth(config: AlignConfig = AlignConfig()) -> KeepDepth:
+    """Which frames' depth `scene_cloud` fuses, for the odometry to keep (`ndfa.run.world.prepare_session`)."""
+    return KeepDepth(config.frames, config.pixel_stride)
 
 
 def check_shared_world(source_cloud: np.ndarray, target_cloud: np.ndarray, hypothesis: np.ndarray,

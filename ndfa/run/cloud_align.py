@@ -92,13 +92,7 @@ def global_alignment(source_cloud: np.ndarray, target_cloud: np.ndarray,
     import open3d as o3d  # lazily: a run registered by its objects alone never loads Open3D (~1 s)
 
     registration = o3d.pipelines.registration
-    clouds, features = [], []
-    for cloud in (target_cloud, source_cloud):
-        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(cloud))
-        pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=config.normal_radius_m, max_nn=30))
-        clouds.append(pcd)
-        features.append(registration.compute_fpfh_feature(
-            pcd, o3d.geometry.KDTreeSearchParamHybrid(radius=config.feature_radius_m, max_nn=100)))
+    clouds, features = zip(*(_described(cloud, config) for cloud in (target_cloud, source_cloud)))
     # Open3D's RANSAC runs on threads, so one run can land in a wrong basin where another does not
     # (the kitchen halves: fitness 0.79 in one run, 0.07 in the next). So several runs, plus the
     # identity (worlds that start at the same place), each refined by the 4-DoF ICP from a coarse
@@ -122,6 +116,34 @@ def global_alignment(source_cloud: np.ndarray, target_cloud: np.ndarray,
             break
     fitness, rmse, transform = turn_search(source_cloud, target_cloud, best[2], config)
     return transform, fitness, rmse
+
+
+# The last clouds' Open3D point clouds with normals and FPFH features, by content (`_described`).
+_DESCRIBED: dict[tuple[bytes, tuple[int, ...], float, float], tuple[object, object]] = {}
+_DESCRIBED_KEPT = 3
+
+
+def _described(cloud: np.ndarray, config: AlignConfig) -> tuple[object, object]:
+    """(Open3D point cloud with normals, its FPFH features) of `cloud`. The source's serve every
+    alignment onto it (the whole target's and its four halves', `ndfa.run.scene_evidence`), so the
+    last few are kept: the same cloud gives the same features, computed once."""
+    import hashlib
+
+    import open3d as o3d  # lazily: a run registered by its objects alone never loads Open3D (~1 s)
+
+    points = np.ascontiguousarray(cloud, dtype=np.float64)
+    key = (hashlib.blake2b(points.tobytes(), digest_size=16).digest(), points.shape, config.normal_radius_m,
+           config.feature_radius_m)
+    described = _DESCRIBED.pop(key, None)
+    if described is None:
+        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
+        pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=config.normal_radius_m, max_nn=30))
+        described = pcd, o3d.pipelines.registration.compute_fpfh_feature(
+            pcd, o3d.geometry.KDTreeSearchParamHybrid(radius=config.feature_radius_m, max_nn=100))
+        while len(_DESCRIBED) >= _DESCRIBED_KEPT:
+            _DESCRIBED.pop(next(iter(_DESCRIBED)))  # the least recently used
+    _DESCRIBED[key] = described
+    return described
 
 
 def turn_search(source_cloud: np.ndarray, target_cloud: np.ndarray, found: np.ndarray,
@@ -153,18 +175,25 @@ def _better(best: tuple[float, float, np.ndarray], source_cloud: np.ndarray, tar
 def icp_coarse_to_fine(source_cloud: np.ndarray, target_cloud: np.ndarray, initial: np.ndarray,
                        config: AlignConfig = AlignConfig()) -> np.ndarray:
     """`icp_yaw` from `initial`, pairing within 4, then 2, then 1 x `icp_distance_m`."""
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(source_cloud)  # once for the three
     transform = initial
     for distance in (4 * config.icp_distance_m, 2 * config.icp_distance_m, config.icp_distance_m):
-        transform = icp_yaw(source_cloud, target_cloud, transform, dataclasses.replace(config, icp_distance_m=distance))
+        transform = icp_yaw(source_cloud, target_cloud, transform, dataclasses.replace(config, icp_distance_m=distance),
+                            tree)
     return transform
 
 
 def icp_yaw(source_cloud: np.ndarray, target_cloud: np.ndarray, initial: np.ndarray,
-            config: AlignConfig = AlignConfig()) -> np.ndarray:
-    """Point-to-point ICP that turns about z and shifts only, from `initial` (target -> source)."""
+            config: AlignConfig = AlignConfig(), tree: object | None = None) -> np.ndarray:
+    """Point-to-point ICP that turns about z and shifts only, from `initial` (target -> source).
+    tree: `source_cloud`'s `cKDTree`, where the caller has built it."""
     from scipy.spatial import cKDTree
 
-    tree = cKDTree(source_cloud)
+    if tree is None:
+        tree = cKDTree(source_cloud)
+    assert isinstance(tree, cKDTree)
     transform = initial
     for _ in range(config.icp_iterations):
         moved = target_cloud @ transform[:3, :3].T + transform[:3, 3]

@@ -36,7 +36,7 @@ from ndfa.core.sessions import HistoryEvent, HistoryRow, PairEvent, SessionStart
 from ndfa.io.recording import RecordingReader
 from ndfa.io.recording.ground_truth import changed_instances
 from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
-from ndfa.run.align import SceneAlignment, registration_prior
+from ndfa.run.align import SceneAlignment
 from ndfa.run.history import LinkConfig, SessionObjects, compose_placements, link_history
 from ndfa.run.pair import PairResult, named
 from ndfa.run.pose_verdict import pose_quality_event
@@ -50,7 +50,8 @@ from ndfa.run.stream import (
     staged,
     who,
 )
-from ndfa.run.world import SessionWorld, prepare_session
+from ndfa.run.workers import Ahead
+from ndfa.run.world import SessionWorld
 
 
 @dataclass
@@ -158,29 +159,34 @@ def session_pass(
     """Every session's pass in order, each pair's detector fed on the way; sinks are closed at the
     end, also when interrupted.
 
-    Before the passes, each session gets what it lacks (`ndfa.run.world`): poses when it has none,
+    Before its pass, each session gets what it lacks (`ndfa.run.world`): poses when it has none,
     world up when its world is not known to be z-up (`options.up`, `options.poses`); `on_world`
-    hears what was used, as soon as it is known; `on_alignment` hears each pair's scene-level
-    hypothesis of T_rel (`options.registration`). `full_reconstruction`
+    hears what was used, as soon as the pass takes it; `on_alignment` hears each pair's scene-level
+    hypothesis of T_rel (`options.registration`). Which of these run ahead in a worker process
+    (`options.workers`) is `ndfa.run.workers`'s to decide; the results are the same. `full_reconstruction`
     (`ChangeDetectionPipeline.process`): None, when there are sinks to see the reconstructions.
     `overlap`: frames are read, perceived and encoded ahead in threads (`staged`); False: one
     frame after the other in this thread (the same events). `session_events`: the sinks also get
     the events of `ndfa.core.sessions`."""
     paths, names = [Path(p) for p in paths], list(names)
     readers, notes = open_recordings(paths, names, segment=config.segmentation is not None)
-    worlds: dict[str, SessionWorld] = {}
-    for name, reader in zip(names, readers):
-        worlds[name] = prepare_session(reader, name, up=options.up, poses=options.poses,
-                                       check_poses_backward=options.check_poses_backward)
-        if on_world is not None:
-            on_world(worlds[name])
-        if worlds[name].pose_quality is not None:
-            emit(pose_quality_event(worlds[name]), sinks)
     pipeline = pipeline or ChangeDetectionPipeline(config)
     # Without sinks nobody sees the reconstructions: they are decoded only as far as decisions need.
     full = bool(sinks) if full_reconstruction is None else full_reconstruction
     # A detector that takes no priors (`PriorConfig.enabled` off: the paper's) is offered none.
     registration = options.registration if pipeline.config.detector.priors.enabled else "objects"
+    # Where the worlds and the scene alignments run (here, or ahead in a worker process): `ndfa.run.workers`.
+    ahead = Ahead(readers, names, options.workers, options.up, options.poses, options.check_poses_backward,
+                  registration, options.align)
+    worlds: dict[str, SessionWorld] = {}
+
+    def know(index: int) -> None:
+        name = names[index]
+        worlds[name] = ahead.world(index)
+        if on_world is not None:
+            on_world(worlds[name])
+        if worlds[name].pose_quality is not None:
+            emit(pose_quality_event(worlds[name]), sinks)
     pairs: list[PairResult] = []
     frames: dict[str, int] = {}
     seconds: dict[str, float] = {}
@@ -190,15 +196,17 @@ def session_pass(
     seen = [SessionCounts() for _ in names]                       # to explain a session without objects
     transforms: list[np.ndarray | None] = []
     try:
+        for index in ahead.before_passes():
+            know(index)
         for index, (name, reader) in enumerate(zip(names, readers)):
+            if name not in worlds:
+                know(index)
             if session_events:
                 emit(SessionStartEvent(index=index, names=tuple(names)), sinks)
             ending = pairs[index - 1] if index > 0 else None  # the pair whose target this session is
             if ending is not None:
                 placement = compose_placements(transforms)[index - 1]
-                alignment = ending.start_target(registration_prior(
-                    readers[index - 1], reader, {"source": worlds[names[index - 1]], "target": worlds[name]},
-                    registration, options.align), placement)
+                alignment = ending.start_target(ahead.alignment(index - 1), placement)
                 if alignment is not None and on_alignment is not None:
                     on_alignment(ending.label, alignment)
                 if session_events:
@@ -213,6 +221,7 @@ def session_pass(
             total = len(range(0, len(reader), options.frame_step))
             started, count = time.perf_counter(), 0
             for observed in staged(pipeline, reader.frames(step=options.frame_step), worlds[name], full, overlap):
+                ahead.poll(index)  # the next pair's scene alignment starts as soon as it can
                 if ending is not None:
                     events = pipeline.decide("target", observed, ending.detector, also_source_of=None
                                              if starting is None else starting.detector)
@@ -251,6 +260,7 @@ def session_pass(
         if session_events:
             emit(HistoryEvent(rows=tuple(history), names=tuple(names)), sinks)
     finally:
+        ahead.close()
         for sink in sinks:
             sink.close()
 

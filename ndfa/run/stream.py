@@ -20,6 +20,7 @@ from ndfa.perception.segmentation import PlaneTracker
 from ndfa.pipeline import ChangeDetectionPipeline, ObservedFrame
 from ndfa.run.align import RegistrationMode
 from ndfa.run.cloud_align import AlignConfig
+from ndfa.run.workers import WORKERS
 from ndfa.run.world import PoseMode, SessionWorld, UpMode
 
 
@@ -44,6 +45,8 @@ class RunOptions:
         first (`prepare_session`): a better quality figure for twice the odometry's time.
     registration, align: the scene-level hypothesis of T_rel offered to each pair's detector
         (`ndfa.run.align.registration_prior`).
+    workers: processes the run may use; with 2 or more the sessions' poses and the scene
+        alignments run ahead of the passes in another (`ndfa.run.workers`); 1: all in this one.
     """
 
     frame_step: int = 1
@@ -52,6 +55,7 @@ class RunOptions:
     check_poses_backward: bool = False
     registration: RegistrationMode = "auto"
     align: AlignConfig = field(default_factory=AlignConfig)
+    workers: int = WORKERS
 
 
 def open_recordings(paths: Sequence[Path], names: Sequence[str], segment: bool = True

@@ -20,6 +20,10 @@ The core works on frames with camera poses in a z-up world (`ndfa.core.conventio
   says the world is z-up (`up="z"`).
 
 `SessionWorld.describe()` (stderr of `ndfa detect`) and `as_dict()` (its JSON "world") carry the notes.
+
+The odometry reads every frame of the session; `keep_depth` keeps, on the way, the depth of the
+frames the scene cloud is fused from (`ndfa.run.align.scene_cloud`), thinned as it thins them, so
+that the scene alignment need not read them again (`SessionWorld.kept_depth`).
 """
 
 from __future__ import annotations
@@ -33,7 +37,7 @@ import numpy as np
 from ndfa.core.errors import RecordingError
 from ndfa.core.frame import Frame
 from ndfa.io.recording import RecordingReader
-from ndfa.trajectory.level import level_frame
+from ndfa.trajectory.level import level_frame, level_poses
 from ndfa.trajectory.metrics import absolute_trajectory_error, relative_pose_error
 from ndfa.trajectory.quality import PoseQuality, judge
 from ndfa.trajectory.session import (
@@ -61,6 +65,28 @@ UP_FRAMES = 60  # frames the up estimate looks at, spread over the session
 IMU_PLANES_AGREE_DEG = 5.0
 
 
+@dataclass(frozen=True)
+class KeepDepth:
+    """Which frames' depth the odometry keeps: every `len // frames`-th frame (positions 0, step,
+    ...), every `pixel_stride`-th pixel along each axis."""
+
+    frames: int
+    pixel_stride: int
+
+    def step(self, length: int) -> int:
+        return max(1, length // self.frames)
+
+
+@dataclass(frozen=True)
+class KeptFrame:
+    """One frame's depth as `KeepDepth` thinned it, with what back-projecting it needs."""
+
+    index: int                  # `Frame.index`
+    K: np.ndarray               # (3, 3)
+    pose: np.ndarray            # (4, 4) the recorded camera-to-world pose (what `SessionWorld.camera_pose` takes)
+    depth: np.ndarray           # depth[::pixel_stride, ::pixel_stride], a copy
+
+
 @dataclass
 class SessionWorld:
     """How one session's frames are made ready for the core: which poses, which up."""
@@ -80,12 +106,19 @@ class SessionWorld:
     pose_error: dict | None = None
     # Wall seconds of what was estimated: "odometry" (reading its frames included), "up".
     seconds: dict[str, float] = field(default_factory=dict)
+    # The depth the odometry kept for the scene cloud (`prepare_session`'s `keep_depth`), and how; None: not kept.
+    kept_depth: tuple[KeepDepth, list[KeptFrame]] | None = field(default=None, repr=False)
 
     def apply(self, frame: Frame) -> Frame:
         """`frame` with the estimated pose (if any), levelled (if needed)."""
         if self.poses is not None:
             frame = replace(frame, pose_world_camera=self.poses[frame.index])
         return frame if self.levelling is None else level_frame(frame, self.levelling)
+
+    def camera_pose(self, index: int, recorded: np.ndarray) -> np.ndarray:
+        """The camera-to-world pose `apply` gives the frame `index` whose recorded pose is `recorded`."""
+        pose = recorded if self.poses is None else self.poses[index]
+        return pose if self.levelling is None else level_poses(pose, self.levelling)
 
     def describe(self) -> str:
         """One line: which poses and which up this session runs on, and how they were found; then one
@@ -131,10 +164,12 @@ class SessionWorld:
 
 
 def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
-                    poses: PoseMode = "auto", check_poses_backward: bool = False) -> SessionWorld:
+                    poses: PoseMode = "auto", check_poses_backward: bool = False,
+                    keep_depth: KeepDepth | None = None) -> SessionWorld:
     """Estimate what `reader`'s recording lacks (see the module docstring). check_poses_backward:
     estimated poses are estimated a second time over the frames last first, and the two estimates'
-    disagreement joins their quality figure (`ndfa.trajectory.quality`; twice the odometry's time)."""
+    disagreement joins their quality figure (`ndfa.trajectory.quality`; twice the odometry's time).
+    keep_depth: where the odometry reads the frames, their depth is kept for the scene cloud."""
     if up not in UP_MODES:
         raise ValueError(f"up must be one of {UP_MODES}, got {up!r}")
     if poses not in POSE_MODES:
@@ -144,7 +179,11 @@ def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
         world.poses, world.pose_source = _true_poses(reader), "true (the ground-truth channel)"
     elif poses == "estimate" or (poses == "auto" and not reader.has_poses):
         started = time.perf_counter()
-        world.poses, world.pose_source, input_notes, truth, world.pose_quality = _estimate_poses(reader, check_poses_backward)
+        kept: list[KeptFrame] = []
+        world.poses, world.pose_source, input_notes, truth, world.pose_quality = _estimate_poses(
+            reader, check_poses_backward, None if keep_depth is None else (keep_depth, kept))
+        if keep_depth is not None:
+            world.kept_depth = (keep_depth, kept)
         world.seconds["odometry"] = time.perf_counter() - started
         world.notes.extend(input_notes)
         world.pose_error = _pose_error(world.poses, truth)
@@ -242,19 +281,28 @@ def _pose_error(estimate: dict[int, np.ndarray], truth: dict[int, np.ndarray]) -
             "rpe_translation_m": rpe.translation_rmse_m, "rpe_rotation_deg": rpe.rotation_rmse_deg}
 
 
-def _estimate_poses(reader: RecordingReader, backward: bool = False) -> tuple[dict[int, np.ndarray], str, list[str], dict[int, np.ndarray],
-                                                      PoseQuality | None]:
+def _estimate_poses(reader: RecordingReader, backward: bool = False,
+                    keep: tuple[KeepDepth, list[KeptFrame]] | None = None,
+                    ) -> tuple[dict[int, np.ndarray], str, list[str], dict[int, np.ndarray], PoseQuality | None]:
     """Every frame's pose by odometry over the whole session (`ndfa.trajectory.session`), how they
     were estimated, warnings about the input, the frames' true poses (those it has) and the poses'
-    quality judged without them."""
+    quality judged without them. keep: the depth of the frames it picks is added to its list."""
     truth: dict[int, np.ndarray] = {}
+    step = None if keep is None else keep[0].step(len(reader))
+    position = 0
 
-    def keep_truth(frame: Frame) -> None:
+    def seen(frame: Frame) -> None:
+        nonlocal position
         if frame.pose_world_camera_true is not None:
             truth[frame.index] = frame.pose_world_camera_true
+        if keep is not None and step is not None and position % step == 0:
+            stride = keep[0].pixel_stride
+            keep[1].append(KeptFrame(frame.index, frame.K, frame.pose_world_camera,
+                                     frame.depth[::stride, ::stride].copy()))
+        position += 1
 
     session = estimate_session_poses(reader.frames(), choose_method(next(iter(reader.frames(stop=1)), None)),
-                                     reader.path, rgbd_config=rgbd_config_for(reader.meta), on_frame=keep_truth,
+                                     reader.path, rgbd_config=rgbd_config_for(reader.meta), on_frame=seen,
                                      backward_frames=frames_backwards(reader) if backward else None)
     notes = session.input_report.warnings(untracked_poses=UNTRACKED_POSES) if session.poses else []
     quality = None if session.evidence is None else judge(session.evidence)

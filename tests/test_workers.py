@@ -1,0 +1,98 @@
+"""What runs where (`ndfa.run.workers`): the sessions' poses and the scene alignment in a worker
+process give what they give in this one, and the scene cloud from the depth the odometry kept is the
+cloud read from the recording."""
+
+from __future__ import annotations
+
+import dataclasses
+import re
+
+import numpy as np
+import pytest
+
+from ndfa.io.ingest.synthetic import ingest_sim
+from ndfa.io.recording import RecordingReader
+from ndfa.pipeline import PipelineConfig
+from ndfa.run.align import scene_cloud, scene_depth
+from ndfa.run.detect import RunOptions, run_detection
+from ndfa.run.workers import Ahead, needs_worker
+from ndfa.run.world import KeptFrame, SessionWorld, prepare_session
+from ndfa.sim.camera import PinholeCamera
+from ndfa.sim.noise import DepthNoise
+from ndfa.sim.presets import make_config
+from tests.test_sessions import SAMPLE
+
+
+@pytest.fixture(scope="module")
+def raw_pair(tmp_path_factory):
+    """A small raw pair (no masks, no poses), 160 x 120, about 100 frames in all."""
+    config = make_config("sample", 3, depth_noise=DepthNoise.off(), camera=PinholeCamera().scaled(0.25))
+    config = dataclasses.replace(config, trajectory=dataclasses.replace(config.trajectory, step_m=0.3),
+                                 raw=True, textures=True)
+    out = tmp_path_factory.mktemp("raw")
+    ingest_sim(config, out)
+    return out
+
+
+def test_a_worker_is_started_only_for_sessions_whose_poses_are_estimated():
+    readers = [RecordingReader(SAMPLE / "source.mcap"), RecordingReader(SAMPLE / "target.mcap")]
+    assert not needs_worker(readers, "auto")      # the sample's poses are given
+    assert needs_worker(readers, "estimate")
+    assert not needs_worker(readers[:1], "estimate")  # the first session's are estimated here
+    ahead = Ahead(readers, ["source", "target"], 2, "auto", "auto", False, "auto", RunOptions().align)
+    try:
+        assert ahead.pool is None and list(ahead.before_passes()) == [0, 1]
+    finally:
+        ahead.close()
+
+
+def test_the_scene_cloud_from_kept_depth_is_the_cloud_read_from_the_recording():
+    reader = RecordingReader(SAMPLE / "target.mcap")
+    world = SessionWorld("target", pose_source="given", up_source="z", levelling=np.eye(3)[[1, 0, 2]] * [1, 1, 1])
+    config = RunOptions().align
+    keep = scene_depth(config)
+    kept = [KeptFrame(f.index, f.K, f.pose_world_camera, f.depth[::keep.pixel_stride, ::keep.pixel_stride].copy())
+            for f in reader.frames(step=keep.step(len(reader)))]
+    read = scene_cloud(reader, world, config)
+    world.kept_depth = (keep, kept)
+    assert len(read) > 1000
+    np.testing.assert_array_equal(scene_cloud(reader, world, config), read)
+    # Kept otherwise than the cloud asks: read again.
+    world.kept_depth = (dataclasses.replace(keep, pixel_stride=keep.pixel_stride * 2), kept)
+    np.testing.assert_array_equal(scene_cloud(reader, world, config), read)
+
+
+@pytest.mark.slow
+def test_the_odometry_keeps_the_depth_the_scene_cloud_reads(raw_pair):
+    reader = RecordingReader(raw_pair / "target.mcap")
+    keep = scene_depth()
+    world = prepare_session(reader, "target", keep_depth=keep)
+    assert world.kept_depth is not None and world.kept_depth[0] == keep
+    assert [f.index for f in world.kept_depth[1]] == [f.index for f in reader.frames(step=keep.step(len(reader)))]
+    kept = scene_cloud(reader, world)
+    world.kept_depth = None
+    np.testing.assert_array_equal(kept, scene_cloud(reader, world))
+
+
+@pytest.mark.slow
+def test_a_run_with_a_worker_process_gives_what_it_gives_in_one(raw_pair):
+    paths = raw_pair / "source.mcap", raw_pair / "target.mcap"
+    runs = {workers: run_detection(*paths, PipelineConfig(), options=RunOptions(workers=workers))
+            for workers in (1, 2)}
+    one, two = (untimed(runs[w].summary()) for w in (1, 2))
+    assert two["world"]["target"]["poses"].startswith("estimated")
+    assert one == two
+    # The worker's timings came back with its results.
+    assert runs[2].worlds["target"].seconds["odometry"] > 0
+    assert runs[2].alignment is not None and runs[2].alignment.seconds > 0
+
+
+def untimed(summary: object) -> object:
+    """A `--json` summary without what the clock gave (frames/s, stage times, seconds)."""
+    if isinstance(summary, dict):
+        return {k: untimed(v) for k, v in summary.items() if k not in ("fps", "stage_ms", "seconds")}
+    if isinstance(summary, list):
+        return [untimed(v) for v in summary]
+    if isinstance(summary, str):  # a note that quotes an alignment's seconds
+        return re.sub(r"\d+\.\d s\b", "_ s", summary)
+    return summary
