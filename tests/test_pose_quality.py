@@ -48,6 +48,16 @@ def _evidence(true_poses: list[np.ndarray], estimate: list[np.ndarray]) -> PoseE
     return gather_evidence(estimate, sketches, object(), list(range(len(estimate))))
 
 
+def test_a_sketch_keeps_the_nearest_valid_depth_around_each_pixel():
+    depth = np.full((6, 8), 2.0, np.float32)
+    depth[2, 3], depth[4, 6] = 1.0, np.nan
+    depth[0:2, 0:2] = np.nan
+    nearest = make_sketch(depth, np.eye(3)).nearest
+    assert nearest[3, 4] == 1.0 and nearest[1, 2] == 1.0 and nearest[3, 5] == 2.0  # 1.0 reaches its 3x3 only
+    assert nearest[4, 6] == 2.0  # an invalid pixel among valid ones: theirs
+    assert nearest[0, 0] == np.inf  # no valid depth around
+
+
 def test_right_poses_are_good_and_drifting_ones_unusable():
     truth = _circling()
     right = _evidence(truth, truth)

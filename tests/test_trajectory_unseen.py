@@ -47,6 +47,33 @@ def twist_pose(rotation: tuple[float, float, float], translation: tuple[float, f
     return make_pose(axis_angle_to_matrix(np.array(rotation)), np.array(translation))
 
 
+def _plane_information_by_definition(depth: np.ndarray, step: int, baseline: int) -> np.ndarray:
+    """sum of J^T J, J = (p x n, n), over the pixels whose right and lower neighbours are on the same
+    surface: the matrix `plane_information` computes component by component."""
+    z = depth[::step, ::step].astype(np.float64)
+    rows, cols = np.mgrid[0:z.shape[0], 0:z.shape[1]] * step
+    points = np.stack([(cols - K[0, 2]) / K[0, 0] * z, (rows - K[1, 2]) / K[1, 1] * z, z], axis=-1)
+    b = baseline
+    right, down = points[:-b, b:] - points[:-b, :-b], points[b:, :-b] - points[:-b, :-b]
+    normals = np.cross(right, down)
+    length = np.linalg.norm(normals, axis=-1)
+    p = points[:-b, :-b]
+    jump = 0.05 * b * p[..., 2]
+    keep = np.isfinite(length) & (length > 0) & (np.abs(right[..., 2]) < jump) & (np.abs(down[..., 2]) < jump)
+    n = normals[keep] / length[keep, None]
+    jacobian = np.hstack([np.cross(p[keep], n), n])
+    return jacobian.T @ jacobian
+
+
+def test_the_plane_information_is_the_sum_over_the_surface_pixels_of_its_definition():
+    depth = corner()
+    depth[100:140, 50:90] = np.nan  # a hole of invalid depth
+    depth[:, 200:] += 0.3  # and a depth jump, no plane across it
+    for step, baseline in ((2, 1), (4, 4)):
+        expected = _plane_information_by_definition(depth, step, baseline)
+        assert np.allclose(plane_information(depth, K, step, baseline), expected, rtol=1e-12, atol=0.0)
+
+
 def test_a_noisy_wall_shows_its_unseen_directions_only_with_normals_over_a_wider_baseline():
     noisy = wall(noise_m=0.004)
     adjacent = depth_degeneracy(plane_information(noisy, K), 1.2)

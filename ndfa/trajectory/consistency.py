@@ -70,11 +70,14 @@ class ConsistencyConfig:
 @dataclass(frozen=True)
 class DepthSketch:
     """A frame's depth subsampled to at most SKETCH_WIDTH pixels wide (NaN where out of range), its
-    intrinsics at that size, and its valid points in the camera frame."""
+    intrinsics at that size, its valid points in the camera frame, and per pixel the nearest valid
+    depth of the 3x3 pixels around it (inf where none): what `check_pair` compares with, made once
+    per frame instead of once per pair."""
 
     depth: np.ndarray  # (rows, cols) float32 metres, NaN invalid
     K: np.ndarray  # (3, 3)
     points: np.ndarray  # (M, 3) float32, camera frame
+    nearest: np.ndarray  # (rows, cols) float32 metres, inf where no valid depth around
 
     @property
     def median_depth_m(self) -> float:
@@ -96,7 +99,16 @@ def make_sketch(depth: np.ndarray, K: np.ndarray) -> DepthSketch:
     rows, cols = np.nonzero(np.isfinite(depth))
     z = depth[rows, cols]
     points = backproject(K, rows, cols, z).astype(np.float32)
-    return DepthSketch(depth=depth, K=K, points=points)
+    return DepthSketch(depth=depth, K=K, points=points, nearest=_nearest_around(depth))
+
+
+def _nearest_around(depth: np.ndarray) -> np.ndarray:
+    """The smallest valid depth of each pixel's 3x3 neighbourhood (inf where none; the border
+    pixels, which `check_pair` never reads, as if outside were invalid)."""
+    import cv2
+
+    valid = np.where(np.isfinite(depth), depth, np.inf).astype(np.float32)
+    return cv2.erode(valid, np.ones((3, 3), np.uint8), borderType=cv2.BORDER_CONSTANT, borderValue=np.inf)
 
 
 @dataclass(frozen=True)
@@ -137,12 +149,7 @@ def check_pair(sketch_i: DepthSketch, sketch_j: DepthSketch, j_from_i: np.ndarra
         return None
     cols, rows, z = cols[valid], rows[valid], z[valid]
     # The nearest of the 3x3 pixels around: a point by a silhouette may land one pixel off it.
-    nearest = np.full(len(z), np.inf, np.float32)
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            around = sketch_j.depth[rows + dy, cols + dx]
-            nearest = np.fmin(nearest, np.where(np.isfinite(around), around, np.inf))
-    in_front = np.maximum(nearest - z, 0.0)
+    in_front = np.maximum(sketch_j.nearest[rows, cols] - z, 0.0)
     conflict, shared = np.quantile(in_front, [0.95, 1.0 - shared_share])
     return PairCheck(0, 0, overlap=int(len(z)), violating=int((in_front > tau_m).sum()),
                      conflict_m=float(conflict), shared_conflict_m=float(shared))

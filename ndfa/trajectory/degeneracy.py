@@ -16,21 +16,32 @@ def plane_information(depth: np.ndarray, K: np.ndarray, step: int = 2, baseline:
     normals scatter enough to make a bare wall look as constrained as a cluttered desk (smallest
     eigenvalue ratio ~0.02 either way at baseline 1, 0.0005 against 0.015 at 4 samples of 4 px)."""
     z = depth[::step, ::step].astype(np.float64)
-    rows, cols = np.mgrid[0:z.shape[0], 0:z.shape[1]] * step
-    points = np.stack([(cols - K[0, 2]) / K[0, 0] * z, (rows - K[1, 2]) / K[1, 1] * z, z], axis=-1)
+    rows = np.arange(z.shape[0])[:, None] * step
+    cols = np.arange(z.shape[1])[None, :] * step
+    x, y = (cols - K[0, 2]) / K[0, 0] * z, (rows - K[1, 2]) / K[1, 1] * z
+    # Component by component on the kept pixels only: the same arithmetic as stacked (H, W, 3)
+    # points with np.cross (the same matrix to the bit), in a third of the time.
     b = baseline
-    right, down = points[:-b, b:] - points[:-b, :-b], points[b:, :-b] - points[:-b, :-b]
-    normals = np.cross(right, down)
-    length = np.linalg.norm(normals, axis=-1)
-    p = points[:-b, :-b]
+    here = (x[:-b, :-b], y[:-b, :-b], z[:-b, :-b])
+    right = [c[:-b, b:] - h for c, h in zip((x, y, z), here, strict=True)]
+    down = [c[b:, :-b] - h for c, h in zip((x, y, z), here, strict=True)]
     # Both neighbours valid and on the same surface (a depth jump is no plane).
-    jump = 0.05 * b * p[..., 2]
-    same = (np.abs(right[..., 2]) < jump) & (np.abs(down[..., 2]) < jump)
-    keep = np.isfinite(length) & (length > 0) & same & (p[..., 2] > 0)
-    if not keep.any():
+    jump = 0.05 * b * here[2]
+    keep = (np.abs(right[2]) < jump) & (np.abs(down[2]) < jump) & (here[2] > 0)
+    r0, r1, r2 = (c[keep] for c in right)
+    d0, d1, d2 = (c[keep] for c in down)
+    p0, p1, p2 = (c[keep] for c in here)
+    n0, n1, n2 = r1 * d2 - r2 * d1, r2 * d0 - r0 * d2, r0 * d1 - r1 * d0  # right x down
+    length = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+    ok = np.isfinite(length) & (length > 0)
+    if not ok.any():
         return np.zeros((6, 6))
-    n = normals[keep] / length[keep, None]
-    jacobian = np.hstack([np.cross(p[keep], n), n])
+    length = length[ok]
+    n0, n1, n2 = n0[ok] / length, n1[ok] / length, n2[ok] / length
+    p0, p1, p2 = p0[ok], p1[ok], p2[ok]
+    jacobian = np.empty((len(length), 6))  # (p x n, n)
+    jacobian[:, 0], jacobian[:, 1], jacobian[:, 2] = p1 * n2 - p2 * n1, p2 * n0 - p0 * n2, p0 * n1 - p1 * n0
+    jacobian[:, 3], jacobian[:, 4], jacobian[:, 5] = n0, n1, n2
     return jacobian.T @ jacobian
 
 
@@ -63,7 +74,10 @@ def depth_degeneracy(information: np.ndarray, depth_m: float) -> float:
 def textured_fraction(rgb: np.ndarray, valid: np.ndarray, threshold: float) -> float:
     """Fraction of the valid pixels whose intensity (0-1) changes by more than `threshold` to the
     next pixel right or down."""
-    gray = rgb.astype(np.float32).mean(axis=2) / 255.0
+    channels = rgb.astype(np.float32, copy=False)
+    # The channels' mean, as numpy's mean over the last axis sums and divides it (the same values),
+    # without its strided reduction (3.5x the time).
+    gray = (channels[..., 0] + channels[..., 1] + channels[..., 2]) / np.float32(3.0) / np.float32(255.0)
     gradient = np.zeros_like(gray)
     gradient[:, :-1] = np.abs(np.diff(gray, axis=1))
     gradient[:-1] = np.maximum(gradient[:-1], np.abs(np.diff(gray, axis=0)))

@@ -23,7 +23,11 @@ class RgbdOdometryConfig:
     max_width: images are subsampled by the smallest integer factor that brings them to at most
         this many pixels wide (640 -> 320): 4x less work, and the coarse-to-fine pyramid starts
         from there.
-    iterations: Gauss-Newton iterations per pyramid level, finest level first (Open3D's order).
+    iterations: at most this many Gauss-Newton iterations per pyramid level, coarsest level first
+        (Open3D's order: the last is the `max_width` image itself, each before it half as wide).
+    converged_change: a level's iterations stop when an iteration changes both the fitness and the
+        inlier RMSE by less than this, relative (Open3D's criteria; its default, 1e-6, almost never
+        stops early; docs/speed.md, "The odometry's CPU").
     depth_outlier_trunc_m: a depth pair farther apart than this is no correspondence.
     depth_huber_delta_m, intensity_huber_delta: Huber scales of the depth (metres) and intensity
         (0-1) residuals.
@@ -117,6 +121,7 @@ class RgbdOdometryConfig:
     max_depth_m: float = MAX_DEPTH_M
     max_width: int = 320
     iterations: tuple[int, ...] = (10, 10, 10)
+    converged_change: float = 1e-3
     depth_outlier_trunc_m: float = 0.07
     depth_huber_delta_m: float = 0.05
     intensity_huber_delta: float = 0.1

@@ -101,7 +101,8 @@ def register_dense(source: View, target: View, initial: np.ndarray, term: str,
     odometry = o3d.t.pipelines.odometry
     method = {HYBRID: odometry.Method.Hybrid, INTENSITY: odometry.Method.Intensity,
               POINT_TO_PLANE: odometry.Method.PointToPlane}[term]
-    criteria = [odometry.OdometryConvergenceCriteria(iterations) for iterations in config.iterations]
+    criteria = [odometry.OdometryConvergenceCriteria(iterations, config.converged_change, config.converged_change)
+                for iterations in config.iterations]
     params = odometry.OdometryLossParams(config.depth_outlier_trunc_m, config.depth_huber_delta_m,
                                          config.intensity_huber_delta)
     try:
