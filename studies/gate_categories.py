@@ -4,8 +4,9 @@ non-objects it lets through (docs/segmentation.md, "Objects, not mugs").
     python studies/gate_categories.py REC.mcap [REC.mcap ...] [--step 4]
 
 Each frame of a recording with instance masks (a scene of `ndfa ingest sim --categories all
---clutter N`: objects of every category, papers and cables) is segmented from its depth alone, once
-with the mugs' gate (`SegmentationConfig()`) and once with the objects' (`.for_objects()`). A view
+--clutter N`: objects of every category, papers and cables) is segmented from its depth alone, with
+the mugs' gate (`SegmentationConfig()`), the objects' (`.for_objects()`) and the objects' without
+its outline rule (`max_outline_goes_on=None`: docs/categories.md, "Objects in real rooms"). A view
 of an object (its mask holds `VISIBLE_PIXELS` pixels with depth) is *kept* when a segment matches it
 with IoU >= 0.5 (`ndfa.eval.segmentation.match_segments`); recall per category is kept / views. A
 kept segment that matches no object is a *false object*, named by what most of its pixels are: a
@@ -17,6 +18,7 @@ rims, the floor). Categories: the ground truth's `category` of the scene's objec
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from collections import Counter
 
 import numpy as np
@@ -27,7 +29,8 @@ from ndfa.io.recording import RecordingReader
 from ndfa.perception.segmentation import segment_frame
 from ndfa.perception.segmentation_config import SegmentationConfig
 
-GATES = {"mugs": SegmentationConfig(), "objects": SegmentationConfig().for_objects()}
+GATES = {"mugs": SegmentationConfig(), "objects": SegmentationConfig().for_objects(),
+         "objects without the outline": dataclasses.replace(SegmentationConfig().for_objects(), max_outline_goes_on=None)}
 
 
 def instance_names(truth: dict) -> dict[int, str]:
@@ -70,8 +73,8 @@ def main() -> None:
                     elif iou < 0.5:
                         false_objects[gate]["part of an object" if instance else name] += 1
     print(f"{frames} frames of {len(args.recordings)} recordings, every {args.step}th\n")
-    print("| category | views | kept, mugs' gate | kept, objects' gate |")
-    print("|---|---|---|---|")
+    print("| category | views | " + " | ".join(f"kept, {gate}" for gate in GATES) + " |")
+    print("|---|---|" + "---|" * len(GATES))
     for name in sorted(views, key=lambda n: (n.startswith("non-object"), n)):
         cells = [f"{kept[g][name]} ({kept[g][name] / views[name]:.0%})" for g in GATES]
         print(f"| {name} | {views[name]} | {' | '.join(cells)} |")

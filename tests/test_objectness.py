@@ -247,6 +247,27 @@ def test_on_redkitchen_the_segments_are_the_two_mugs():
     assert clutter_without_gate >= 3
 
 
+@pytest.mark.skipif(not REDKITCHEN.is_dir(), reason=f"the 7-Scenes redkitchen slice is not at {REDKITCHEN} (../shared absent)")
+def test_on_redkitchen_the_objects_gate_turns_away_what_goes_on_into_something_larger():
+    """The objects' gate's outline rule (docs/categories.md, "Objects in real rooms"): frame 370's one
+    segment is the top rail of a chair's back at the table's edge (its back goes on below the
+    table's level), frame 440's 32 are the mug and 31 pieces of the room (strips of a cabinet's
+    front and a wall 3 m away, side by side); without the rule the objects' gate keeps them all."""
+    objects = SegmentationConfig().for_objects()
+    without = dataclasses.replace(objects, max_outline_goes_on=None)
+    kept = {}
+    for index in (370, 440):
+        frame = _redkitchen_frame(index)
+        labels, verdicts = explain_frame(frame, objects)
+        kept[index] = int(labels.max())
+        assert int(explain_frame(frame, without)[0].max()) == kept[index] + sum(v.rejected == "attached" for v in verdicts)
+        if index == 440:
+            rows, cols = np.nonzero(labels == 1)
+            assert np.linalg.norm(_world_points(frame, rows, cols).mean(axis=0)[:2] - _PATTERNED_MUG) < 0.08
+    assert kept[370] == 0
+    assert kept[440] <= 3
+
+
 # -- the pipeline's occupancy test on segmented frames ------------------------------------------
 
 

@@ -78,6 +78,35 @@ class ClusterVerdict:
     rejected: str | None
     label: int = 0
     split: bool = False
+    outline: Outline | None = None
+
+
+@dataclass(frozen=True)
+class Outline:
+    """What lies around a cluster that stands on a support (`_outline`, `_hanging`). In the image,
+    just outside its silhouette, from its top edge (each column's topmost sample) and from its left
+    and right sides (each row's outermost samples): of the outline samples whose look outwards
+    found depth that is neither the support nor nearer (an occluder), the share where the surface
+    goes on (within the gap of the outline's own depth) rather than falling away behind: `top`,
+    `left`, `right` (None: fewer than `OUTLINE_MIN_SAMPLES` such samples). In the world, `hanging`:
+    the share of its base points (the lowest `base_band_m`) with a point of the frame right below
+    them, under the support's level (None: no base points). A standing object is seen free: behind
+    its silhouette lies the room, farther, and under its base the support hides everything; a piece
+    of something larger goes on past it: a chair's slanted leg above its foot (`top`), a strip of a
+    wall or a cabinet's front on both sides (`left` and `right`), a chair's back at a table's edge
+    or a table's rim below the support's level (`hanging`)."""
+
+    top: float | None
+    left: float | None
+    right: float | None
+    hanging: float | None
+
+    def goes_on(self) -> float:
+        """How far the cluster goes on into something larger: the largest of the top's share, the
+        smaller side's (a wall's strip goes on at both, an object against a wall at one) and the
+        hanging share; 0 where nothing was measured."""
+        sides = None if self.left is None or self.right is None else min(self.left, self.right)
+        return max(share for share in (self.top, sides, self.hanging, 0.0) if share is not None)
 
 
 class PlaneTracker:
@@ -150,6 +179,7 @@ def explain_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig(
                             cluster_planes, planes, up, frame.pose_world_camera[:3, 3], config)
     kept = []
     depth_box: tuple[int, int, int, int] | None = None  # `_depth_box`, found when first needed
+    fragments: np.ndarray | None = None  # `_fragments`, found when first needed
     for cluster, verdict in judged:
         members = cluster_of_point == cluster
         cluster_rows, cluster_cols = candidate_rows[members], candidate_cols[members]
@@ -159,9 +189,18 @@ def explain_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig(
             depth_box = _depth_box(frame.depth) if depth_box is None else depth_box
         if verdict.rejected is None and _cut_by_border(cluster_rows, cluster_cols, depth_box, config):
             verdict = ClusterVerdict(verdict.shape, "cut", split=verdict.split)
+        outline = None
+        if verdict.rejected is None and config.max_outline_goes_on is not None:
+            plane = planes[int(np.bincount(cluster_planes[members]).argmax())]
+            if fragments is None:
+                fragments = _fragments(labels.shape, candidate_rows, candidate_cols, cluster_of_point, stride, config)
+            outline = _outline(frame, cluster_rows, cluster_cols, plane, stride, fragments, config,
+                               _hanging(points, depths, cluster_points[members], plane, config))
+            if outline.goes_on() > config.max_outline_goes_on:
+                verdict = ClusterVerdict(verdict.shape, "attached", split=verdict.split, outline=outline)
         if verdict.rejected is None:
             kept.append(cluster)
-            verdict = ClusterVerdict(verdict.shape, None, label=len(kept), split=verdict.split)
+            verdict = ClusterVerdict(verdict.shape, None, label=len(kept), split=verdict.split, outline=outline)
         verdicts.append(verdict)
     if not kept:
         return labels, verdicts
@@ -360,6 +399,89 @@ def _hidden_above(depth: np.ndarray, rows: np.ndarray, cols: np.ndarray, config:
     above = np.where(counted, values, np.inf).min(axis=0, initial=np.inf)
     hidden = above < own - config.occluder_gap_m
     return bool(hidden.mean() > 0.5)
+
+
+OUTLINE_MIN_SAMPLES = 3
+
+
+def _fragments(shape: tuple[int, int], rows: np.ndarray, cols: np.ndarray, cluster_of_point: np.ndarray,
+               stride: int, config: SegmentationConfig) -> np.ndarray:
+    """On the sample grid of `stride` (of an image of `shape`), the candidates (`rows`, `cols`,
+    their DBSCAN clusters) that DBSCAN left as noise or in a cluster under `min_cluster_points`:
+    fringes (an object's rim, its mixed pixels), not surfaces of their own."""
+    clusters, sizes = np.unique(cluster_of_point, return_counts=True)
+    small = clusters[(clusters < 0) | (sizes < config.min_cluster_points)]
+    grid = np.zeros((-(-shape[0] // stride), -(-shape[1] // stride)), dtype=bool)
+    fragment = np.isin(cluster_of_point, small)
+    grid[rows[fragment] // stride, cols[fragment] // stride] = True
+    return grid
+
+
+def _outline(frame: Frame, rows: np.ndarray, cols: np.ndarray, plane: Plane, stride: int, fragments: np.ndarray,
+             config: SegmentationConfig, hanging: float | None) -> Outline:
+    """`Outline` of a cluster's samples (`rows`, `cols`: full-resolution pixels on the sample grid of
+    `stride`) standing on `plane` (its `hanging` share given). From each outline sample, the next
+    `outline_look_samples` samples outwards (up from the top edge, left and right from the sides) not
+    in the cluster are looked at; those with depth in range and not `fragments` (`_fragments`) are
+    back-projected. Support: any of them
+    within the support's tolerance of the plane (max(`min_height_m`, 3 sigma of the depth noise)):
+    the table beside a base, nothing to say. Else the farthest of them: nearer than the outline's
+    depth by more than the gap (max(`outline_gap_m`, 3 sigma)) is an occluder (nothing to say),
+    within the gap the surface goes on, beyond it the room lies behind (free)."""
+    grid = frame.depth[::stride, ::stride]
+    height, width = grid.shape
+    r, c = rows // stride, cols // stride
+    inside = np.zeros(grid.shape, dtype=bool)
+    inside[r, c] = True
+    order = np.lexsort((r, c))  # by column, then row
+    columns, first = np.unique(c[order], return_index=True)
+    top = (r[order][first], columns)
+    order = np.lexsort((c, r))  # by row, then column
+    row_values, first, counts = np.unique(r[order], return_index=True, return_counts=True)
+    left, right = (row_values, c[order][first]), (row_values, c[order][first + counts - 1])
+    steps = np.arange(1, config.outline_look_samples + 1)[:, None]
+    shares = []
+    for (edge_rows, edge_cols), (d_row, d_col) in ((top, (-1, 0)), (left, (0, -1)), (right, (0, 1))):
+        own = grid[edge_rows, edge_cols]
+        look_rows, look_cols = edge_rows[None, :] + d_row * steps, edge_cols[None, :] + d_col * steps
+        on_grid = (look_rows >= 0) & (look_rows < height) & (look_cols >= 0) & (look_cols < width)
+        look_rows, look_cols = np.where(on_grid, look_rows, 0), np.where(on_grid, look_cols, 0)
+        depth = np.where(on_grid & ~inside[look_rows, look_cols], grid[look_rows, look_cols], 0.0)
+        valid = conventions.depth_in_range(depth, config.min_depth_m, config.max_depth_m)
+        valid &= ~fragments[look_rows, look_cols]
+        sigma = _noise_sigma(own, config)
+        tolerance = np.broadcast_to(np.maximum(config.min_height_m, 3 * sigma), depth.shape)
+        world = _world_points(frame, look_rows[valid] * stride, look_cols[valid] * stride, depth[valid])
+        on_support = np.zeros(depth.shape, dtype=bool)
+        on_support[valid] = np.abs(plane.height(world)) < tolerance[valid]
+        farthest = np.where(valid, depth, -np.inf).max(axis=0)
+        counted = valid.any(axis=0) & ~on_support.any(axis=0)
+        gap = np.maximum(config.outline_gap_m, 3 * sigma)
+        goes_on = int((counted & (np.abs(farthest - own) <= gap)).sum())
+        total = goes_on + int((counted & (farthest > own + gap)).sum())
+        shares.append(goes_on / total if total >= OUTLINE_MIN_SAMPLES else None)
+    return Outline(top=shares[0], left=shares[1], right=shares[2], hanging=hanging)
+
+
+def _hanging(points: np.ndarray, depths: np.ndarray, members: np.ndarray, plane: Plane, config: SegmentationConfig
+             ) -> float | None:
+    """The share of a cluster's base points (`members`' within `base_band_m` of `plane`) with a
+    point of the frame (`points`, at `depths` from the camera) within `hanging_radius_m`
+    horizontally, below the plane by at least max(`hanging_min_m`, 3 sigma of its depth noise) and
+    at most `hanging_depth_m`: what goes on under the support's level. Under an object standing on
+    a table the table hides everything; under a chair's back beside it, the back goes on down."""
+    height = plane.height(members)
+    base = members[height <= config.base_band_m]
+    if len(base) == 0:
+        return None
+    below_height = plane.height(points)
+    below = points[(below_height <= -np.maximum(config.hanging_min_m, 3 * _noise_sigma(depths, config)))
+                   & (below_height >= -config.hanging_depth_m)]
+    if len(below) == 0:
+        return 0.0
+    axes = plane_axes(plane.normal)
+    distance, _ = cKDTree(below @ axes.T).query(base @ axes.T, distance_upper_bound=config.hanging_radius_m)
+    return float(np.isfinite(distance).mean())
 
 
 def _depth_box(depth: np.ndarray) -> tuple[int, int, int, int]:

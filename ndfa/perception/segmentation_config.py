@@ -78,6 +78,20 @@ class SegmentationConfig:
         depth (a Kinect v1 has none in its last 8 columns: a mug cut there looked whole). 0: off.
     objectness: the mug-likeness gate applied after the size filters (`ndfa.perception.objectness`):
         on real tables most clusters are clutter (magazines, counter edges, chair backs). None: off.
+    max_outline_goes_on: a kept cluster whose outline goes on into something larger by more than
+        this share (`ndfa.perception.segmentation.Outline.goes_on`: its top edge, both its sides, or
+        the points right under its base continue) is turned away ("attached"): a chair's slanted
+        leg, a strip of a wall or a cabinet's front, a chair's back at a table's edge. None (the
+        mugs' gate): not measured. The objects' gate (`for_objects`): 0.5 (docs/categories.md,
+        "Objects in real rooms").
+    outline_look_samples, outline_gap_m: from each outline sample, this many samples outwards are
+        looked at; the surface goes on where the farthest of them lies within max(`outline_gap_m`,
+        3 sigma of the depth noise) of the outline's depth.
+    base_band_m, hanging_radius_m, hanging_min_m, hanging_depth_m: a cluster's base is its points
+        up to `base_band_m` above the plane; a base point hangs where a point of the frame lies
+        within `hanging_radius_m` of it horizontally, between max(`hanging_min_m`, 3 sigma) and
+        `hanging_depth_m` below the plane (right below: a table's own top hides the first
+        centimetres under an object on it).
     plane_search_every: with a `ndfa.perception.segmentation.PlaneTracker` (a session's frames in
         order: `ndfa.pipeline.ChangeDetectionPipeline.new_plane_tracker`), the support planes'
         heights are searched in full every this many frames, and in any frame where one of the
@@ -126,6 +140,13 @@ class SegmentationConfig:
     fill_distance_m: float = 0.015
     image_margin_px: int = 4
     objectness: ObjectnessConfig | None = field(default_factory=ObjectnessConfig)
+    max_outline_goes_on: float | None = None
+    outline_look_samples: int = 3
+    outline_gap_m: float = 0.03
+    base_band_m: float = 0.03
+    hanging_radius_m: float = 0.02
+    hanging_min_m: float = 0.02
+    hanging_depth_m: float = 0.10
     split_max_length_m: float = 0.0
     plane_search_every: int = 1
 
@@ -133,9 +154,11 @@ class SegmentationConfig:
         """These settings with the gate for objects of every category (`ObjectnessConfig.objects`)
         and room for their size: tops up to 36 cm (a bottle; the band above it to 45 cm, so that a
         wall's foot still shows as a column), footprints up to 42 cm across, tops from 2.5 cm (a
-        flat box; papers and cables stay below)."""
+        flat box; papers and cables stay below); and the outline rule (`max_outline_goes_on`):
+        a room's pieces of something larger have an object's size too."""
         return replace(self, objectness=ObjectnessConfig.objects(), min_object_height_m=0.025,
-                       max_object_height_m=0.36, band_height_m=max(self.band_height_m, 0.45), max_extent_m=0.42)
+                       max_object_height_m=0.36, band_height_m=max(self.band_height_m, 0.45), max_extent_m=0.42,
+                       max_outline_goes_on=0.5)
 
     def __post_init__(self) -> None:
         if self.stride is not None and self.stride < 1:
