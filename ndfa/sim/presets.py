@@ -27,6 +27,7 @@ import numpy as np
 from ndfa.core.errors import SimError
 from ndfa.sim.camera import PinholeCamera
 from ndfa.sim.categories import CATEGORIES
+from ndfa.sim.chairs import MAX_CHAIRS
 from ndfa.sim.noise import DepthNoise
 from ndfa.sim.pose_error import PoseError
 from ndfa.sim.shelves import SHELF_ROUTES, ShelfConfig
@@ -71,6 +72,9 @@ class SimConfig:
     # Pieces of furniture along the walls (`ndfa.sim.furniture`): static, part of the room; they
     # break the box room's symmetry. 0 leaves the seed's scene as it was.
     furniture: int = 0
+    # Chairs pushed in at each table (`ndfa.sim.chairs`, at most `MAX_CHAIRS`): static, part of the
+    # room, their backs' top rails beside the tables' edges. 0 leaves the seed's scene as it was.
+    chairs_per_table: int = 0
     # Shelf units instead of the grid of tables (`ndfa.sim.shelves`): their levels are the tables
     # (`table_rows`, `table_cols` then play no part) and the routes are `SHELF_ROUTES`.
     shelves: ShelfConfig | None = None
@@ -101,6 +105,8 @@ class SimConfig:
             raise SimError(f"monitors per table must be >= 0, got {self.monitors_per_table}")
         if self.furniture < 0:
             raise SimError(f"furniture pieces must be >= 0, got {self.furniture}")
+        if not 0 <= self.chairs_per_table <= MAX_CHAIRS:
+            raise SimError(f"chairs per table must be in [0, {MAX_CHAIRS}], got {self.chairs_per_table}")
         if self.rotated < 0:
             raise SimError(f"rotated mugs must be >= 0, got {self.rotated}")
         lo_deg, hi_deg = self.rotated_deg

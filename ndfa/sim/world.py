@@ -18,6 +18,7 @@ import numpy as np
 
 from ndfa.core.errors import SimError
 from ndfa.sim.categories import SceneModel
+from ndfa.sim.chairs import Chair, table_chairs
 from ndfa.sim.clutter import (
     CLUTTER_FIRST_ID,
     CLUTTER_KINDS,
@@ -59,6 +60,7 @@ class World:
     clutter: list[ClutterItem] = field(default_factory=list)
     furniture: list[FurniturePiece] = field(default_factory=list)  # along the walls: part of the room
     shelf_units: list[ShelfUnit] = field(default_factory=list)  # their levels are `tables`
+    chairs: list[Chair] = field(default_factory=list)  # pushed in at the tables: part of the room
 
     def layout(self, session: str) -> dict[int, Placement]:
         if session not in SESSIONS:
@@ -147,7 +149,9 @@ def build_world(config: SimConfig, models: list[SceneModel]) -> World:
                             np.random.default_rng([config.seed, 4])) if config.clutter_per_table else []
     room = room_around(tables)
     furniture = wall_furniture(room, config.furniture, np.random.default_rng([config.seed, 6])) if config.furniture else []
-    return World(tables, room, mugs, source, target, changes, colors, clutter, furniture, units)
+    chairs = (table_chairs(tables, config.chairs_per_table, np.random.default_rng([config.seed, 16]))
+              if config.chairs_per_table and config.shelves is None else [])
+    return World(tables, room, mugs, source, target, changes, colors, clutter, furniture, units, chairs)
 
 
 def _levels_changed(levels: list[ShelfLevel], source: dict[int, Placement], target: dict[int, Placement],

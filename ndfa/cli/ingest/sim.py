@@ -12,6 +12,7 @@ from rich.table import Table
 from ndfa.cli.app import bar_per_label, console, err_console, progress_bar
 from ndfa.cli.checks import category_list, in_range, input_dir, output_dir, positive, seed_range
 from ndfa.cli.ingest import ingest_app
+from ndfa.sim.chairs import MAX_CHAIRS
 from ndfa.sim.furniture import MAX_FURNITURE
 from ndfa.sim.handheld import MOTIONS
 from ndfa.sim.mesh_io import load_mug_dir
@@ -90,6 +91,9 @@ def ingest_sim_command(
                                           "static, part of the room: a room that does not fit itself turned or "
                                           "shifted (docs/registration.md).",
                                   callback=in_range(ge=0, le=MAX_FURNITURE, why="the walls are full long before")),
+    chairs: int = typer.Option(0, help="Chairs pushed in at each table, as many as fit (their backs' top rails "
+                                       "beside the tables' edges); static, part of the room.",
+                               callback=in_range(ge=0, le=MAX_CHAIRS, why="a table's long sides seat no more")),
     motion: Optional[str] = typer.Option(None, help="Camera motion: smooth | handheld (sweeps up to 90 deg/s, pitch "
                                                     "towards the desks, shake, at --fps; default: the preset's, office: "
                                                     "handheld)."),
@@ -156,7 +160,7 @@ def ingest_sim_command(
     if error:
         overrides["target_pose_error"] = dataclasses.replace(config.target_pose_error, **error)
     overrides.update(raw=raw, world_tilt_deg=world_tilt, rotated=rotated, rotated_deg=tuple(rotated_deg),
-                     furniture=furniture)
+                     furniture=furniture, chairs_per_table=chairs)
     if textures is not None:
         overrides["textures"] = textures
     if clutter is not None:

@@ -252,6 +252,7 @@ def render_objects(world: World, session: str, textures: RoomTextures | None = N
     objects = [RenderObject(mesh, 0, gray, texture) for mesh, texture in zip(world.room.meshes(), room_textures_)]
     objects += [RenderObject(table.mesh(), 0, wood, texture) for table, texture in zip(world.tables, table_textures)]
     objects += [RenderObject(piece.mesh, 0, piece.color) for piece in world.furniture]
+    objects += [RenderObject(chair.mesh, 0, chair.color) for chair in world.chairs]
     objects += [RenderObject(unit.mesh(), 0, wood) for unit in world.shelf_units]
     for instance_id, placement in world.layout(session).items():
         mesh = world.mugs[placement.model_id].mesh.transformed(world.object_pose(placement))
@@ -322,6 +323,8 @@ def world_ground_truth(world: World, config: SimConfig) -> dict:
         truth["shelf_units"] = [unit.as_dict() for unit in world.shelf_units]
     if world.furniture:  # part of the room, in the level world
         truth["furniture"] = [piece.as_dict() for piece in world.furniture]
+    if world.chairs:  # part of the room
+        truth["chairs"] = [chair.as_dict() for chair in world.chairs]
     fixtures = office(config, world)
     if fixtures is not None:  # fixed in every session; not objects
         truth["office"] = {"ceiling": fixtures.ceiling, "monitors": [
