@@ -180,6 +180,7 @@ def explain_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig(
     kept = []
     depth_box: tuple[int, int, int, int] | None = None  # `_depth_box`, found when first needed
     fragments: np.ndarray | None = None  # `_fragments`, found when first needed
+    below: dict[int, cKDTree | None] = {}  # `_below` of each plane (by id), found when first needed
     for cluster, verdict in judged:
         members = cluster_of_point == cluster
         cluster_rows, cluster_cols = candidate_rows[members], candidate_cols[members]
@@ -194,8 +195,10 @@ def explain_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig(
             plane = planes[int(np.bincount(cluster_planes[members]).argmax())]
             if fragments is None:
                 fragments = _fragments(labels.shape, candidate_rows, candidate_cols, cluster_of_point, stride, config)
+            if id(plane) not in below:
+                below[id(plane)] = _below(points, depths, plane, config)
             outline = _outline(frame, cluster_rows, cluster_cols, plane, stride, fragments, config,
-                               _hanging(points, depths, cluster_points[members], plane, config))
+                               _hanging(below[id(plane)], cluster_points[members], plane, config))
             if outline.goes_on() > config.max_outline_goes_on:
                 verdict = ClusterVerdict(verdict.shape, "attached", split=verdict.split, outline=outline)
         if verdict.rejected is None:
@@ -463,24 +466,28 @@ def _outline(frame: Frame, rows: np.ndarray, cols: np.ndarray, plane: Plane, str
     return Outline(top=shares[0], left=shares[1], right=shares[2], hanging=hanging)
 
 
-def _hanging(points: np.ndarray, depths: np.ndarray, members: np.ndarray, plane: Plane, config: SegmentationConfig
-             ) -> float | None:
-    """The share of a cluster's base points (`members`' within `base_band_m` of `plane`) with a
-    point of the frame (`points`, at `depths` from the camera) within `hanging_radius_m`
-    horizontally, below the plane by at least max(`hanging_min_m`, 3 sigma of its depth noise) and
-    at most `hanging_depth_m`: what goes on under the support's level. Under an object standing on
-    a table the table hides everything; under a chair's back beside it, the back goes on down."""
-    height = plane.height(members)
-    base = members[height <= config.base_band_m]
+def _below(points: np.ndarray, depths: np.ndarray, plane: Plane, config: SegmentationConfig) -> cKDTree | None:
+    """The horizontal positions (in `plane_axes`) of the frame's points (`points`, at `depths` from the
+    camera) right under `plane`: below it by at least max(`hanging_min_m`, 3 sigma of their depth
+    noise) and at most `hanging_depth_m`, as a tree; None when there are none."""
+    height = plane.height(points)
+    under = (height <= -np.maximum(config.hanging_min_m, 3 * _noise_sigma(depths, config))) & (height >= -config.hanging_depth_m)
+    if not under.any():
+        return None
+    return cKDTree(points[under] @ plane_axes(plane.normal).T)
+
+
+def _hanging(below: cKDTree | None, members: np.ndarray, plane: Plane, config: SegmentationConfig) -> float | None:
+    """The share of a cluster's base points (`members`' within `base_band_m` of `plane`) within
+    `hanging_radius_m` horizontally of a point right under the plane (`below`, `_below`): what goes
+    on under the support's level. Under an object standing on a table the table's own top hides the
+    first centimetres; under a chair's back beside it, the back goes on down."""
+    base = members[plane.height(members) <= config.base_band_m]
     if len(base) == 0:
         return None
-    below_height = plane.height(points)
-    below = points[(below_height <= -np.maximum(config.hanging_min_m, 3 * _noise_sigma(depths, config)))
-                   & (below_height >= -config.hanging_depth_m)]
-    if len(below) == 0:
+    if below is None:
         return 0.0
-    axes = plane_axes(plane.normal)
-    distance, _ = cKDTree(below @ axes.T).query(base @ axes.T, distance_upper_bound=config.hanging_radius_m)
+    distance, _ = below.query(base @ plane_axes(plane.normal).T, distance_upper_bound=config.hanging_radius_m)
     return float(np.isfinite(distance).mean())
 
 
