@@ -129,7 +129,7 @@ def test_the_term_nearer_the_prediction_is_chosen_before_the_prediction_is_kept_
     prediction = twist_pose((0.0, 0.0, 0.0), (0.05, 0.0, 0.0))
     results = {HYBRID: prediction @ twist_pose((0.0, 0.0, 0.0), (0.0, 0.03, 0.0)),
                POINT_TO_PLANE: prediction @ twist_pose((0.0, 0.0, 0.0), (0.1, 0.0, 0.0))}
-    monkeypatch.setattr(rgbd, "register_dense", lambda view, keyframe, initial, term, config: (results[term], 0.8))
+    monkeypatch.setattr(rgbd, "register_dense", lambda view, keyframe, initial, term, config, early_stop=True: (results[term], 0.8))
     view = View(rgbd=None, features=None, K=None, plane_information=np.eye(6),
                 unseen_information=unseen_information(wall(), K), median_depth_m=1.2, valid_fraction=1.0, textured=True)
     odometry = rgbd.RgbdOdometry(rgbd.RgbdOdometryConfig(unseen_from_prediction=(POINT_TO_PLANE,)))
@@ -151,8 +151,9 @@ def test_an_untextured_frame_facing_a_wall_meets_hybrid_when_it_has_colour(monke
                POINT_TO_PLANE: prediction @ twist_pose((0.0, 0.0, 0.0), (0.1, 0.0, 0.0))}
     tried = []
 
-    def register(view, keyframe, initial, term, config):
+    def register(view, keyframe, initial, term, config, early_stop=True):
         tried.append(term)
+        assert not early_stop  # from the prediction every iteration runs (rgbd_config: converged_change)
         return results[term], 0.9
 
     monkeypatch.setattr(rgbd, "register_dense", register)
@@ -193,7 +194,7 @@ def test_frames_crossing_a_faint_wall_by_hybrid_become_keyframes(monkeypatch):
     # after it, whose keyframe is on the wall too, in their local contrast (`local_contrast`).
     compared = []
 
-    def register(view, keyframe, initial, term, config):
+    def register(view, keyframe, initial, term, config, early_stop=True):
         if term == HYBRID:
             compared.append((view.textured, keyframe.textured))  # stands for "local contrast" below
         shift = 0.003 if term == HYBRID else 0.1

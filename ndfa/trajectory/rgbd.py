@@ -310,7 +310,10 @@ class RgbdOdometry:
         if on_faint_wall and term != POINT_TO_PLANE and config.faint_wall_contrast_px > 0.0:
             view = local_contrast(view, config.faint_wall_contrast_px, config.faint_wall_contrast_gain)
             keyframe = local_contrast(keyframe, config.faint_wall_contrast_px, config.faint_wall_contrast_gain)
-        return register_dense(view, keyframe, initial, term, config)
+        # From the prediction all iterations run: the prediction can be centimetres off, and sliding
+        # along a bare wall changes the fitness and the residual too little to tell that the
+        # registration is still on its way (docs/odometry.md, "Iterations that stop early").
+        return register_dense(view, keyframe, initial, term, config, early_stop=False)
 
     def _faint_texture(self, view: View, keyframe: View) -> bool:
         """Whether an untextured frame's point-to-plane result should meet hybrid's (`hybrid_where_unseen`):

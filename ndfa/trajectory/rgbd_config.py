@@ -27,7 +27,9 @@ class RgbdOdometryConfig:
         (Open3D's order: the last is the `max_width` image itself, each before it half as wide).
     converged_change: a level's iterations stop when an iteration changes both the fitness and the
         inlier RMSE by less than this, relative (Open3D's criteria; its default, 1e-6, almost never
-        stops early; docs/speed.md, "The odometry's CPU").
+        stops early). Not where a frame without a feature estimate is registered from the
+        constant-velocity prediction: those run all iterations (docs/odometry.md, "Iterations that
+        stop early").
     depth_outlier_trunc_m: a depth pair farther apart than this is no correspondence.
     depth_huber_delta_m, intensity_huber_delta: Huber scales of the depth (metres) and intensity
         (0-1) residuals.

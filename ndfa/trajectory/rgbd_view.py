@@ -14,6 +14,9 @@ from ndfa.trajectory.degeneracy import plane_information, textured_fraction, uns
 from ndfa.trajectory.features import Features, detect_features, no_features
 from ndfa.trajectory.rgbd_config import HYBRID, INTENSITY, POINT_TO_PLANE, RgbdOdometryConfig
 
+# A relative change no iteration meets (Open3D's default): every level runs all its iterations.
+ALL_ITERATIONS = 1e-6
+
 
 @dataclass
 class View:
@@ -94,15 +97,16 @@ def local_contrast(view: View, sigma_px: float, gain: float) -> View:
 
 
 def register_dense(source: View, target: View, initial: np.ndarray, term: str,
-               config: RgbdOdometryConfig) -> tuple[np.ndarray | None, float]:
-    """T_target_source by RGB-D odometry from `initial`, and its fitness (None, 0 when it failed)."""
+               config: RgbdOdometryConfig, early_stop: bool = True) -> tuple[np.ndarray | None, float]:
+    """T_target_source by RGB-D odometry from `initial`, and its fitness (None, 0 when it failed).
+    early_stop: each level stops at `config.converged_change`; otherwise it runs all its iterations."""
     import open3d as o3d
 
     odometry = o3d.t.pipelines.odometry
     method = {HYBRID: odometry.Method.Hybrid, INTENSITY: odometry.Method.Intensity,
               POINT_TO_PLANE: odometry.Method.PointToPlane}[term]
-    criteria = [odometry.OdometryConvergenceCriteria(iterations, config.converged_change, config.converged_change)
-                for iterations in config.iterations]
+    change = config.converged_change if early_stop else ALL_ITERATIONS
+    criteria = [odometry.OdometryConvergenceCriteria(iterations, change, change) for iterations in config.iterations]
     params = odometry.OdometryLossParams(config.depth_outlier_trunc_m, config.depth_huber_delta_m,
                                          config.intensity_huber_delta)
     try:
