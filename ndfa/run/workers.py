@@ -38,7 +38,7 @@ from pathlib import Path
 from ndfa.io.recording import RecordingReader
 from ndfa.run.align import RegistrationMode, SceneAlignment, registration_prior, scene_depth
 from ndfa.run.cloud_align import AlignConfig
-from ndfa.run.world import PoseMode, SessionWorld, UpMode, prepare_session
+from ndfa.run.world import KeepDepth, PoseMode, SessionWorld, UpMode, prepare_session
 
 # Processes a run may use by default: this one and one worker (the project's machine has 2 cores).
 WORKERS = 2
@@ -95,7 +95,8 @@ class Ahead:
 
     def alignment(self, pair: int) -> SceneAlignment | None:
         """Pair `pair`'s hypothesis (`registration_prior`), once both its worlds are known."""
-        self.world(pair), self.world(pair + 1)
+        for index in (pair, pair + 1):
+            self.world(index)
         if self.pool is None:
             return registration_prior(self.readers[pair], self.readers[pair + 1],
                                       {"source": self.worlds[pair], "target": self.worlds[pair + 1]},
@@ -110,9 +111,9 @@ class Ahead:
 
 
 def _prepare(path: Path, name: str, up: UpMode, poses: PoseMode, check_poses_backward: bool,
-             keep: object) -> SessionWorld:
+             keep: KeepDepth) -> SessionWorld:
     """`prepare_session` in the worker."""
-    return prepare_session(RecordingReader(path), name, up, poses, check_poses_backward, keep)  # type: ignore[arg-type]
+    return prepare_session(RecordingReader(path), name, up, poses, check_poses_backward, keep)
 
 
 def _align(source: Path, target: Path, worlds: dict[str, SessionWorld], mode: RegistrationMode,
