@@ -63,3 +63,22 @@ def one_line(result, *fragments):
     for fragment in fragments:
         assert fragment in lines[0], lines[0]
     return lines[0]
+
+
+@pytest.fixture(scope="session")
+def small_raw_pair(tmp_path_factory):
+    """A small raw pair (no masks, no poses), 160 x 120, about 100 frames in all: odometry, up
+    from the planes and the scene alignment all run on it."""
+    import dataclasses
+
+    from ndfa.io.ingest.synthetic import ingest_sim
+    from ndfa.sim.camera import PinholeCamera
+    from ndfa.sim.noise import DepthNoise
+    from ndfa.sim.presets import make_config
+
+    config = make_config("sample", 3, depth_noise=DepthNoise.off(), camera=PinholeCamera().scaled(0.25))
+    config = dataclasses.replace(config, trajectory=dataclasses.replace(config.trajectory, step_m=0.3),
+                                 raw=True, textures=True)
+    out = tmp_path_factory.mktemp("raw")
+    ingest_sim(config, out)
+    return out

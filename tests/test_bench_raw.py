@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import re
 
 import pytest
@@ -12,29 +11,13 @@ from typer.testing import CliRunner
 
 from ndfa.cli import app
 from ndfa.eval.bench_raw import RAW_STAGES
-from ndfa.io.ingest.synthetic import ingest_sim
-from ndfa.sim.camera import PinholeCamera
-from ndfa.sim.noise import DepthNoise
-from ndfa.sim.presets import make_config
-
-
-@pytest.fixture(scope="module")
-def raw_recordings(tmp_path_factory):
-    """A small raw pair (no masks, no poses), 160 x 120, about 100 frames in all: odometry, up
-    from the planes and the scene alignment all run on it."""
-    config = make_config("sample", 3, depth_noise=DepthNoise.off(), camera=PinholeCamera().scaled(0.25))
-    config = dataclasses.replace(config, trajectory=dataclasses.replace(config.trajectory, step_m=0.3),
-                                 raw=True, textures=True)
-    out = tmp_path_factory.mktemp("raw")
-    ingest_sim(config, out)
-    return out
 
 
 @pytest.mark.slow
-def test_bench_raw_times_every_stage_of_both_sessions_before_now_and_under_load(raw_recordings):
+def test_bench_raw_times_every_stage_of_both_sessions_before_now_and_under_load(small_raw_pair):
     result = CliRunner(env={"COLUMNS": "200"}).invoke(app, [
-        "bench", "raw", "--source", str(raw_recordings / "source.mcap"),
-        "--target", str(raw_recordings / "target.mcap"), "--compare", "--before-ref", "HEAD", "--load"])
+        "bench", "raw", "--source", str(small_raw_pair / "source.mcap"),
+        "--target", str(small_raw_pair / "target.mcap"), "--compare", "--before-ref", "HEAD", "--load"])
     assert result.exit_code == 0, result.output
     columns = 3  # before, now, now beside one busy process
     rows = {}
@@ -67,8 +50,8 @@ def test_bench_raw_times_every_stage_of_both_sessions_before_now_and_under_load(
     assert "now over before:" in result.output and "beside one busy process:" in result.output
 
 
-def test_bench_raw_refuses_an_unknown_revision(ndfa, raw_recordings):
-    one_line(ndfa("bench", "raw", "--source", raw_recordings / "source.mcap", "--target", raw_recordings / "target.mcap",
+def test_bench_raw_refuses_an_unknown_revision(ndfa, small_raw_pair):
+    one_line(ndfa("bench", "raw", "--source", small_raw_pair / "source.mcap", "--target", small_raw_pair / "target.mcap",
                   "--compare", "--before-ref", "no-such-revision"), "--before-ref no-such-revision")
 
 

@@ -10,28 +10,13 @@ import re
 import numpy as np
 import pytest
 
-from ndfa.io.ingest.synthetic import ingest_sim
 from ndfa.io.recording import RecordingReader
 from ndfa.pipeline import PipelineConfig
 from ndfa.run.align import scene_cloud, scene_depth
 from ndfa.run.detect import RunOptions, run_detection
 from ndfa.run.workers import Ahead, needs_worker
 from ndfa.run.world import KeptFrame, SessionWorld, prepare_session
-from ndfa.sim.camera import PinholeCamera
-from ndfa.sim.noise import DepthNoise
-from ndfa.sim.presets import make_config
 from tests.test_sessions import SAMPLE
-
-
-@pytest.fixture(scope="module")
-def raw_pair(tmp_path_factory):
-    """A small raw pair (no masks, no poses), 160 x 120, about 100 frames in all."""
-    config = make_config("sample", 3, depth_noise=DepthNoise.off(), camera=PinholeCamera().scaled(0.25))
-    config = dataclasses.replace(config, trajectory=dataclasses.replace(config.trajectory, step_m=0.3),
-                                 raw=True, textures=True)
-    out = tmp_path_factory.mktemp("raw")
-    ingest_sim(config, out)
-    return out
 
 
 def test_a_worker_is_started_only_for_sessions_whose_poses_are_estimated():
@@ -63,8 +48,8 @@ def test_the_scene_cloud_from_kept_depth_is_the_cloud_read_from_the_recording():
 
 
 @pytest.mark.slow
-def test_the_odometry_keeps_the_depth_the_scene_cloud_reads(raw_pair):
-    reader = RecordingReader(raw_pair / "target.mcap")
+def test_the_odometry_keeps_the_depth_the_scene_cloud_reads(small_raw_pair):
+    reader = RecordingReader(small_raw_pair / "target.mcap")
     keep = scene_depth()
     world = prepare_session(reader, "target", keep_depth=keep)
     assert world.kept_depth is not None and world.kept_depth[0] == keep
@@ -75,8 +60,8 @@ def test_the_odometry_keeps_the_depth_the_scene_cloud_reads(raw_pair):
 
 
 @pytest.mark.slow
-def test_a_run_with_a_worker_process_gives_what_it_gives_in_one(raw_pair):
-    paths = raw_pair / "source.mcap", raw_pair / "target.mcap"
+def test_a_run_with_a_worker_process_gives_what_it_gives_in_one(small_raw_pair):
+    paths = small_raw_pair / "source.mcap", small_raw_pair / "target.mcap"
     runs = {workers: run_detection(*paths, PipelineConfig(), options=RunOptions(workers=workers))
             for workers in (1, 2)}
     one, two = (untimed(runs[w].summary()) for w in (1, 2))
