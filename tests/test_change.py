@@ -607,11 +607,12 @@ def test_a_removal_across_a_cell_edge_is_observed_from_a_tested_object_within_re
     assert [e.object_id for e in removed] == ([2] if found else [])
 
 
-def _removed_beside_a_matched_object(back_m: float) -> list[int]:
+def _removed_beside_a_matched_object(back_m: float, touch_m: float | None = None) -> list[int]:
     """A table of four objects and a bowl (5) seen by both sessions; the source's map also holds
     object 6, a code unlike any, first measured 6.6 cm behind the bowl (its back wall, whose code
-    parted from the bowl's), its center ending `back_m` behind the bowl's. The target has no 6. The
-    source objects reported removed."""
+    parted from the bowl's), its center ending `back_m` behind the bowl's; `touch_m`: one of its
+    measurements was that far behind one of the bowl's. The target has no 6. The source objects
+    reported removed."""
     layout = {k + 1: np.array([x, y, 0.8]) for k, (x, y) in enumerate([(-0.2, -0.15), (0.2, -0.1), (-0.15, 0.2),
                                                                          (0.25, 0.2)])}
     layout[5] = np.array([0.0, 0.0, 0.8])
@@ -626,6 +627,10 @@ def _removed_beside_a_matched_object(back_m: float) -> list[int]:
             (detector.add_source if session == "source" else detector.add_target)(frame)
     back = next(o for o in detector.source.objects.values() if o.instance_ids == (6,))
     back.center_world = layout[5] + [back_m, 0.0, 0.0]  # where its median center drifted
+    if touch_m is not None:
+        bowl = next(o for o in detector.source.objects.values() if o.instance_ids == (5,))
+        assert back.centers is not None and bowl.centers is not None
+        back.centers[0] = bowl.centers[0] + [touch_m, 0.0, 0.0]
     decisions = [e for e in detector.finish() if hasattr(e, "kind")] + list(detector.changed.values())
     return sorted(d.instance_ids[0] for d in reported_changes(decisions) if d.kind == "removed")
 
@@ -636,3 +641,12 @@ def test_a_never_matched_object_in_the_same_place_as_a_matched_one_is_not_remove
     source's map (random seed 3 raw, v3: a bowl's back wall), not a removal; 4.5 cm away it is."""
     assert _removed_beside_a_matched_object(0.025) == []
     assert _removed_beside_a_matched_object(0.045) == [6]
+
+
+def test_a_never_matched_object_one_of_whose_views_stood_where_a_matched_ones_did_is_not_removed():
+    """A box's partial views put its center by the face they see, so a map can split it in two
+    whose centers stand 7 cm apart while their views overlap (raw multi-category seed 5, v3: source
+    objects 11 and 16). One of the never-matched object's measurements within `same_place_m` of
+    one of the matched object's is the same object; its center alone 4.5 cm away is not."""
+    assert _removed_beside_a_matched_object(0.045, touch_m=0.02) == []
+    assert _removed_beside_a_matched_object(0.045, touch_m=0.04) == [6]

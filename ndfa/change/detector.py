@@ -213,18 +213,29 @@ class ChangeDetector:
         return events + self._rotations()
 
     def _part_of_matched(self, source_id: int) -> bool:
-        """Whether source object `source_id` stands in the same place (`ViewsConfig.same_place_m`,
+        """Whether source object `source_id` stood in the same place (`ViewsConfig.same_place_m`,
         on one level) as a source object the target matched: one object the source's map held
-        twice (a bowl's front wall and its back wall, whose codes parted: docs/categories.md, "One
-        object twice in a map"), not a removal. Two objects cannot stand that close."""
+        twice, not a removal. Two objects cannot stand that close, so either their centers are
+        that close (a bowl's front wall and its back wall, whose codes parted: docs/categories.md,
+        "One object twice in a map"), or one of its measurements was that close to one of the
+        matched object's (a box whose partial views' centers wander by their face, split in two
+        by the map: docs/detector.md, "One object twice, by its views")."""
         if self.config.views.same_place_m <= 0:
             return False
         others = [j for j in self.matched if j != source_id]
         if not others:
             return False
-        center = self.source.objects[source_id].center_world
-        offsets = np.array([self.source.objects[j].center_world for j in others]) - center
-        return bool(self.source._same_place(offsets).any())
+        obj = self.source.objects[source_id]
+        offsets = np.array([self.source.objects[j].center_world for j in others]) - obj.center_world
+        if self.source._same_place(offsets).any():
+            return True
+        mine = np.array(obj.centers if obj.centers else [obj.center_world])
+        for j in others:
+            other = self.source.objects[j]
+            theirs = np.array(other.centers if other.centers else [other.center_world])
+            if self.source._same_place((theirs[:, None, :] - mine[None, :, :]).reshape(-1, 3)).any():
+                return True
+        return False
 
     # -- steps ----------------------------------------------------------------------------------
 
