@@ -14,6 +14,7 @@ pass's CPU goes, the levers tried, and what grows with a recording's length.
     python studies/raw_speed.py encoding RAW_TARGET.mcap [STEP] [WEIGHTS]  # segments' encoding: full vs as decisions need, batches
     python studies/raw_speed.py motion RECORDING.mcap...              # how far the camera moves from frame to frame
     python studies/raw_speed.py voxel MASKED_TARGET.mcap [STEP] [SIDE]  # DBSCAN on voxels of SIDE metres: recall, CPU
+    python studies/raw_speed.py reduced MASKED_TARGET.mcap [STEP]     # stride 4 / the gate's normals at half the points: recall, CPU
 
 Speed figures are CPU times (`time.process_time`): on a shared machine wall times measure the others.
 """
@@ -221,7 +222,7 @@ def stages(path: str, step: str = "4") -> None:
 
         setattr(owner, name, wrapper)
 
-    for name in ("find_horizontal_planes", "_candidates", "_under_tall", "dbscan", "_kept_clusters", "_hidden_above",
+    for name in ("find_horizontal_planes", "_candidates", "_under_tall", "dbscan", "voxel_dbscan", "_kept_clusters", "_hidden_above",
                  "_fill", "_world_points"):
         timed(module, name)
     for name in ("right_angles", "lean"):
@@ -372,69 +373,77 @@ def motion(*paths: str) -> None:
               f"degrees {np.round(np.percentile(turned, [10, 50, 90]), 2)}; under 1 cm and 1 degree: {still.mean():.0%}")
 
 
-def voxel_dbscan(points: np.ndarray, eps: float, min_points: int, side: float) -> np.ndarray:
-    """DBSCAN on a voxel grid (a lever measured, not kept): the points binned in voxels of `side`,
-    each voxel one point at its points' mean weighing as many, DBSCAN on those (a core voxel's
-    voxels within `eps` hold `min_points` points), and each point taking its voxel's cluster."""
-    from scipy.sparse.csgraph import connected_components
-
-    from ndfa.perception.dbscan import _graph
-
-    if len(points) == 0:
-        return np.zeros(0, dtype=np.int64)
-    cells = np.floor(points / side).astype(np.int64)
-    cells -= cells.min(axis=0)
-    span = cells.max(axis=0) + 1
-    _, voxel, counts = np.unique((cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2],
-                                 return_inverse=True, return_counts=True)
-    centres = np.stack([np.bincount(voxel, points[:, axis]) / counts for axis in range(3)], axis=1)
-    pairs = cKDTree(centres).query_pairs(eps, output_type="ndarray")
-    first, second = pairs[:, 0].copy(), pairs[:, 1].copy()
-    weight = counts + np.bincount(first, counts[second], len(counts)) + np.bincount(second, counts[first], len(counts))
-    core = weight >= min_points
-    cluster = np.full(len(counts), -1, dtype=np.int64)
-    if core.any():
-        first_core, second_core = core[first], core[second]
-        both = first_core & second_core
-        _, component = connected_components(_graph(first[both], second[both], len(counts)), directed=True,
-                                            connection="weak")
-        cluster[core] = component[core]
-        for a, b, a_core, b_core in ((first, second, first_core, second_core), (second, first, second_core, first_core)):
-            border = a_core & ~b_core
-            cluster[b[border]] = cluster[a[border]]
-    labels: np.ndarray = cluster[voxel]
-    return labels
-
-
 def voxel(path: str, step: str = "4", side: str = "0.0125") -> None:
-    """DBSCAN on voxels of `side` metres (`voxel_dbscan`) against the exact one, alternating, on a
-    masked recording: the segmentation's recall of the mug views and its spurious segments, and
-    `segment_frame`'s process CPU per frame."""
+    """DBSCAN on voxels of `side` metres (`SegmentationConfig.dbscan_voxel_m`, the default 0.01 since
+    seg35) against the exact one (0), alternating, on a masked recording: the segmentation's recall
+    of the mug views and its spurious segments, and `segment_frame`'s process CPU per frame."""
     from ndfa.eval.segmentation import segmentation_recall
-    from ndfa.perception import segmentation as module
 
     frames = list(RecordingReader(path).frames(step=int(step)))
-    exact = module.dbscan
-    variants = {"exact DBSCAN": exact,
-                f"DBSCAN on {side} m voxels": lambda p, eps, m: voxel_dbscan(p, eps, m, float(side))}
+    variants = {"exact DBSCAN": SegmentationConfig(dbscan_voxel_m=0.0),
+                f"DBSCAN on {side} m voxels": SegmentationConfig(dbscan_voxel_m=float(side))}
     cpu: dict[str, list[float]] = {label: [] for label in variants}
     for _ in range(3):
-        for label, variant in variants.items():
-            setattr(module, "dbscan", variant)
-            r = segmentation_recall(frames, SegmentationConfig())
-            cpu[label].append(r.cpu_ms_per_frame)
-    setattr(module, "dbscan", exact)
+        for label, config in variants.items():
+            cpu[label].append(segmentation_recall(frames, config).cpu_ms_per_frame)
     for label, values in cpu.items():
-        setattr(module, "dbscan", variants[label])
-        r = segmentation_recall(frames, SegmentationConfig())
+        r = segmentation_recall(frames, variants[label])
         print(f"{label}: recovered {r.recovered}/{r.observations} = {r.recall:.1%}, {r.segments} segments, "
               f"{r.spurious} spurious; {np.median(values):.1f} ms CPU per frame (median of 3; {min(values):.1f}-{max(values):.1f})")
-    setattr(module, "dbscan", exact)
+
+
+def reduced(path: str, step: str = "4") -> None:
+    """The segmentation at a coarser sample grid against the default, alternating, on a masked
+    recording (issue 32; seg35): every 4th pixel in both directions instead of every 2nd (the plane
+    search, the candidates, DBSCAN and the gate's normals on a quarter of the samples; the masks
+    painted back at full resolution as at stride 2; the sample counts' thresholds a quarter; also with
+    the gate's normals and DBSCAN's radius widened for the sparser samples), and stride 2 with the gate's normals estimated at every 2nd point of a cluster (neighbours from
+    all). The segmentation's recall of the mug views, its spurious segments, process CPU per frame."""
+    from ndfa.eval.segmentation import segmentation_recall
+
+    frames = list(RecordingReader(path).frames(step=int(step)))
+    measured = objectness.right_angles
+    variants = {"stride 2 (default)": (SegmentationConfig(), measured),
+                "stride 4, min_cluster_points 8, min_plane_points 75":
+                    (SegmentationConfig(stride=4, min_cluster_points=8, min_plane_points=75), measured),
+                "the same, and the gate's normals from 8 neighbours, DBSCAN's eps 4 cm":
+                    (SegmentationConfig(stride=4, min_cluster_points=8, min_plane_points=75, dbscan_eps_m=0.04,
+                                        objectness=dataclasses.replace(objectness.ObjectnessConfig(), normal_neighbours=8)),
+                     measured),
+                "stride 2, the gate's normals at every 2nd point": (SegmentationConfig(), _right_angles_halved)}
+    cpu: dict[str, list[float]] = {label: [] for label in variants}
+    results = {}
+    try:
+        for _ in range(3):  # alternating: all see the same load
+            for label, (config, normals) in variants.items():
+                objectness.right_angles = normals
+                results[label] = segmentation_recall(frames, config)
+                cpu[label].append(results[label].cpu_ms_per_frame)
+    finally:
+        objectness.right_angles = measured
+    for label, r in results.items():
+        values = cpu[label]
+        print(f"{label}: recovered {r.recovered}/{r.observations} = {r.recall:.1%}, {r.segments} segments, "
+              f"{r.spurious} spurious; {np.median(values):.1f} ms CPU per frame (median of 3; {min(values):.1f}-{max(values):.1f})")
+
+
+def _right_angles_halved(heights: np.ndarray, flat: np.ndarray, neighbours: int = 24) -> float | None:
+    """`objectness.right_angles` with the normals estimated at every 2nd point (neighbours from all)."""
+    points = np.column_stack([flat, heights])
+    if len(points) <= neighbours:
+        return None
+    points = points - points.mean(axis=0)
+    _, nearest = cKDTree(points).query(points[::2], neighbours)
+    normals = objectness._least_axes(*(points[:, axis][nearest] for axis in range(3)))
+    wall = np.abs(normals[:, 2]) < 0.4
+    if wall.sum() < 10:
+        return None
+    return float(np.abs(np.mean(np.exp(4j * np.arctan2(normals[wall, 1], normals[wall, 0])))))
 
 
 if __name__ == "__main__":
     commands = {f.__name__: f for f in (segmentation, alignment, stride, gate, normals, speedup, stages, tracking, growth, repeat,
-                                        encoding, motion, voxel)}
+                                        encoding, motion, voxel, reduced)}
     if len(sys.argv) < 2 or sys.argv[1] not in commands:
         sys.exit(__doc__)
     commands[sys.argv[1]](*sys.argv[2:])

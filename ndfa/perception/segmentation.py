@@ -21,7 +21,8 @@ rest with DBSCAN; this is that, for one frame at a time:
    the floor (legs) or next to it (walls) reaches above an object's height and is dropped here or
    at step 5. So a frame that sees only a table top, or only the floor with objects on it, needs
    no special case, and the floor's height need not be known.
-4. DBSCAN (`dbscan_eps_m`, `dbscan_min_points`) on the candidates' world coordinates.
+4. DBSCAN (`dbscan_eps_m`, `dbscan_min_points`) on the candidates' world coordinates, binned in
+   voxels of `dbscan_voxel_m` (0: on the points themselves).
 5. Clusters kept: enough points; a top between `min_object_height_m` (and a few sigmas of the
    depth noise: far table tops' noise piles up into blobs) and `max_object_height_m`; a bottom
    near the plane (`max_bottom_m`: objects stand on it); a horizontal extent between
@@ -60,7 +61,7 @@ from scipy.spatial import cKDTree
 from ndfa.core import conventions
 from ndfa.core.frame import Frame
 from ndfa.core.geometry import backproject
-from ndfa.perception.dbscan import dbscan
+from ndfa.perception.dbscan import dbscan, voxel_dbscan
 from ndfa.perception.objectness import ClusterShape, cluster_shape, judge
 from ndfa.perception.planes import Plane, find_horizontal_planes, plane_axes, track_horizontal_planes
 from ndfa.perception.segmentation_config import SegmentationConfig
@@ -173,7 +174,8 @@ def explain_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig(
         return labels, verdicts
     cluster_points = points[candidate]
     cluster_planes = plane_of_point[candidate]
-    cluster_of_point = dbscan(cluster_points, config.dbscan_eps_m, config.dbscan_min_points)
+    cluster_of_point = (voxel_dbscan(cluster_points, config.dbscan_eps_m, config.dbscan_min_points, config.dbscan_voxel_m)
+                        if config.dbscan_voxel_m > 0 else dbscan(cluster_points, config.dbscan_eps_m, config.dbscan_min_points))
     candidate_rows, candidate_cols = rows[candidate], cols[candidate]
     judged = _kept_clusters(cluster_points, depths[candidate], cluster_of_point,
                             cluster_planes, planes, up, frame.pose_world_camera[:3, 3], config)
