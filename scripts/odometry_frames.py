@@ -61,7 +61,7 @@ def main() -> None:
                 print(f"{index:5d} true {100 * np.linalg.norm(true_step[:3, 3]):5.1f} cm "
                       f"{np.degrees(rotation_angle(true_step[None, :3, :3])[0]):5.2f} deg  error "
                       f"{100 * np.linalg.norm(error[:3, 3]):6.2f} cm {np.degrees(rotation_angle(error[None, :3, :3])[0]):5.2f} deg"
-                      f"  valid {view.valid_fraction:.2f} keypoints {len(view.features):4d} textured {int(view.textured)}"
+                      f"  valid {view.valid_fraction:.2f} keypoints {len(view.features) if view.features is not None else -1:4d} textured {int(view.textured)}"
                       f" {odometry.terms[-1]:14s} {'K' if len(odometry.keyframes) > keyframes else ' '} {moved}")
         poses = odometry.finish()
     cpu_ms = 1000.0 * (time.process_time() - started) / len(estimate)

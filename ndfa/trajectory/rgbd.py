@@ -8,6 +8,10 @@ association, a coarse-to-fine image pyramid, Huber losses on depth and intensity
 both terms at once.
 
 Per frame:
+0. Opt-in (`prediction_first`): a textured frame is registered densely (step 3) from the
+   constant-velocity prediction alone; when that result overlaps the keyframe well, lands near the
+   prediction and does not make the frame a keyframe, it stands and the frame's features are never
+   made. A doubtful result, and every keyframe, go on from step 1.
 1. First guess from features (features.py): ORB keypoints matched to the keyframe's, lifted to 3D,
    RANSAC over three-point fits. They need no prior, so a step of 8-10 cm and 5 degrees, beyond
    the dense terms' basin, is still found. When the keyframe has too little left in common with
@@ -61,7 +65,7 @@ from ndfa.trajectory.features import FeatureMotion, estimate_motion
 from ndfa.trajectory.keyframe_pairs import refine_with_keyframe_pairs
 from ndfa.trajectory.pose_graph import PoseEdge, PoseGraphConfig, optimize_pose_graph
 from ndfa.trajectory.rgbd_config import HYBRID, INTENSITY, NO_TERM, POINT_TO_PLANE, RgbdOdometryConfig
-from ndfa.trajectory.rgbd_view import View, depth_information, local_contrast, prepare_view, register_dense
+from ndfa.trajectory.rgbd_view import View, depth_information, keypoints, local_contrast, prepare_view, register_dense
 
 __all__ = ["HYBRID", "INTENSITY", "NO_TERM", "POINT_TO_PLANE", "RgbdOdometry", "RgbdOdometryConfig"]
 
@@ -113,6 +117,8 @@ class RgbdOdometry:
         self._faint_wall = False
         self._after_faint_wall = False
         self.faint_wall_frames = 0
+        self.prediction_first_frames = 0  # frames registered from the prediction alone, no features (prediction_first)
+        self._first_in_a_row = 0  # the frames just before this one registered so
 
     @property
     def frames(self) -> int:
@@ -142,7 +148,7 @@ class RgbdOdometry:
         started = time.perf_counter()
         if self._anchor is None:
             self._anchor = frame.pose_world_camera.copy() if self.config.anchor_to_first_pose else np.eye(4)
-        view = prepare_view(frame, self.config)
+        view = prepare_view(frame, self.config, defer_features=self.config.prediction_first)
         pose, term, degenerate = self._track(view, after_gap=self._clock.after_gap(frame.timestamp))
         self._poses.append(pose)
         self.terms.append(term)
@@ -197,9 +203,16 @@ class RgbdOdometry:
         degenerate = depth_degeneracy(view.plane_information, view.median_depth_m) < config.degenerate_ratio
         term = _choose_term(degenerate, view.textured and keyframe.view.textured)
         keyframe_from_frame, fitness, motion = None, 0.0, None
+        first, first_keyframe = self._prediction_first(view, keyframe.view, predicted, term, after_gap), keyframe
+        if first is not None and self._confident(view, keyframe, *first, predicted):
+            keyframe_from_frame, fitness = first
+            self.prediction_first_frames += 1
+            self._first_in_a_row += 1
+            return self._place(view, keyframe, keyframe_from_frame, fitness, last, term, degenerate)
+        self._first_in_a_row = 0
         if config.features is not None:
             keyframe_from_frame, fitness, motion = self._from_features(view, keyframe.view, term)
-            matchable = min(len(view.features), len(keyframe.view.features)) >= config.min_features
+            matchable = min(len(keypoints(view)), len(keypoints(keyframe.view))) >= config.min_features
             if keyframe_from_frame is None and self._previous is not None and matchable:
                 # Too little left in common with the keyframe (too few matches, or a dense result
                 # that leaves them) though both images have features: the previous frame, which is
@@ -214,7 +227,9 @@ class RgbdOdometry:
                 # Far from where the camera was heading: a real jerk, or features fooled by a
                 # repeated pattern (floor tiles, planks) with the dense terms agreeing on the same
                 # wrong shift. The registration from the prediction too; a much better overlap wins.
-                candidate, candidate_fitness = register_dense(view, keyframe.view, predicted, term, self.config)
+                # (The registration from the prediction first, when it was made to this keyframe, is that.)
+                candidate, candidate_fitness = (first if first is not None and keyframe is first_keyframe
+                                                else register_dense(view, keyframe.view, predicted, term, self.config))
                 if candidate is not None and candidate_fitness > config.prediction_overlap_ratio * fitness:
                     keyframe_from_frame, fitness = candidate, candidate_fitness
                     self.prediction_wins += 1
@@ -228,20 +243,64 @@ class RgbdOdometry:
             self._faint_wall = self._faint_wall or self._after_faint_wall
         self._after_faint_wall = self._faint_wall
         self.faint_wall_frames += self._faint_wall
+        return self._place(view, keyframe, keyframe_from_frame, fitness, last, term, degenerate)
+
+    def _place(self, view: View, keyframe: _Keyframe, keyframe_from_frame: np.ndarray, fitness: float,
+               last: np.ndarray, term: str, degenerate: bool) -> tuple[np.ndarray, str, bool]:
+        """The frame's pose from its registration to `keyframe`; the velocity; a new keyframe when
+        the frame has moved, turned or lost overlap enough."""
         pose = keyframe.pose @ keyframe_from_frame
         self._previous = (view, keyframe_from_frame)
         if not self._unseen:  # a frame whose depth left some motion unseen keeps the last velocity
             self._velocity = motion_between(last, pose, self.config.velocity_in_world)
 
-        moved = np.linalg.norm(keyframe_from_frame[:3, 3])
-        turned = _angle_deg(keyframe_from_frame[:3, :3])
-        if (moved > config.keyframe_translation_m or turned > config.keyframe_rotation_deg
-                or fitness < config.keyframe_min_fitness or (self._faint_wall and config.faint_wall_keyframes)):
+        if self._keyframe_due(view, keyframe_from_frame, fitness):
             information = depth_information(view, keyframe.view, keyframe_from_frame, self.config)
             self._add_keyframe(view, pose, PoseEdge(len(self.keyframes), len(self.keyframes) - 1,
                                                     keyframe_from_frame, information))
             self._previous = None
         return pose, term, degenerate
+
+    def _keyframe_due(self, view: View, keyframe_from_frame: np.ndarray, fitness: float) -> bool:
+        """Whether the frame so registered becomes the new keyframe: it moved or turned far enough
+        from the keyframe, its overlap with it fell low, or it crossed a faint wall."""
+        config = self.config
+        moved = np.linalg.norm(keyframe_from_frame[:3, 3])
+        turned = _angle_deg(keyframe_from_frame[:3, :3])
+        return bool(moved > config.keyframe_translation_m or turned > config.keyframe_rotation_deg
+                    or self._overlap(view, fitness) < config.keyframe_min_fitness
+                    or (self._faint_wall and config.faint_wall_keyframes))
+
+    def _overlap(self, view: View, fitness: float) -> float:
+        """The overlap the keyframe rule reads: Open3D's fitness (inliers over all the frame's pixels),
+        or with `keyframe_overlap_of_depth` over the pixels with depth only."""
+        if self.config.keyframe_overlap_of_depth:
+            return fitness / max(view.valid_fraction, 1e-9)
+        return fitness
+
+    def _prediction_first(self, view: View, keyframe: View, predicted: np.ndarray, term: str,
+                          after_gap: bool) -> tuple[np.ndarray | None, float] | None:
+        """With `prediction_first`, a textured frame's dense registration from the constant-velocity
+        prediction (None where that does not apply: no features to fall back on, no velocity yet,
+        after a time gap, not hybrid, a faint wall behind)."""
+        config = self.config
+        if (not config.prediction_first or config.features is None or len(self._poses) < 2 or after_gap
+                or term != HYBRID or self._after_faint_wall or self._first_in_a_row >= config.prediction_first_in_a_row):
+            return None
+        if self._keyframe_due(view, predicted, 1.0):
+            return None  # the prediction already makes it a keyframe: features, as for every keyframe
+        return register_dense(view, keyframe, predicted, term, config)
+
+    def _confident(self, view: View, keyframe: _Keyframe, result: np.ndarray | None, fitness: float,
+                   predicted: np.ndarray) -> bool:
+        """Whether the registration from the prediction stands without features: it overlaps the
+        keyframe well, lands near the prediction, and does not make the frame a keyframe (a
+        keyframe's edge carries every later frame, so it is measured from features)."""
+        config = self.config
+        if (result is None or fitness / max(view.valid_fraction, 1e-9) < config.prediction_first_overlap
+                or not _near(result, predicted, config.prediction_first_max_m, config.prediction_first_max_deg)):
+            return False
+        return not self._keyframe_due(view, result, fitness)
 
     def _promote_previous(self) -> _Keyframe:
         """Make the previous frame (tracked, not a keyframe) the newest keyframe; returns it."""
@@ -265,7 +324,7 @@ class RgbdOdometry:
         A dense result far from the feature estimate fell into another minimum."""
         config = self.config
         assert config.features is not None
-        motion = estimate_motion(view.features, keyframe.features, config.features)
+        motion = estimate_motion(keypoints(view), keypoints(keyframe), config.features)
         if motion is None:
             return None, 0.0, None
         result, fitness = register_dense(view, keyframe, motion.target_from_source, term, self.config)
@@ -340,6 +399,8 @@ class RgbdOdometry:
             last = self.keyframes[-1]
             travelled = last.travelled_m + float(np.linalg.norm(pose[:3, 3] - last.pose[:3, 3]))
         frame = len(self._poses) if frame is None else frame
+        if view.pending is not None:  # features deferred (prediction_first): loops and later frames match against them
+            keypoints(view)
         self.keyframes.append(_Keyframe(frame=frame, pose=pose, view=view, travelled_m=travelled))
         if edge is not None:
             self.edges.append(edge)
@@ -383,9 +444,9 @@ class RgbdOdometry:
         guess, so a loop is found however far the odometry drifted. Without: dense registration
         from the current estimate, accepted on its overlap."""
         config = self.config
-        if config.features is not None and len(new.features) and len(old.features):
+        if config.features is not None and len(keypoints(new)) and len(keypoints(old)):
             loop_features = dataclasses.replace(config.features, min_inliers=config.loop_min_inliers)
-            motion = estimate_motion(new.features, old.features, loop_features)
+            motion = estimate_motion(keypoints(new), keypoints(old), loop_features)
             if motion is None:
                 return None
             term = HYBRID if new.textured and old.textured else POINT_TO_PLANE

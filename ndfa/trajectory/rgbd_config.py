@@ -45,7 +45,12 @@ class RgbdOdometryConfig:
         other term (hybrid <-> point-to-plane) is tried too and the result nearer the prediction kept.
     keyframe_translation_m, keyframe_rotation_deg, keyframe_min_fitness: a frame becomes the new
         keyframe when it has moved this far or turned this much from the keyframe, or its overlap
-        (fitness) with the keyframe falls below this.
+        with the keyframe falls below this.
+    keyframe_overlap_of_depth: that overlap is the registration's inliers over the frame's pixels
+        with depth. False, the default: over all its pixels (Open3D's fitness), so a frame with depth
+        on half its pixels never overlaps more than 0.5 and nearly every frame becomes a keyframe.
+        Opt-in: fewer keyframes also means fewer chances for a loop (paper-tex source 8 -> 2 loops,
+        2.47 -> 2.72 cm; docs/odometry.md, "Prediction first, and the keyframe overlap").
     loop_closure: look for loops among the keyframes and optimise the pose graph in `finish()`.
     loop_radius_m, loop_angle_deg: a loop candidate's view centre (the point its camera looks at,
         at its median depth) is at most this far and its optical axis turned at most this much
@@ -114,6 +119,18 @@ class RgbdOdometryConfig:
     color_camera: the colour camera when the colour is not registered to the depth (a recording's
         meta says so: `ndfa.core.color_camera`, `session.rgbd_config_for`); each frame's colour is then
         carried onto its depth pixels before features and the intensity term use it. None: registered.
+    prediction_first, prediction_first_overlap, prediction_first_max_m, prediction_first_max_deg,
+    prediction_first_in_a_row: opt-in (False, the default: features on every frame). A textured
+        frame (hybrid) that the prediction does not already make a keyframe is first registered
+        densely from the constant-velocity prediction alone; that result stands, and the frame's
+        features are never made, when it overlaps the keyframe by at least
+        `prediction_first_overlap` (inliers over the pixels with depth), lands within
+        `prediction_first_max_m` and `prediction_first_max_deg` of the prediction, does not make
+        the frame a keyframe, and fewer than `prediction_first_in_a_row` frames just before it were
+        registered so (a run of them drifts: each lands near a prediction that carries the last
+        one's error). Otherwise the frame goes the feature way as before, so every keyframe edge is
+        measured from features. Not the default: it costs the kitchen and the office accuracy
+        (docs/odometry.md, "Prediction first, and the keyframe overlap").
     velocity_in_world: the constant-velocity model repeats the last shift in the world's frame
         (a person walking straight while panning the camera) instead of the camera's (a vehicle
         that turns with its heading); the turn is repeated in the camera's frame either way.
@@ -168,6 +185,12 @@ class RgbdOdometryConfig:
     faint_wall_contrast_px: float = 8.0
     faint_wall_contrast_gain: float = 4.0
     velocity_in_world: bool = True
+    keyframe_overlap_of_depth: bool = False
+    prediction_first: bool = False
+    prediction_first_overlap: float = 0.4
+    prediction_first_max_m: float = 0.02
+    prediction_first_max_deg: float = 2.0
+    prediction_first_in_a_row: int = 1
     color_camera: ColorCamera | None = None
 
     def __post_init__(self) -> None:

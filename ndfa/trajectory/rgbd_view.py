@@ -23,7 +23,7 @@ class View:
     """One frame prepared for registration: subsampled images as Open3D tensors."""
 
     rgbd: object  # open3d.t.geometry.RGBDImage (colour uint8, depth float32 metres, 0 = invalid)
-    features: Features  # ORB keypoints of the full-resolution image (none without colour)
+    features: Features | None  # ORB keypoints of the full-resolution image (none without colour); None: not yet made (`keypoints`)
     K: object  # open3d.core.Tensor (3, 3) float64, of the subsampled image
     plane_information: np.ndarray  # (6, 6) of the frame's own point-to-plane term (`plane_information`)
     unseen_information: np.ndarray  # the same from normals over a wider baseline: what depth cannot see
@@ -32,11 +32,24 @@ class View:
     textured: bool
     coloured: bool = True  # False: the frame had no colour (its image is zeros)
     contrast: View | None = field(default=None, repr=False)  # `local_contrast`'s, once made
+    # What `keypoints` makes the features from when they were deferred: grey image, depth, K, settings.
+    pending: tuple | None = field(default=None, repr=False)
 
 
-def prepare_view(frame: Frame, config: RgbdOdometryConfig) -> View:
+def keypoints(view: View) -> Features:
+    """The view's ORB features, made now if `prepare_view` deferred them (and kept)."""
+    if view.features is None:
+        assert view.pending is not None
+        gray, depth, K, feature_config = view.pending
+        view.features = detect_features(gray, depth, K, feature_config)
+        view.pending = None
+    return view.features
+
+
+def prepare_view(frame: Frame, config: RgbdOdometryConfig, defer_features: bool = False) -> View:
     """Subsample the frame to at most `max_width` pixels wide, drop depth out of range, and
-    wrap the images as Open3D tensors."""
+    wrap the images as Open3D tensors. defer_features: the ORB features are made only when
+    `keypoints` first asks for them (a frame the odometry registers without them never pays)."""
     import open3d as o3d
 
     height, width = frame.image_size
@@ -56,11 +69,15 @@ def prepare_view(frame: Frame, config: RgbdOdometryConfig) -> View:
     else:
         rgb = np.zeros((rows, cols, 3), np.uint8)
     valid = np.isfinite(depth)
-    features = no_features(frame.K)
+    features: Features | None = no_features(frame.K)
+    pending = None
     if full_rgb is not None and config.features is not None:
         full_depth = np.where(frame.depth >= config.min_depth_m, frame.depth, np.nan)
-        gray = full_rgb.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
-        features = detect_features(gray.astype(np.uint8), full_depth, frame.K, config.features)
+        gray = (full_rgb.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)).astype(np.uint8)
+        if defer_features:
+            features, pending = None, (gray, full_depth, frame.K, config.features)
+        else:
+            features = detect_features(gray, full_depth, frame.K, config.features)
     K = frame.K.copy()
     K[:2] /= step  # pixel (step*i) becomes pixel i: centres at integer coordinates stay so
     rgbd = o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(np.ascontiguousarray(rgb)),
@@ -70,7 +87,7 @@ def prepare_view(frame: Frame, config: RgbdOdometryConfig) -> View:
                  median_depth_m=float(np.median(depth[valid])) if valid.any() else 1.0,
                  valid_fraction=float(valid.mean()),
                  textured=frame.rgb is not None and textured_fraction(rgb, valid, config.gradient_threshold) >= config.textured_fraction,
-                 coloured=frame.rgb is not None)
+                 coloured=frame.rgb is not None, pending=pending)
 
 
 def local_contrast(view: View, sigma_px: float, gain: float) -> View:
