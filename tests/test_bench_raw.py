@@ -11,13 +11,16 @@ from typer.testing import CliRunner
 
 from ndfa.cli import app
 from ndfa.eval.bench_raw import RAW_STAGES
+from ndfa.io.recording import RecordingReader
 
 
 @pytest.mark.slow
 def test_bench_raw_times_every_stage_of_both_sessions_before_now_and_under_load(small_raw_pair):
+    # Now on every 2nd frame, the before on every frame: frames/s counts every input frame either way.
     result = CliRunner(env={"COLUMNS": "200"}).invoke(app, [
         "bench", "raw", "--source", str(small_raw_pair / "source.mcap"),
-        "--target", str(small_raw_pair / "target.mcap"), "--compare", "--before-ref", "HEAD", "--load"])
+        "--target", str(small_raw_pair / "target.mcap"), "--compare", "--before-ref", "HEAD", "--load",
+        "--frame-step", "2", "--before-frame-step", "1"])
     assert result.exit_code == 0, result.output
     columns = 3  # before, now, now beside one busy process
     rows = {}
@@ -25,7 +28,7 @@ def test_bench_raw_times_every_stage_of_both_sessions_before_now_and_under_load(
         cells = [cell.strip() for cell in re.split(r"[│┃]", line)[1:-1]]
         if len(cells) == columns + 1:
             rows[cells[0]] = cells[1:]
-    assert rows["ms / frame (both sessions)"] == ["before", "now", "now, beside one busy process"]
+    assert rows["ms / input frame (both sessions)"] == ["before", "now", "now, beside one busy process"]
     # The before is `ndfa detect` at that revision, in a child process: no stages of its own here.
     assert all(rows[stage][0] == "-" for stage in RAW_STAGES)
     for stage in RAW_STAGES:
@@ -34,9 +37,12 @@ def test_bench_raw_times_every_stage_of_both_sessions_before_now_and_under_load(
     # as did every frame's segmentation.
     for stage in ("odometry", "up", "segmentation", "reading", "scene alignment"):
         assert all(float(ms) > 0.0 for ms in rows[stage][1:]), (stage, rows[stage])
-    frames = int(re.search(r"(\d+) frames \(both sessions\)", result.output).group(1))
+    frames = int(re.search(r"(\d+) input frames \(both sessions\)", result.output).group(1))
     assert frames > 50
-    for wall, fps in zip(rows["wall s"], rows["frames/s (frames / wall)"]):
+    lengths = [len(RecordingReader(small_raw_pair / name)) for name in ("source.mcap", "target.mcap")]
+    half = sum(len(range(0, n, 2)) for n in lengths)
+    assert frames == sum(lengths) and rows["frames used (the rest skipped)"] == [str(frames), str(half), str(half)]
+    for wall, fps in zip(rows["wall s"], rows["frames/s (input frames / wall)"]):
         assert float(fps) == pytest.approx(frames / float(wall), rel=0.05, abs=0.05)
     # Stages that run one after the other, before the frames' passes, fit in the wall time of the two
     # processes they run in (`--workers` 2, the default: the target's poses and the scene alignment

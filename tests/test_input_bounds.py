@@ -49,6 +49,14 @@ def test_a_frame_step_that_leaves_one_frame_is_refused(ndfa):
              "--frame-step 10000 leaves 1 of the 62 frames", "source.mcap", "at most 61")
 
 
+def test_a_rate_that_leaves_one_frame_or_comes_with_a_frame_step_is_refused(ndfa):
+    one_line(ndfa("detect", SAMPLE / "source.mcap", SAMPLE / "target.mcap", "--rate", "0.001"),
+             "--rate 0.001 leaves 1 of the 62 frames", "source.mcap", "span")
+    one_line(ndfa("detect", SAMPLE / "source.mcap", SAMPLE / "target.mcap", "--rate", "15", "--frame-step", "2"),
+             "--rate and --frame-step", "give one of them")
+    one_line(ndfa("detect", SAMPLE / "source.mcap", SAMPLE / "target.mcap", "--rate", "0"), "--rate")
+
+
 def test_the_route_bound_is_the_simulators_own():
     import numpy as np
 

@@ -37,7 +37,7 @@ def test_the_scene_cloud_from_kept_depth_is_the_cloud_read_from_the_recording():
     config = RunOptions().align
     keep = scene_depth(config)
     kept = [KeptFrame(f.index, f.K, f.pose_world_camera, f.depth[::keep.pixel_stride, ::keep.pixel_stride].copy())
-            for f in reader.frames(step=keep.step(len(reader)))]
+            for f in reader.frames(positions=keep.positions(len(reader)))]
     read = scene_cloud(reader, world, config)
     world.kept_depth = (keep, kept)
     assert len(read) > 1000
@@ -53,7 +53,7 @@ def test_the_odometry_keeps_the_depth_the_scene_cloud_reads(small_raw_pair):
     keep = scene_depth()
     world = prepare_session(reader, "target", keep_depth=keep)
     assert world.kept_depth is not None and world.kept_depth[0] == keep
-    assert [f.index for f in world.kept_depth[1]] == [f.index for f in reader.frames(step=keep.step(len(reader)))]
+    assert [f.index for f in world.kept_depth[1]] == [f.index for f in reader.frames(positions=keep.positions(len(reader)))]
     kept = scene_cloud(reader, world)
     world.kept_depth = None
     np.testing.assert_array_equal(kept, scene_cloud(reader, world))
@@ -81,3 +81,30 @@ def untimed(summary: object) -> object:
     if isinstance(summary, str):  # a note that quotes an alignment's seconds
         return re.sub(r"\d+\.\d s\b", "_ s", summary)
     return summary
+
+
+@pytest.mark.slow
+def test_poses_are_estimated_on_the_frames_the_run_uses_alone(small_raw_pair):
+    reader = RecordingReader(small_raw_pair / "target.mcap")
+    keep, used = scene_depth(), range(0, len(reader), 2)
+    world = prepare_session(reader, "target", keep_depth=keep, positions=used)
+    indices = [f.index for f in reader.frames(positions=used)]
+    assert world.poses is not None and sorted(world.poses) == indices and world.posed == used
+    assert world.pose_error is not None and world.pose_error["frames"] == len(indices)
+    # The scene cloud's frames are among them, the same whether kept or read again.
+    assert world.kept_depth is not None
+    assert [f.index for f in world.kept_depth[1]] == [f.index for f in reader.frames(positions=keep.positions(len(reader), used))]
+    kept = scene_cloud(reader, world)
+    world.kept_depth = None
+    np.testing.assert_array_equal(kept, scene_cloud(reader, world))
+
+
+@pytest.mark.slow
+def test_a_run_at_a_frame_step_estimates_and_uses_every_nth_frame(small_raw_pair):
+    paths = small_raw_pair / "source.mcap", small_raw_pair / "target.mcap"
+    result = run_detection(*paths, PipelineConfig(), options=RunOptions(frame_step=2, workers=2))
+    for name, path in zip(("source", "target"), paths):
+        reader = RecordingReader(path)
+        assert result.frames[name] == len(range(0, len(reader), 2))
+        poses = result.worlds[name].poses
+        assert poses is not None and sorted(poses) == [f.index for f in reader.frames(step=2)]

@@ -9,7 +9,7 @@ import typer
 from rich.table import Table
 
 from ndfa.cli.app import app, console
-from ndfa.cli.checks import at_least, at_least_one, checkpoint, thread_count
+from ndfa.cli.checks import at_least, at_least_one, checkpoint, positive, thread_count
 from ndfa.eval.revision import RAW_BEFORE_REF
 
 
@@ -45,6 +45,10 @@ def bench_command(
                                                              "the shipped ones; with --before-ref, that revision's).",
                                                   callback=checkpoint),
     frame_step: int = typer.Option(1, help="detect, raw: use every N-th frame.", callback=at_least_one),
+    rate: Optional[float] = typer.Option(None, help="raw: now, use frames at most this often, Hz (`ndfa detect --rate`).",
+                                         callback=positive),
+    before_frame_step: Optional[int] = typer.Option(None, help="raw --compare: the before's --frame-step (default "
+                                                               "--frame-step).", callback=at_least_one),
     repeat: int = typer.Option(1, help="detect, raw: run now and the before this many times, in turns; a column "
                                        "is the run of median frames/s.",
                                callback=at_least_one),
@@ -79,8 +83,11 @@ def bench_command(
                       f"{r.ms_per_frame:.1f} ms/frame ({r.cpu_ms_per_frame:.1f} ms CPU)")
         return
     if what == "raw":
+        if rate is not None and frame_step > 1:
+            raise typer.BadParameter("--rate and --frame-step both choose the frames: give one of them")
         _bench_raw(source, target, (before_ref or RAW_BEFORE_REF) if compare else None, load=load, repeat=repeat,
-                   threads=threads, frame_step=frame_step, workers=workers)
+                   threads=threads, frame_step=frame_step, workers=workers, rate_hz=rate,
+                   before_frame_step=before_frame_step)
         return
     if what == "detect":
         for option, value in (("--runtime", runtime), ("--before-runtime", before_runtime or runtime)):
@@ -156,24 +163,26 @@ def bench_command(
 
 
 def _bench_raw(source: Path, target: Path, before_ref: str | None, load: bool, repeat: int, threads: int,
-               frame_step: int, workers: int | None) -> None:
+               frame_step: int, workers: int | None, rate_hz: float | None = None,
+               before_frame_step: int | None = None) -> None:
     """`ndfa bench raw`: the table of `ndfa.eval.bench_raw.raw_pass_runs`."""
     from ndfa.eval.bench_raw import RAW_STAGES, raw_pass_runs
 
     rows = raw_pass_runs(source, target, before_ref=before_ref, load=load, repeat=repeat, threads=threads,
-                         frame_step=frame_step, workers=workers)
+                         frame_step=frame_step, workers=workers, rate_hz=rate_hz, before_frame_step=before_frame_step)
     now = next(row for row in rows if row["label"] == "now")
     table = Table(title=f"ndfa bench raw: {source.name} + {target.name} ({source.parent}), no sinks",
-                  caption=f"{now['frames']} frames (both sessions), {threads} thread(s), {now['workers']} process(es), "
+                  caption=f"{now['frames']} input frames (both sessions), {threads} thread(s), {now['workers']} process(es), "
                           f"stages {now['stages']}; "
                           f"poses {', '.join(now['poses'])}; {now['machine']}")
-    table.add_column("ms / frame (both sessions)")
+    table.add_column("ms / input frame (both sessions)")
     for row in rows:
         table.add_column(row["label"], justify="right")
     for stage in RAW_STAGES:
         table.add_row(stage, *(f"{row['stage_ms'][stage]:.1f}" if stage in row["stage_ms"] else "-" for row in rows))
     table.add_row("wall s", *(f"{row['wall_s']:.1f}" for row in rows))
-    table.add_row("frames/s (frames / wall)", *(f"{row['fps']:.1f}" for row in rows))
+    table.add_row("frames used (the rest skipped)", *(str(row["frames_used"]) for row in rows))
+    table.add_row("frames/s (input frames / wall)", *(f"{row['fps']:.1f}" for row in rows))
     table.add_row("CPU s", *(f"{row['cpu_s']:.1f}" for row in rows))
     table.add_row("TP / FP / FN", *("-" if row["score"] is None else "/".join(map(str, row["score"])) for row in rows))
     console.print(table)

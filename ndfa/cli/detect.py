@@ -31,6 +31,7 @@ from ndfa.io.recording import RecordingReader
 from ndfa.io.recording.ground_truth import changed_instances
 from ndfa.perception.segmentation_config import GATES
 from ndfa.run.align import REGISTRATION_MODES
+from ndfa.run.rate import used_positions
 from ndfa.run.workers import WORKERS
 from ndfa.run.world import POSE_MODES, UP_MODES
 
@@ -51,7 +52,12 @@ def detect_command(
                                             callback=output_file),
     weights: Optional[Path] = typer.Option(None, help="NDF checkpoint, or shipped weights by name: mugs (the default) | objects (NDF v3, every category).",
                                            callback=checkpoint),
-    frame_step: int = typer.Option(1, help="Use every N-th frame of both recordings.", callback=at_least_one),
+    frame_step: int = typer.Option(1, help="Use every N-th frame of each recording (the pass and, where poses are "
+                                   "estimated, the odometry: the others are skipped).", callback=at_least_one),
+    rate: Optional[float] = typer.Option(None, help="Use frames at most this often, Hz, by each recording's "
+                                         "timestamps (15 on a 30 Hz recording: every 2nd frame; the others are "
+                                         "skipped, by the odometry too; docs/speed.md). Default: every frame.",
+                                         callback=positive),
     no_images: bool = typer.Option(False, "--no-images", help="Leave depth/colour/mask images out of the .rrd (smaller)."),
     association_distance: Optional[float] = typer.Option(
         None, help=f"delta_d, metres (default {_DETECTOR.association.distance_m}).", callback=positive),
@@ -116,12 +122,22 @@ def detect_command(
         raise typer.BadParameter(f"give two or more session recordings, got {len(recordings)}")
     if gate not in GATES:
         raise typer.BadParameter(f"--gate must be one of {', '.join(GATES)}, got {gate!r}")
-    if frame_step > 1:
+    if rate is not None and frame_step > 1:
+        raise OptionError("--rate and --frame-step both choose the frames: give one of them")
+    if frame_step > 1 or rate is not None:
         for recording in recordings:
-            frames = len(RecordingReader(recording))
-            if frame_step >= frames > 1:  # a session of one frame sees one view: the step then drops all the rest
+            reader = RecordingReader(recording)
+            frames, used = len(reader), len(used_positions(reader, frame_step, rate))
+            if used < 2 <= frames:  # a session of one frame sees one view: the step then drops all the rest
+                if rate is not None:
+                    times = reader.timestamps()
+                    raise OptionError(f"--rate {number_text(rate)} leaves 1 of the {frames} frames of {recording}: "
+                                      f"its frames span {times[-1] - times[0]:.3g} s")
                 raise OptionError(f"--frame-step {number_text(frame_step)} leaves 1 of the {frames} frames of {recording}: "
                                   f"at most {frames - 1} keeps two")
+            chosen = f"--rate {number_text(rate)}" if rate is not None else f"--frame-step {frame_step}"
+            err_console.print(f"{recording}: {used} of its {frames} frames used ({chosen}; the others are skipped)",
+                              highlight=False)
     if threads is not None:
         import torch  # lazy: torch takes seconds to import, and `ndfa --help` none
 
@@ -162,7 +178,7 @@ def detect_command(
                                  f"--registration {registration}")
     if paper_parameters:
         registration = "objects"
-    options = RunOptions(frame_step=frame_step, up=up, poses=poses, registration=registration,
+    options = RunOptions(frame_step=frame_step, rate_hz=rate, up=up, poses=poses, registration=registration,
                          check_poses_backward=check_poses_backward, workers=workers)
     if len(recordings) > 2:
         _detect_sessions(recordings, config, pipeline, runtime, log, tables, json_out, no_images, options)

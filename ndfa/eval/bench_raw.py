@@ -4,9 +4,10 @@ A raw recording costs more than the target pass `ndfa bench detect` times: each 
 are estimated by odometry and its up read from the planes before the pass, every frame is
 segmented, the two sessions' scene clouds are aligned before the target pass, and the detector
 estimates T_rel along the way. This times all of it, both sessions, the way `ndfa detect` runs it
-(the stages overlapped in threads, no sinks), and gives each stage's wall time as ms per frame of
-both sessions' frames; frames/s is both sessions' frames over the wall time of the whole run, the
-rate to compare with the sensor's (30 frames/s).
+(the stages overlapped in threads, no sinks), and gives each stage's wall time as ms per input frame
+(both sessions' frames, those a `--frame-step` or `--rate` skips counted too); frames/s is both
+sessions' input frames over the wall time of the whole run, the rate to compare with the sensor's
+(30 frames/s). A run that skips frames says how many it used (`frames_used`).
 
 With the stages overlapped, a stage's time is its own thread's (waits for the GIL and the cores
 included), so the per-frame stages add up to more than the wall time. Speed figures of this module
@@ -35,11 +36,11 @@ RAW_STAGES = ("odometry", "up", "reading", "segmentation", "perception", "encodi
 
 
 def raw_pass(source: Path, target: Path, config: PipelineConfig | None = None, threads: int = 1, frame_step: int = 1,
-             overlap: bool = True, workers: int | None = None) -> dict:
+             overlap: bool = True, workers: int | None = None, rate_hz: float | None = None) -> dict:
     """One `ndfa detect SOURCE TARGET` without sinks, timed: `stage_s` (seconds over the run, each
     stage of `RAW_STAGES`, wherever it ran: the worker's stages come back with their results,
-    `ndfa.run.workers`), `stage_ms` (the same per frame of both sessions), `wall_s`, `fps` (both
-    sessions' frames / wall_s), `cpu_s` (the CPU time of this process and of the worker processes it
+    `ndfa.run.workers`), `stage_ms` (the same per input frame of both sessions), `wall_s`, `fps` (both
+    sessions' input frames / wall_s; `frames_used` those the run used), `cpu_s` (the CPU time of this process and of the worker processes it
     waited for: the figure that another job's share of the cores does not change), `score` (TP, FP,
     FN; None without ground truth)."""
     import torch
@@ -55,8 +56,8 @@ def raw_pass(source: Path, target: Path, config: PipelineConfig | None = None, t
     config = dataclasses.replace(config, encoder=dataclasses.replace(config.encoder, threads=threads))
     pipeline = ChangeDetectionPipeline(config)  # the NDF loads before the clock starts, as `ndfa detect`'s does
     cpu_started, started = _cpu_s(), time.perf_counter()
-    result = run_detection(source, target, config, sinks=[], options=RunOptions(frame_step=frame_step, **({} if workers is None else {"workers": workers})),
-                           pipeline=pipeline, overlap=overlap)
+    options = RunOptions(frame_step=frame_step, rate_hz=rate_hz, **({} if workers is None else {"workers": workers}))
+    result = run_detection(source, target, config, sinks=[], options=options, pipeline=pipeline, overlap=overlap)
     wall_s = time.perf_counter() - started
     cpu_s = _cpu_s() - cpu_started
     score_detection(result)
@@ -69,9 +70,9 @@ def raw_pass(source: Path, target: Path, config: PipelineConfig | None = None, t
             stage_s[stage] = stage_s.get(stage, 0.0) + ms / 1e3
     if result.alignment is not None:
         stage_s["scene alignment"] += result.alignment.seconds
-    frames = sum(result.frames.values())
+    frames = sum(len(reader) for reader in result.run.readers)  # input frames, the skipped ones too
     score = result.score
-    return {"frames": frames, "wall_s": wall_s, "fps": frames / wall_s, "cpu_s": cpu_s, "stage_s": stage_s,
+    return {"frames": frames, "frames_used": sum(result.frames.values()), "wall_s": wall_s, "fps": frames / wall_s, "cpu_s": cpu_s, "stage_s": stage_s,
             "stage_ms": {stage: seconds / max(frames, 1) * 1e3 for stage, seconds in stage_s.items()},
             "score": None if score is None else (score.tp, score.fp, score.fn),  # type: ignore[attr-defined]
             "registration": result.describe_registration(), "poses": [w.pose_source for w in result.worlds.values()],
@@ -93,13 +94,15 @@ def raw_pass_of(tree: Path, ref: str, source: Path, target: Path, threads: int =
     child's start (Python, the NDF's loading: a few seconds), which the in-process `raw_pass` leaves out."""
     import json
 
+    from ndfa.io.recording import RecordingReader
+
     summary = tree / "summary.json"
     wall_s, cpu_s = run_in_tree(tree, ref, ["-c", "from ndfa.cli import main; main()", "detect", str(source.resolve()),
                                             str(target.resolve()), "--threads", str(threads),
                                             "--frame-step", str(frame_step), "--json", str(summary)], "ndfa detect")
     result = json.loads(summary.read_text())
-    frames = int(result["frames"])
-    return {"frames": frames, "wall_s": wall_s, "fps": frames / wall_s, "cpu_s": cpu_s,
+    frames = len(RecordingReader(source)) + len(RecordingReader(target))  # input frames, as `raw_pass` counts them
+    return {"frames": frames, "frames_used": int(result["frames"]), "wall_s": wall_s, "fps": frames / wall_s, "cpu_s": cpu_s,
             "stage_ms": {}, "stage_ms_target": result.get("stage_ms", {}),
             "score": (result["tp"], result["fp"], result["fn"]) if "tp" in result else None,
             "stages": "as ndfa detect ran them at that revision", "machine": machine()}
@@ -107,18 +110,21 @@ def raw_pass_of(tree: Path, ref: str, source: Path, target: Path, threads: int =
 
 def raw_pass_runs(source: Path, target: Path, now: PipelineConfig | None = None, before_ref: str | None = None,
                   load: bool = False, repeat: int = 1, threads: int = 1, frame_step: int = 1,
-                  workers: int | None = None) -> list[dict]:
+                  workers: int | None = None, rate_hz: float | None = None,
+                  before_frame_step: int | None = None) -> list[dict]:
     """`raw_pass` with the config `now` (default: the shipped one) `repeat` times, each row
     labelled; with `before_ref` (a git revision of this checkout), the raw pass as that revision
     ran it (`raw_pass_of`), alternating with now (`ndfa.eval.revision.alternate`). A label's row
     is its run of median frames/s, every run's in `fps_runs`. With `load`, now once more beside
-    one busy process. `workers`: now's (default `RunOptions.workers`); the before runs as its revision did."""
-    now_run = functools.partial(raw_pass, source, target, now, threads, frame_step, workers=workers)
+    one busy process. `workers`: now's (default `RunOptions.workers`); the before runs as its revision did.
+    `rate_hz` (`ndfa detect --rate`): now's only; `before_frame_step`: the before's (default `frame_step`)."""
+    now_run = functools.partial(raw_pass, source, target, now, threads, frame_step, workers=workers, rate_hz=rate_hz)
     with contextlib.ExitStack() as stack:
         before = None
         if before_ref is not None:
             tree = stack.enter_context(revision_tree(before_ref))
-            before = functools.partial(raw_pass_of, tree, before_ref, source, target, threads, frame_step)
+            before = functools.partial(raw_pass_of, tree, before_ref, source, target, threads,
+                                       frame_step if before_frame_step is None else before_frame_step)
         rows = alternate(now_run, before, repeat)
     if load:
         rows.append({"label": "now, beside one busy process"} | beside_busy_process(now_run))

@@ -10,6 +10,7 @@ instances each recording's ground truth lists for its session.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -19,7 +20,7 @@ from ndfa.core.events import DecisionEvent
 from ndfa.eval.position_match import PositionScore, ReportedObject, align_worlds, score_by_position
 from ndfa.eval.shown import places_shown
 from ndfa.io.recording import RecordingReader
-from ndfa.run.world import SessionWorld
+from ndfa.run.world import SessionWorld, spread
 
 # Camera poses per session for the session-wide alignment, spread over the session: a rigid fit of
 # 6 degrees of freedom is settled long before.
@@ -62,11 +63,20 @@ def score_segmented_run(changes: list[DecisionEvent], detector: ChangeDetector,
                          for f in maps[session].objects[i].frames} for session in readers}
     pose_true_run, rmse, cameras = {}, {}, {}
     for session, reader in readers.items():
-        sampled = range(0, len(reader), max(1, len(reader) // ALIGN_FRAMES))
+        # Among the frames with poses (those the run used, where it estimated poses on fewer: `ndfa.run.rate`).
+        posed = worlds[session].posed
+        sampled = spread(len(reader), ALIGN_FRAMES, posed)
         run_poses, true_poses, cameras[session] = [], [], {}
-        # Every frame is read (only poses are kept) when a reported object was seen in it.
-        step = 1 if seen_in[session] else sampled.step
-        for position, frame in zip(range(0, len(reader), step), reader.frames(step=step)):
+        # Every such frame is read (only poses are kept) when a reported object was seen in it.
+        if posed is None:
+            step = 1 if seen_in[session] else max(1, len(reader) // ALIGN_FRAMES)
+            read: Sequence[int] = range(0, len(reader), step)
+            frames = reader.frames(step=step)
+        else:
+            read = posed if seen_in[session] else sampled
+            frames = reader.frames(positions=read)
+        chosen = set(sampled)
+        for position, frame in zip(read, frames):
             true = frame.pose_world_camera_true if frame.pose_world_camera_true is not None else \
                 frame.pose_world_camera if reader.has_poses else None
             if true is None:
@@ -76,7 +86,7 @@ def score_segmented_run(changes: list[DecisionEvent], detector: ChangeDetector,
             run = worlds[session].apply(frame).pose_world_camera
             if frame.index in seen_in[session]:
                 cameras[session][frame.index] = (run, true)
-            if position in sampled:
+            if position in chosen:
                 run_poses.append(run)
                 true_poses.append(true)
         pose_true_run[session], rmse[session] = align_worlds(run_poses, true_poses)

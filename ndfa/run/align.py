@@ -154,7 +154,7 @@ def scene_cloud(reader: RecordingReader, world: SessionWorld, config: AlignConfi
     else:
         kept = [KeptFrame(frame.index, frame.K, frame.pose_world_camera,
                           frame.depth[::config.pixel_stride, ::config.pixel_stride])
-                for frame in reader.frames(step=keep.step(len(reader)))]
+                for frame in reader.frames(positions=keep.positions(len(reader), world.posed))]
     clouds = []
     for frame in kept:
         rows, cols = np.nonzero((frame.depth > MIN_DEPTH_M) & (frame.depth < MAX_DEPTH_M))

@@ -176,8 +176,10 @@ def session_pass(
     # A detector that takes no priors (`PriorConfig.enabled` off: the paper's) is offered none.
     registration = options.registration if pipeline.config.detector.priors.enabled else "objects"
     # Where the worlds and the scene alignments run (here, or ahead in a worker process): `ndfa.run.workers`.
+    # The frames each session's run uses (`options.frame_step`, `options.rate_hz`): the pass's and the odometry's.
+    used = [options.positions(reader) for reader in readers]
     ahead = Ahead(readers, names, options.workers, options.up, options.poses, options.check_poses_backward,
-                  registration, options.align)
+                  registration, options.align, used)
     worlds: dict[str, SessionWorld] = {}
 
     def know(index: int) -> None:
@@ -218,9 +220,9 @@ def session_pass(
             if index < len(names) - 1:
                 starting = PairResult(index, names[index], names[index + 1], pipeline.new_detector())
                 pairs.append(starting)
-            total = len(range(0, len(reader), options.frame_step))
+            total = len(used[index])
             started, count = time.perf_counter(), 0
-            for observed in staged(pipeline, reader.frames(step=options.frame_step), worlds[name], full, overlap):
+            for observed in staged(pipeline, reader.frames(positions=used[index]), worlds[name], full, overlap):
                 ahead.poll(index)  # the next pair's scene alignment starts as soon as it can
                 if ending is not None:
                     events = pipeline.decide("target", observed, ending.detector, also_source_of=None

@@ -20,6 +20,7 @@ from ndfa.perception.segmentation import PlaneTracker
 from ndfa.pipeline import ChangeDetectionPipeline, ObservedFrame
 from ndfa.run.align import RegistrationMode
 from ndfa.run.cloud_align import AlignConfig
+from ndfa.run.rate import used_positions
 from ndfa.run.workers import WORKERS
 from ndfa.run.world import PoseMode, SessionWorld, UpMode
 
@@ -39,7 +40,8 @@ class RunOptions:
     """How recordings are run, beside the pipeline's config: the same for two sessions
     (`ndfa.run.detect.run_detection`) and for more (`ndfa.run.sessions.run_sessions`).
 
-    frame_step: every n-th frame of each recording.
+    frame_step, rate_hz: the frames of each recording used (every n-th, or at most rate_hz a second
+        by their timestamps; not both): by the pass and by the odometry (`ndfa.run.rate`).
     up, poses: what each session's world gets when it lacks it (`ndfa.run.world.prepare_session`).
     check_poses_backward: estimated poses are checked by a second estimate over the frames last
         first (`prepare_session`): a better quality figure for twice the odometry's time.
@@ -50,12 +52,17 @@ class RunOptions:
     """
 
     frame_step: int = 1
+    rate_hz: float | None = None
     up: UpMode = "auto"
     poses: PoseMode = "auto"
     check_poses_backward: bool = False
     registration: RegistrationMode = "auto"
     align: AlignConfig = field(default_factory=AlignConfig)
     workers: int = WORKERS
+
+    def positions(self, reader: RecordingReader) -> Sequence[int]:
+        """The positions of the frames of `reader` the run uses (`ndfa.run.rate.used_positions`)."""
+        return used_positions(reader, self.frame_step, self.rate_hz)
 
 
 def open_recordings(paths: Sequence[Path], names: Sequence[str], segment: bool = True

@@ -53,8 +53,12 @@ class Ahead:
     """The sessions' worlds and the pairs' hypotheses, run here or ahead in a worker (see the module docstring)."""
 
     def __init__(self, readers: Sequence[RecordingReader], names: Sequence[str], workers: int, up: UpMode,
-                 poses: PoseMode, check_poses_backward: bool, registration: RegistrationMode, align: AlignConfig):
+                 poses: PoseMode, check_poses_backward: bool, registration: RegistrationMode, align: AlignConfig,
+                 positions: Sequence[Sequence[int]] | None = None):
         self.readers, self.names = list(readers), list(names)
+        # per session, the frames the run uses (`ndfa.run.rate`; None: every frame)
+        self.positions: list[Sequence[int] | None] = list(positions) if positions is not None else \
+            [None] * len(self.readers)
         self.world_args = (up, poses, check_poses_backward, scene_depth(align))
         self.registration, self.align = registration, align
         self.pool: ProcessPoolExecutor | None = None
@@ -66,7 +70,7 @@ class Ahead:
                                             mp_context=multiprocessing.get_context("spawn"))
             for index in range(1, len(self.readers)):
                 self.future_worlds[index] = self.pool.submit(_prepare, self.readers[index].path, self.names[index],
-                                                             *self.world_args)
+                                                             *self.world_args, self.positions[index])
 
     def before_passes(self) -> range:
         """The sessions whose worlds the caller takes before the first pass: every one when they
@@ -79,7 +83,7 @@ class Ahead:
         if index not in self.worlds:
             future = self.future_worlds.get(index)
             self.worlds[index] = future.result() if future is not None else \
-                prepare_session(self.readers[index], self.names[index], *self.world_args)
+                prepare_session(self.readers[index], self.names[index], *self.world_args, self.positions[index])
         return self.worlds[index]
 
     def poll(self, pair: int) -> None:
@@ -111,9 +115,9 @@ class Ahead:
 
 
 def _prepare(path: Path, name: str, up: UpMode, poses: PoseMode, check_poses_backward: bool,
-             keep: KeepDepth) -> SessionWorld:
+             keep: KeepDepth, positions: Sequence[int] | None) -> SessionWorld:
     """`prepare_session` in the worker."""
-    return prepare_session(RecordingReader(path), name, up, poses, check_poses_backward, keep)
+    return prepare_session(RecordingReader(path), name, up, poses, check_poses_backward, keep, positions)
 
 
 def _align(source: Path, target: Path, worlds: dict[str, SessionWorld], mode: RegistrationMode,

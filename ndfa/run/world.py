@@ -21,14 +21,18 @@ The core works on frames with camera poses in a z-up world (`ndfa.core.conventio
 
 `SessionWorld.describe()` (stderr of `ndfa detect`) and `as_dict()` (its JSON "world") carry the notes.
 
-The odometry reads every frame of the session; `keep_depth` keeps, on the way, the depth of the
-frames the scene cloud is fused from (`ndfa.run.align.scene_cloud`), thinned as it thins them, so
-that the scene alignment need not read them again (`SessionWorld.kept_depth`).
+The odometry reads the frames the run uses (`positions`: every frame, or those of `--frame-step`
+or `--rate`, `ndfa.run.rate`), and only those get poses; the up estimate and the scene cloud then
+look at those frames only (`spread`). `keep_depth` keeps, on the way, the depth of the frames the
+scene cloud is fused from (`ndfa.run.align.scene_cloud`), thinned as it thins them, so that the
+scene alignment need not read them again (`SessionWorld.kept_depth`).
 """
 
 from __future__ import annotations
 
 import time
+from bisect import bisect_left
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Literal
 
@@ -65,16 +69,33 @@ UP_FRAMES = 60  # frames the up estimate looks at, spread over the session
 IMU_PLANES_AGREE_DEG = 5.0
 
 
+def spread(length: int, count: int, among: Sequence[int] | None = None) -> list[int]:
+    """About `count` positions spread over a session of `length` frames: every `length // count`-th
+    (0, step, ...); with `among` (the positions a run uses, increasing), each moved to the nearest
+    of them (the earlier on a tie), none twice. Where `among` holds every grid position (every
+    frame, or a frame step that divides the grid's), the same positions."""
+    grid = range(0, length, max(1, length // count))
+    if among is None or not len(among):
+        return list(grid)
+    chosen: list[int] = []
+    for position in grid:
+        at = bisect_left(among, position)
+        nearest = min(among[max(0, at - 1):at + 1], key=lambda p: (abs(p - position), p))
+        if not chosen or chosen[-1] != nearest:
+            chosen.append(nearest)
+    return chosen
+
+
 @dataclass(frozen=True)
 class KeepDepth:
-    """Which frames' depth the odometry keeps: every `len // frames`-th frame (positions 0, step,
-    ...), every `pixel_stride`-th pixel along each axis."""
+    """Which frames' depth the odometry keeps: `frames` spread over the session (`spread`: positions
+    0, len // frames, ..., or the nearest used ones), every `pixel_stride`-th pixel along each axis."""
 
     frames: int
     pixel_stride: int
 
-    def step(self, length: int) -> int:
-        return max(1, length // self.frames)
+    def positions(self, length: int, among: Sequence[int] | None = None) -> list[int]:
+        return spread(length, self.frames, among)
 
 
 @dataclass(frozen=True)
@@ -108,6 +129,9 @@ class SessionWorld:
     seconds: dict[str, float] = field(default_factory=dict)
     # The depth the odometry kept for the scene cloud (`prepare_session`'s `keep_depth`), and how; None: not kept.
     kept_depth: tuple[KeepDepth, list[KeptFrame]] | None = field(default=None, repr=False)
+    # The positions of the frames whose poses were estimated, when not every frame's (a run that
+    # uses fewer: `ndfa.run.rate`): `poses` holds theirs alone. None: every frame's, or none estimated.
+    posed: Sequence[int] | None = None
 
     def apply(self, frame: Frame) -> Frame:
         """`frame` with the estimated pose (if any), levelled (if needed)."""
@@ -165,11 +189,13 @@ class SessionWorld:
 
 def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
                     poses: PoseMode = "auto", check_poses_backward: bool = False,
-                    keep_depth: KeepDepth | None = None) -> SessionWorld:
+                    keep_depth: KeepDepth | None = None, positions: Sequence[int] | None = None) -> SessionWorld:
     """Estimate what `reader`'s recording lacks (see the module docstring). check_poses_backward:
     estimated poses are estimated a second time over the frames last first, and the two estimates'
     disagreement joins their quality figure (`ndfa.trajectory.quality`; twice the odometry's time).
-    keep_depth: where the odometry reads the frames, their depth is kept for the scene cloud."""
+    keep_depth: where the odometry reads the frames, their depth is kept for the scene cloud.
+    positions: the frames the run uses (`ndfa.run.rate.used_positions`; None: every frame): poses
+    are estimated for these alone."""
     if up not in UP_MODES:
         raise ValueError(f"up must be one of {UP_MODES}, got {up!r}")
     if poses not in POSE_MODES:
@@ -180,8 +206,10 @@ def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
     elif poses == "estimate" or (poses == "auto" and not reader.has_poses):
         started = time.perf_counter()
         kept: list[KeptFrame] = []
+        if positions is not None and len(positions) < len(reader):
+            world.posed = positions
         world.poses, world.pose_source, input_notes, truth, world.pose_quality = _estimate_poses(
-            reader, check_poses_backward, None if keep_depth is None else (keep_depth, kept))
+            reader, world.posed, check_poses_backward, None if keep_depth is None else (keep_depth, kept))
         if keep_depth is not None:
             world.kept_depth = (keep_depth, kept)
         world.seconds["odometry"] = time.perf_counter() - started
@@ -199,9 +227,9 @@ def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
         world.up_source = "z (a synthetic recording's world is z-up)"
         return world
     started = time.perf_counter()
-    step = max(1, len(reader) // UP_FRAMES)
-    imu = _up_from_imu(reader, world, step)
-    planes = estimate_up((world.apply(f) for f in reader.frames(step=step)),
+    spread_out = spread(len(reader), UP_FRAMES, world.posed)  # among the frames with poses
+    imu = _up_from_imu(reader, world, spread_out)
+    planes = estimate_up((world.apply(f) for f in reader.frames(positions=spread_out)),
                          prior_up=None if imu is None else imu.up_world)
     if imu is not None:
         # The IMU measures gravity; the planes check it (a wrong mounting in the tf, wrong poses).
@@ -235,9 +263,9 @@ def up_under_poses(up: UpEstimate, pose_quality: PoseQuality | None) -> UpEstima
     return replace(up, confidence="low", warning=f"read under {pose_quality.verdict} poses ({pose_quality.describe()})")
 
 
-def _up_from_imu(reader: RecordingReader, world: SessionWorld, step: int) -> UpEstimate | None:
+def _up_from_imu(reader: RecordingReader, world: SessionWorld, positions: Sequence[int]) -> UpEstimate | None:
     """Up from the still IMU readings the importer recorded (meta["imu"]) and the session's poses at
-    those frames (every `step`-th frame), or None (no IMU, or no estimate: a note says why)."""
+    those frames (those at `positions`), or None (no IMU, or no estimate: a note says why)."""
     imu = reader.meta.get("imu")
     if not isinstance(imu, dict):
         return None
@@ -246,7 +274,8 @@ def _up_from_imu(reader: RecordingReader, world: SessionWorld, step: int) -> UpE
         world.notes.append(f"IMU {imu.get('topic', '')} not used for up: {imu.get('note', 'no readings')}; "
                            "up from the planes")
         return None
-    estimate = up_from_imu(gravity, ((f.timestamp, world.apply(f).pose_world_camera) for f in reader.frames(step=step)))
+    estimate = up_from_imu(gravity, ((f.timestamp, world.apply(f).pose_world_camera)
+                                     for f in reader.frames(positions=positions)))
     if not estimate.ok:
         world.notes.append(f"IMU {imu.get('topic', '')} not used for up: {estimate.reason}; up from the planes")
         return None
@@ -281,29 +310,32 @@ def _pose_error(estimate: dict[int, np.ndarray], truth: dict[int, np.ndarray]) -
             "rpe_translation_m": rpe.translation_rmse_m, "rpe_rotation_deg": rpe.rotation_rmse_deg}
 
 
-def _estimate_poses(reader: RecordingReader, backward: bool = False,
+def _estimate_poses(reader: RecordingReader, positions: Sequence[int] | None = None, backward: bool = False,
                     keep: tuple[KeepDepth, list[KeptFrame]] | None = None,
                     ) -> tuple[dict[int, np.ndarray], str, list[str], dict[int, np.ndarray], PoseQuality | None]:
-    """Every frame's pose by odometry over the whole session (`ndfa.trajectory.session`), how they
-    were estimated, warnings about the input, the frames' true poses (those it has) and the poses'
-    quality judged without them. keep: the depth of the frames it picks is added to its list."""
+    """The pose of every frame at `positions` (None: every frame) by odometry over the whole
+    session (`ndfa.trajectory.session`) on those frames alone, how they were estimated, warnings
+    about the input, the frames' true poses (those it has) and the poses' quality judged without
+    them. keep: the depth of the frames it picks is added to its list."""
     truth: dict[int, np.ndarray] = {}
-    step = None if keep is None else keep[0].step(len(reader))
-    position = 0
+    used = range(len(reader)) if positions is None else positions
+    kept_at = set() if keep is None else set(keep[0].positions(len(reader), positions))
+    count = 0
 
     def seen(frame: Frame) -> None:
-        nonlocal position
+        nonlocal count
         if frame.pose_world_camera_true is not None:
             truth[frame.index] = frame.pose_world_camera_true
-        if keep is not None and step is not None and position % step == 0:
+        if keep is not None and used[count] in kept_at:
             stride = keep[0].pixel_stride
             keep[1].append(KeptFrame(frame.index, frame.K, frame.pose_world_camera,
                                      frame.depth[::stride, ::stride].copy()))
-        position += 1
+        count += 1
 
-    session = estimate_session_poses(reader.frames(), choose_method(next(iter(reader.frames(stop=1)), None)),
+    backward_frames = frames_backwards(reader, positions=positions) if backward else None
+    session = estimate_session_poses(reader.frames(positions=positions), choose_method(next(iter(reader.frames(stop=1)), None)),
                                      reader.path, rgbd_config=rgbd_config_for(reader.meta), on_frame=seen,
-                                     backward_frames=frames_backwards(reader) if backward else None)
+                                     backward_frames=backward_frames)
     notes = session.input_report.warnings(untracked_poses=UNTRACKED_POSES) if session.poses else []
     quality = None if session.evidence is None else judge(session.evidence)
     return (dict(zip(session.indices, session.poses, strict=True)), f"estimated ({session.describe_method()})", notes,

@@ -19,7 +19,7 @@ Methods: "rgbd" (colour and depth, loop-closed over the whole session, rgbd.py) 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -130,12 +130,14 @@ def estimate_session_poses(frames: Iterable[Frame], method: str, source: object,
     return SessionPoses(method, filled, timestamps, indices, odometry, report, evidence)
 
 
-def frames_backwards(reader: RecordingReader, step: int = 1, chunk: int = 48) -> Iterator[Frame]:
-    """`reader.frames(step=step)` last first, `chunk` frames at a time in memory."""
-    positions = range(0, len(reader), step)
+def frames_backwards(reader: RecordingReader, step: int = 1, chunk: int = 48,
+                     positions: Sequence[int] | None = None) -> Iterator[Frame]:
+    """`reader.frames(step=step)` (or the frames at `positions`) last first, `chunk` frames at a time in memory."""
+    if positions is None:
+        positions = range(0, len(reader), step)
     for end in range(len(positions), 0, -chunk):
         start = max(0, end - chunk)
-        yield from reversed(list(reader.frames(start=positions[start], stop=positions[end - 1] + 1, step=step)))
+        yield from reversed(list(reader.frames(positions=positions[start:end])))
 
 
 def _backward_disagreement(frames: Iterable[Frame], poses: list[np.ndarray | None], timestamps: list[float],

@@ -1,0 +1,55 @@
+"""Which frames of a recording a run uses: every frame, every n-th (`--frame-step`), or frames at
+most so often by their timestamps (`--rate`).
+
+The frames a run uses are the only frames it reads for anything: the pass perceives them, and a
+session whose poses are estimated has them estimated on these frames alone (`ndfa.run.world`: the
+odometry then sees the motion between used frames, n times a frame's at `--frame-step n`). The
+others are skipped: read through in the file, never decoded. Why and what it costs in accuracy:
+docs/speed.md ("The processing rate").
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from ndfa.io.recording import RecordingReader
+
+# Share of the period by which two used frames may be closer than 1 / rate: a recording's
+# timestamps jitter (a 30 Hz stream's 33.3 ms steps by a millisecond or more), and at `--rate 15`
+# every second frame of it (66.7 ms apart, give or take) should be used, not every third.
+RATE_TOLERANCE = 0.1
+
+
+def at_rate(timestamps: Sequence[float], rate_hz: float) -> list[int]:
+    """The positions of the frames used at `rate_hz`: the first frame, then each frame at least
+    (1 - RATE_TOLERANCE) / rate_hz seconds after the last one used. A recording at or below the
+    rate keeps every frame; one at 30 Hz keeps every 2nd at 15 Hz, every 3rd at 10 Hz, every 2nd at
+    20 Hz (at most so often: 15 Hz)."""
+    if not rate_hz > 0:
+        raise ValueError(f"rate_hz must be > 0, got {rate_hz}")
+    least = (1.0 - RATE_TOLERANCE) / rate_hz
+    used: list[int] = []
+    last = 0.0
+    for position, timestamp in enumerate(timestamps):
+        if not used or timestamp - last >= least:
+            used.append(position)
+            last = timestamp
+    return used
+
+
+def used_positions(reader: RecordingReader, frame_step: int = 1, rate_hz: float | None = None) -> Sequence[int]:
+    """The positions (`RecordingReader.frames`) of the frames a run uses: every `frame_step`-th
+    (a range, the file not read), or, with `rate_hz`, those `at_rate` picks from the recording's
+    timestamps (the file read through once). Not both."""
+    if frame_step < 1:
+        raise ValueError(f"frame_step must be >= 1, got {frame_step}")
+    if rate_hz is None:
+        return range(0, len(reader), frame_step)
+    if frame_step != 1:
+        raise ValueError("a frame step and a rate: give one of them")
+    return at_rate(reader.timestamps(), rate_hz)
+
+
+def describe_use(used: Sequence[int], length: int) -> str:
+    """How many of a session's frames a run uses, for its notes: "170 of 339 frames"."""
+    return f"{len(used)} of {length} frames"
