@@ -15,6 +15,8 @@ object the detector tracks and may report. The gate keeps clusters of a mug's sc
 - not squat (`min_aspect`): a mug is at least about two thirds as tall as its footprint is long;
   a bowl, a stack of books or a low box is flatter;
 - compact (`min_width_ratio`): not a sliver (the edge of a board seen end-on);
+- standing on its lower half (`min_lower_ratio`, objects only): not a wide top on a thin post
+  (a monitor's housing);
 - no faces at right angles (`max_right_angles`, views closer than `right_angle_max_depth_m`):
   a box or a book seen from the side shows flat faces at right angles to each other, so the
   horizontal directions of its surface normals cluster at multiples of 90 degrees; a mug's wall
@@ -38,6 +40,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 FOOTPRINT_PERCENTILES = (2.0, 98.0)
+# A cluster's lower part (`ClusterShape.lower_length_m`): its points up to this share of its top.
+LOWER_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -65,6 +69,11 @@ class ObjectnessConfig:
     min_aspect: top over the longer side at least this: the synthetic mugs are at least ~0.67 as
         tall as they are wide, their views with the handle 0.66 at the 2nd percentile; bowls
         (4-7 cm tall, 12-18 cm wide), books and low boxes lie below (docs/segmentation.md).
+    min_lower_ratio: the footprint of the cluster's lower half (its points up to `LOWER_SHARE` of
+        its top: `ClusterShape.lower_length_m`) at least this share of the whole footprint's longer
+        side ("top-heavy" below; not tested where the lower half holds fewer than 3 points, as a
+        bowl's rim seen alone): a standing object's lower half spans most of it, while a monitor's
+        housing on its post or a shade on a stem is a wide top on a thin support. 0 (mugs): off.
     near_view_depth_m: the two tests below apply to clusters whose median depth is at most this;
         farther, the depth noise (~7 mm at 2 m) makes a mug score like a box or a bowl. 0: off.
     max_right_angles, normal_neighbours: "boxy" when `right_angles` (0..1, normals from
@@ -84,6 +93,7 @@ class ObjectnessConfig:
     min_width_ratio: float = 0.2
     max_aspect: float = 2.2
     min_aspect: float = 0.62
+    min_lower_ratio: float = 0.0
     near_view_depth_m: float = 2.0
     max_right_angles: float = 0.5
     normal_neighbours: int = 24
@@ -97,10 +107,12 @@ class ObjectnessConfig:
         and as flat as 0.08 times it (a wide bowl, a flat box); `boxy` and `flared` off (boxes and
         bowls are objects now). What still turns non-objects away: papers and cables lie flat
         (`flat`: under 2.5 cm), counter edges and table rims are long or slivers, a wall's foot is
-        a column of the segmentation's `max_object_height_m`, something hidden floats.
+        a column of the segmentation's `max_object_height_m`, something hidden floats, a monitor's
+        housing on its post is top-heavy (docs/categories.md, "The office with v3").
         docs/segmentation.md, "Objects, not mugs", has the figures."""
         return cls(min_top_m=0.025, max_top_m=0.36, max_bottom_m=0.05, min_length_m=0.035, max_length_m=0.32,
-                   min_width_m=0.015, min_width_ratio=0.15, max_aspect=7.5, min_aspect=0.08, near_view_depth_m=0.0)
+                   min_width_m=0.015, min_width_ratio=0.15, max_aspect=7.5, min_aspect=0.08, min_lower_ratio=0.25,
+                   near_view_depth_m=0.0)
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.min_top_m < self.max_top_m:
@@ -121,6 +133,8 @@ class ClusterShape:
     right_angles: how much the surface normals' horizontal directions agree with one set of
     right angles (`right_angles`); lean: how much the wall facing the camera leans towards it
     (`lean`). None: not measured (a far view, no camera given, or the gate is off).
+    lower_length_m: the longer side of the footprint of its points up to `LOWER_SHARE` of the top
+    (None: fewer than 3 such points): what the cluster stands on.
     """
 
     points: int
@@ -131,6 +145,7 @@ class ClusterShape:
     depth_m: float
     right_angles: float | None = None
     lean: float | None = None
+    lower_length_m: float | None = None
 
 
 def cluster_shape(heights: np.ndarray, flat: np.ndarray, depths: np.ndarray) -> ClusterShape:
@@ -138,8 +153,10 @@ def cluster_shape(heights: np.ndarray, flat: np.ndarray, depths: np.ndarray) -> 
     coordinates in the plane (N, 2) and depths from the camera (N,)."""
     bottom, top = _percentiles(heights, (0.05, 0.95))
     length, width = footprint(flat)
+    lower = heights <= LOWER_SHARE * top
+    lower_length = footprint(flat[lower])[0] if lower.sum() >= 3 else None
     return ClusterShape(points=len(heights), bottom_m=float(bottom), top_m=float(top), length_m=length,
-                        width_m=width, depth_m=float(np.median(depths)))
+                        width_m=width, depth_m=float(np.median(depths)), lower_length_m=lower_length)
 
 
 def footprint(flat: np.ndarray) -> tuple[float, float]:
@@ -271,7 +288,7 @@ def judge(heights: np.ndarray, flat: np.ndarray, depths: np.ndarray,
 
 def rejection(shape: ClusterShape, config: ObjectnessConfig = ObjectnessConfig()) -> str | None:
     """Why the cluster is not a mug ("flat", "tall", "floating", "long", "short", "thin", "sliver",
-    "column", "squat", "boxy", "flared"), or None."""
+    "column", "squat", "top-heavy", "boxy", "flared"), or None."""
     if shape.top_m < config.min_top_m:
         return "flat"
     if shape.top_m > config.max_top_m:
@@ -290,6 +307,8 @@ def rejection(shape: ClusterShape, config: ObjectnessConfig = ObjectnessConfig()
         return "column"
     if shape.top_m < config.min_aspect * shape.length_m:
         return "squat"
+    if shape.lower_length_m is not None and shape.lower_length_m < config.min_lower_ratio * shape.length_m:
+        return "top-heavy"
     if shape.right_angles is not None and shape.right_angles > config.max_right_angles:
         return "boxy"
     if shape.lean is not None and shape.lean > config.max_lean:
