@@ -197,3 +197,33 @@ def test_a_nearer_surface_behind_a_band_without_depth_still_hides_the_foot_below
     without = dataclasses.replace(config, occluder_band_px=0)
     assert not _hidden_above(*foot, without)  # without: the band hid the table top
     assert not _hidden_above(*_foot_below_a_band(3.0), config)  # farther background above: a mug
+
+
+def _foot_with_floor_noise() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """`_foot_below_a_band(1.1)`'s foot of a far table's leg under a nearer table top, clustered with
+    the far floor's depth noise: a wide fringe of samples a centimetre or two above the floor in
+    the cluster's bottom rows, with more floor above them. The depth, the samples' rows and columns
+    (every 2nd pixel) and their heights above the floor."""
+    depth, _, _ = _foot_below_a_band(1.1)
+    depth[392:400, 340:540] = 2.17
+    foot_rows, foot_cols = (a.ravel() for a in np.mgrid[370:400:2, 426:452:2])
+    noise_rows, noise_cols = (a.ravel() for a in np.mgrid[396:400:2, 340:540:2])
+    outside = (noise_cols < 426) | (noise_cols >= 452)
+    rows = np.concatenate([foot_rows, noise_rows[outside]])
+    cols = np.concatenate([foot_cols, noise_cols[outside]])
+    heights = np.concatenate([np.linspace(0.13, 0.01, len(foot_rows)), np.full(outside.sum(), 0.015)])
+    return depth, rows, cols, heights
+
+
+def test_a_legs_foot_under_a_nearer_table_is_hidden_though_floor_noise_joined_it():
+    """The office's false objects under v3 (docs/categories.md, "The office with v3"): the noise's
+    columns, floor above them, outvoted the foot's; the objects' gate looks above the top edge of
+    the cluster's upper half only (`occluder_upper_half`)."""
+    from ndfa.perception.segmentation import _hidden_above
+
+    depth, rows, cols, heights = _foot_with_floor_noise()
+    config = SegmentationConfig().for_objects()
+    assert config.occluder_upper_half and not SegmentationConfig().occluder_upper_half
+    assert not _hidden_above(depth, rows, cols, config)  # every sample's top edge: outvoted
+    upper = heights >= 0.5 * np.percentile(heights, 95)
+    assert _hidden_above(depth, rows[upper], cols[upper], config)

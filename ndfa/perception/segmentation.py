@@ -186,7 +186,11 @@ def explain_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig(
     for cluster, verdict in judged:
         members = cluster_of_point == cluster
         cluster_rows, cluster_cols = candidate_rows[members], candidate_cols[members]
-        if verdict.rejected is None and _hidden_above(frame.depth, cluster_rows, cluster_cols, config):
+        upper: np.ndarray | slice = slice(None)  # the samples whose top edge the hidden test looks above
+        if verdict.rejected is None and config.occluder_upper_half:
+            heights = planes[int(np.bincount(cluster_planes[members]).argmax())].height(cluster_points[members])
+            upper = heights >= 0.5 * verdict.shape.top_m
+        if verdict.rejected is None and _hidden_above(frame.depth, cluster_rows[upper], cluster_cols[upper], config):
             verdict = ClusterVerdict(verdict.shape, "hidden", split=verdict.split)
         if verdict.rejected is None and config.image_margin_px > 0:
             depth_box = _depth_box(frame.depth) if depth_box is None else depth_box

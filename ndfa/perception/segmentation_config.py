@@ -74,6 +74,12 @@ class SegmentationConfig:
         still hides what is below it. 24 drops the office's desk-leg foot and keeps the kitchen
         halves at 0 changes with both mugs (docs/results.md, "The hand-held office"). 0: the band
         ends the look (before 2026-12-03).
+    occluder_upper_half: the hidden test looks above the top edge of the cluster's upper half only
+        (its samples at least half its top above the plane), not of every sample: the depth noise
+        of a far floor or table top, clustered with the foot of a leg whose upper part a nearer
+        table top hides, adds columns topped by the noise, with more floor above them, that
+        outvoted the leg's (docs/categories.md, "The office with v3"). False (the mugs' gate):
+        every sample, as before.
     fill_distance_m: a full-resolution pixel joins a cluster whose nearest point is closer than this.
     image_margin_px: a cluster with a sample within this many pixels of the image border is
         dropped: the image cuts it, so its shape (the gate's evidence) is unknown; on real data such
@@ -142,6 +148,7 @@ class SegmentationConfig:
     occluder_look_px: int = 6
     occluder_gap_m: float = 0.10
     occluder_band_px: int = 24
+    occluder_upper_half: bool = False
     fill_distance_m: float = 0.015
     image_margin_px: int = 4
     objectness: ObjectnessConfig | None = field(default_factory=ObjectnessConfig)
@@ -163,7 +170,7 @@ class SegmentationConfig:
         a room's pieces of something larger have an object's size too."""
         return replace(self, objectness=ObjectnessConfig.objects(), min_object_height_m=0.025,
                        max_object_height_m=0.36, band_height_m=max(self.band_height_m, 0.45), max_extent_m=0.42,
-                       max_outline_goes_on=0.5)
+                       max_outline_goes_on=0.5, occluder_upper_half=True)
 
     def __post_init__(self) -> None:
         if self.stride is not None and self.stride < 1:
