@@ -54,6 +54,11 @@ def test_the_odometry_keeps_the_depth_the_scene_cloud_reads(small_raw_pair):
     world = prepare_session(reader, "target", keep_depth=keep)
     assert world.kept_depth is not None and world.kept_depth[0] == keep
     assert [f.index for f in world.kept_depth[1]] == [f.index for f in reader.frames(positions=keep.positions(len(reader)))]
+    assert_kept_cloud_is_read_cloud(reader, world)
+
+
+def assert_kept_cloud_is_read_cloud(reader: RecordingReader, world) -> None:
+    """The scene cloud from the depth the odometry kept is the one read from the recording again."""
     kept = scene_cloud(reader, world)
     world.kept_depth = None
     np.testing.assert_array_equal(kept, scene_cloud(reader, world))
@@ -94,9 +99,7 @@ def test_poses_are_estimated_on_the_frames_the_run_uses_alone(small_raw_pair):
     # The scene cloud's frames are among them, the same whether kept or read again.
     assert world.kept_depth is not None
     assert [f.index for f in world.kept_depth[1]] == [f.index for f in reader.frames(positions=keep.positions(len(reader), used))]
-    kept = scene_cloud(reader, world)
-    world.kept_depth = None
-    np.testing.assert_array_equal(kept, scene_cloud(reader, world))
+    assert_kept_cloud_is_read_cloud(reader, world)
 
 
 @pytest.mark.slow
