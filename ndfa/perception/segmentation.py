@@ -37,7 +37,7 @@ rest with DBSCAN; this is that, for one frame at a time:
    `fill_distance_m` and the pixel lies above the plane; others stay 0. The mask thus follows the
    object's silhouette at full resolution, not the sample grid's blocks.
 
-On the `paper` scene (640x480, stride 2) this recovers 87% of the mug views with >= 200 pixels
+On the `paper` scene (640x480, stride 2) this recovers 86% of the mug views with >= 200 pixels
 of depth as one segment with IoU >= 0.5 (`segmentation_recall` in `segmentation_scoring`, `ndfa bench segment`); 94.7%
 without the gate and the border test (the gate's clutter tests cost 3 points: docs/segmentation.md). The other misses are mostly mugs 3+ m away, where the depth
 noise (~17 mm) is a fifth of a mug. Known limits:
