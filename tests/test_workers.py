@@ -6,10 +6,12 @@ from __future__ import annotations
 
 import dataclasses
 import re
+from concurrent.futures import Future, ProcessPoolExecutor
 
 import numpy as np
 import pytest
 
+from ndfa.core.errors import RecordingError
 from ndfa.io.recording import RecordingReader
 from ndfa.pipeline import PipelineConfig
 from ndfa.run.align import scene_cloud, scene_depth
@@ -27,6 +29,23 @@ def test_a_worker_is_started_only_for_sessions_whose_poses_are_estimated():
     ahead = Ahead(readers, ["source", "target"], 2, "auto", "auto", False, "auto", RunOptions().align)
     try:
         assert ahead.pool is None and list(ahead.before_passes()) == [0, 1]
+    finally:
+        ahead.close()
+
+
+def test_a_session_whose_world_failed_in_the_worker_stops_the_run_between_the_source_frames():
+    """Before, a target that could not be tracked stopped the run only when its pass began, after
+    the whole source pass; `poll` (called between the source's frames) now raises its error."""
+    readers = [RecordingReader(SAMPLE / "source.mcap"), RecordingReader(SAMPLE / "target.mcap")]
+    ahead = Ahead(readers, ["source", "target"], 1, "auto", "auto", False, "auto", RunOptions().align)
+    ahead.pool = ProcessPoolExecutor(max_workers=1)  # stands in for the worker: its futures are set by hand
+    try:
+        pending: Future[SessionWorld] = Future()
+        ahead.future_worlds[1] = pending
+        ahead.poll(0)  # still running: nothing to say
+        pending.set_exception(RecordingError("target.mcap: no world up found"))
+        with pytest.raises(RecordingError, match="no world up found"):
+            ahead.poll(0)
     finally:
         ahead.close()
 

@@ -88,8 +88,15 @@ class Ahead:
 
     def poll(self, pair: int) -> None:
         """Start pair `pair`'s hypothesis in the worker if both its worlds are known and it has not
-        started (called between the source's frames: cheap)."""
-        if self.pool is None or pair in self.future_alignments or pair + 1 >= len(self.readers):
+        started (called between the source's frames: cheap). A session whose world failed in the
+        worker (it cannot be tracked, no up) stops the run here, with its error, instead of after
+        the passes before it."""
+        if self.pool is None:
+            return
+        for future in self.future_worlds.values():
+            if future.done() and future.exception() is not None:
+                future.result()
+        if pair in self.future_alignments or pair + 1 >= len(self.readers):
             return
         future = self.future_worlds.get(pair + 1)
         if pair in self.worlds and (future is None or future.done()):
