@@ -21,6 +21,7 @@ from ndfa.run.world import prepare_session
 from ndfa.trajectory.checks import (
     InputMonitor,
     InputWarning,
+    _block_mean,
     check_frames,
     describe_frames,
     fill_untracked,
@@ -212,3 +213,16 @@ def test_the_gap_clock_flags_the_frame_after_a_gap_as_check_frames_does():
     clock = GapClock()
     times = [i / 30 for i in range(5)] + [2.0 + i / 30 for i in range(5, 8)]  # 30 Hz, then 2 s missing
     assert [clock.after_gap(t) for t in times] == [False] * 5 + [True, False, False]
+
+
+@pytest.mark.parametrize("step", [1, 2, 3, 4])
+def test_the_block_mean_of_whole_blocks_is_that_of_the_strided_sums(step):
+    # A frame of whole blocks takes OpenCV's area resize at a power-of-two step; one a pixel larger
+    # each way the strided sums (its last partial blocks cropped off): the same values to the bit.
+    rng = np.random.default_rng(step)
+    rows, cols = 24, 32
+    rgb = rng.integers(0, 256, (rows * step + 1, cols * step + 1, 3), dtype=np.uint8)
+    whole = _block_mean(rgb[:rows * step, :cols * step], step, (rows, cols))
+    padded = _block_mean(rgb, step, (rows + 1, cols + 1))[:rows, :cols]
+    assert whole.dtype == np.float32 and whole.shape == (rows, cols, 3)
+    assert np.array_equal(whole, padded)

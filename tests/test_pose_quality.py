@@ -13,7 +13,7 @@ from ndfa.core.events import CHANGE_SCORE, DecisionEvent
 from ndfa.core.geometry import axis_angle_to_matrix, make_pose
 from ndfa.run.pose_verdict import DOUBTFUL_SCORE_PULL, weigh_changes
 from ndfa.run.world import SessionWorld, up_under_poses
-from ndfa.trajectory.consistency import make_sketch
+from ndfa.trajectory.consistency import check_pair, make_sketch
 from ndfa.trajectory.quality import DOUBTFUL, GOOD, UNUSABLE, PoseEvidence, PoseQuality, gather_evidence, judge
 from ndfa.trajectory.up import UpEstimate
 
@@ -56,6 +56,20 @@ def test_a_sketch_keeps_the_nearest_valid_depth_around_each_pixel():
     assert nearest[3, 4] == 1.0 and nearest[1, 2] == 1.0 and nearest[3, 5] == 2.0  # 1.0 reaches its 3x3 only
     assert nearest[4, 6] == 2.0  # an invalid pixel among valid ones: theirs
     assert nearest[0, 0] == np.inf  # no valid depth around
+
+
+def test_a_pair_check_reads_only_the_points_ahead_of_the_camera_and_inside_its_image():
+    # j sees a wall 2 m ahead; i's points: 3 on it (one of them 5 cm before it), one behind j's
+    # camera, one at z = 0, one beyond the image's edge, one on the image's outermost column.
+    sketch_j = make_sketch(np.full((60, 80), 2.0, np.float32), K)
+    sketch_i = make_sketch(np.full((60, 80), 2.0, np.float32), K)
+    points = np.array([[0.0, 0.0, 2.0], [0.1, 0.1, 2.0], [0.0, 0.1, 1.95], [0.0, 0.0, -1.0], [0.1, 0.0, 0.0],
+                       [5.0, 0.0, 2.0], [(79.0 - K[0, 2]) / K[0, 0] * 2.0, 0.0, 2.0]], np.float32)
+    check = check_pair(dataclasses.replace(sketch_i, points=points), sketch_j, np.eye(4), tau_m=0.04)
+    assert check is not None and check.overlap == 3 and check.violating == 1
+    assert check.conflict_m == pytest.approx(np.quantile([0.0, 0.0, 0.05], 0.95), abs=1e-6)
+    behind = dataclasses.replace(sketch_i, points=points[3:5])
+    assert check_pair(behind, sketch_j, np.eye(4), tau_m=0.04) is None
 
 
 def test_right_poses_are_good_and_drifting_ones_unusable():

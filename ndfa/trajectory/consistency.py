@@ -136,14 +136,15 @@ def check_pair(sketch_i: DepthSketch, sketch_j: DepthSketch, j_from_i: np.ndarra
     """i's points in j's camera (`j_from_i` = T_j_i, (4, 4)) against j's depth; None when none land."""
     points = sketch_i.points @ j_from_i[:3, :3].T.astype(np.float32) + j_from_i[:3, 3].astype(np.float32)
     z = points[:, 2]
-    ahead = z > 0.05
-    points, z = points[ahead], z[ahead]
     K = sketch_j.K
-    cols = np.rint(K[0, 0] * points[:, 0] / z + K[0, 2]).astype(np.int64)
-    rows = np.rint(K[1, 1] * points[:, 1] / z + K[1, 2]).astype(np.int64)
     height, width = sketch_j.depth.shape
-    inside = (cols >= 1) & (cols < width - 1) & (rows >= 1) & (rows < height - 1)
-    cols, rows, z = cols[inside], rows[inside], z[inside]
+    # Every point projected, then one selection: those ahead of the camera (the others' pixels are
+    # never read) and inside the image.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        cols = np.rint(K[0, 0] * points[:, 0] / z + K[0, 2])
+        rows = np.rint(K[1, 1] * points[:, 1] / z + K[1, 2])
+    keep = (z > 0.05) & (cols >= 1) & (cols < width - 1) & (rows >= 1) & (rows < height - 1)
+    cols, rows, z = cols[keep].astype(np.int64), rows[keep].astype(np.int64), z[keep]
     valid = np.isfinite(sketch_j.depth[rows, cols])
     if not valid.any():
         return None

@@ -49,6 +49,10 @@ class FeatureConfig:
     min_spread_m: and the inliers' 3D points spread at least this far along their second principal
         axis (matches along one edge leave the rotation about it free).
     seed: of the RANSAC sampling (the same frames give the same estimate).
+    ransac_confidence: RANSAC stops once the hypotheses tried would, with this probability, have
+        drawn one all-inlier sample at the best hypothesis's inlier ratio (tried in batches of
+        `RANSAC_BATCH`, in the order drawn, so it keeps the first best as all of them would). 0:
+        all `ransac_hypotheses`.
     """
 
     max_features: int = 1000
@@ -64,6 +68,7 @@ class FeatureConfig:
     min_inlier_ratio: float = 0.25
     min_spread_m: float = 0.1
     seed: int = 0
+    ransac_confidence: float = 0.0
 
     def __post_init__(self) -> None:
         if self.max_features < 8 or self.ransac_hypotheses < 1 or self.min_inliers < 3:
@@ -71,6 +76,12 @@ class FeatureConfig:
                                   f"got {self.max_features}, {self.ransac_hypotheses}, {self.min_inliers}")
         if not 0.0 < self.ratio <= 1.0 or not 0.0 <= self.min_inlier_ratio <= 1.0:
             raise TrajectoryError(f"feature ratio must be in (0, 1] and min_inlier_ratio in [0, 1], got {self.ratio}, {self.min_inlier_ratio}")
+        if not 0.0 <= self.ransac_confidence < 1.0:
+            raise TrajectoryError(f"ransac_confidence must be in [0, 1), got {self.ransac_confidence}")
+
+
+# Hypotheses scored at a time when RANSAC may stop early (`FeatureConfig.ransac_confidence`).
+RANSAC_BATCH = 32
 
 
 @dataclass(frozen=True)
@@ -106,7 +117,7 @@ def detect_features(gray: np.ndarray, depth: np.ndarray, K: np.ndarray, config: 
     keypoints, descriptors = orb.detectAndCompute(np.ascontiguousarray(gray), _smooth_depth_mask(depth, config))
     if descriptors is None or not keypoints:
         return no_features(K)
-    pixels = np.array([keypoint.pt for keypoint in keypoints])
+    pixels = cv2.KeyPoint_convert(keypoints).astype(np.float64)  # (N, 2): the float32 pixels, as `keypoint.pt` gives them
     cols = np.clip(np.round(pixels[:, 0]).astype(int), 0, depth.shape[1] - 1)
     rows = np.clip(np.round(pixels[:, 1]).astype(int), 0, depth.shape[0] - 1)
     z = depth[rows, cols].astype(np.float64)
@@ -128,10 +139,12 @@ def _smooth_depth_mask(depth: np.ndarray, config: FeatureConfig) -> np.ndarray:
     would take most of the keypoint budget and give no usable 3D point."""
     import cv2
 
-    valid = np.isfinite(depth) & (depth > 0) & (depth <= config.max_depth_m)
+    # NaN fails both comparisons. One image serves both filters: where the lowest depth around is
+    # positive every pixel around is valid, so the highest there is the highest of valid depths.
+    kept = np.where((depth > 0) & (depth <= config.max_depth_m), depth, 0).astype(np.float32, copy=False)
     window = np.ones((2 * config.edge_radius_px + 1,) * 2, np.uint8)
-    highest = cv2.dilate(np.where(valid, depth, np.inf).astype(np.float32), window)  # inf near invalid depth
-    lowest = cv2.erode(np.where(valid, depth, 0.0).astype(np.float32), window)  # 0 near invalid depth
+    highest = cv2.dilate(kept, window)
+    lowest = cv2.erode(kept, window)  # 0 near invalid depth
     smooth = (highest - lowest) < config.edge_fraction * lowest
     return (smooth & (lowest > 0)).view(np.uint8) * np.uint8(255)
 
@@ -197,13 +210,33 @@ def _refine_reprojection(target_from_source: np.ndarray, target_points: np.ndarr
 
 
 def _ransac(moving: np.ndarray, fixed: np.ndarray, tolerance: np.ndarray, config: FeatureConfig) -> np.ndarray:
-    """The inlier mask of the best-supported three-point hypothesis (all hypotheses at once)."""
+    """The inlier mask of the best-supported three-point hypothesis (the first of the best, in the
+    order drawn), scored all at once, or batch by batch until `ransac_confidence` is reached."""
     rng = np.random.default_rng(config.seed)
     # A sample that repeats a match is a degenerate fit that few matches support: it loses the vote.
     samples = rng.integers(0, len(moving), (config.ransac_hypotheses, 3))
-    transforms = _kabsch_batch(moving[samples], fixed[samples])
-    inliers = _residuals(transforms, moving, fixed) < tolerance
-    return inliers[int(np.argmax(inliers.sum(axis=1)))]
+    batch = len(samples) if config.ransac_confidence <= 0.0 else RANSAC_BATCH
+    best, best_count = np.zeros(len(moving), bool), -1
+    for start in range(0, len(samples), batch):
+        chosen = samples[start:start + batch]
+        inliers = _residuals(_kabsch_batch(moving[chosen], fixed[chosen]), moving, fixed) < tolerance
+        counts = inliers.sum(axis=1)
+        top = int(np.argmax(counts))
+        if counts[top] > best_count:
+            best, best_count = inliers[top], int(counts[top])
+        if start + batch < len(samples) and start + batch >= _hypotheses_needed(best_count / len(moving), config.ransac_confidence):
+            break
+    return best
+
+
+def _hypotheses_needed(inlier_ratio: float, confidence: float) -> float:
+    """How many three-point samples draw at least one of inliers alone with probability `confidence`."""
+    all_inliers = inlier_ratio ** 3
+    if all_inliers <= 0.0:
+        return math.inf
+    if all_inliers >= 1.0:
+        return 1.0
+    return math.log(1.0 - confidence) / math.log(1.0 - all_inliers)
 
 
 def _kabsch_batch(moving: np.ndarray, fixed: np.ndarray) -> np.ndarray:
