@@ -9,9 +9,12 @@ alignment's own evidence); why these defaults: `docs/detector.md`, `docs/registr
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from ndfa.change.register import yaw_transform
 from ndfa.core.geometry import make_pose, rotation_z
@@ -92,7 +95,10 @@ def global_alignment(source_cloud: np.ndarray, target_cloud: np.ndarray,
     import open3d as o3d  # lazily: a run registered by its objects alone never loads Open3D (~1 s)
 
     registration = o3d.pipelines.registration
-    clouds, features = zip(*(_described(cloud, config) for cloud in (target_cloud, source_cloud)))
+    target, source = _described(target_cloud, config), _described(source_cloud, config)
+    # The features' mutual nearest neighbours, once for every attempt: what Open3D's feature-based
+    # RANSAC pairs at each call (`feature_correspondences`), found faster with the source's tree kept.
+    pairs = o3d.utility.Vector2iVector(feature_correspondences(target.array, source.array, source.tree()))
     # Open3D's RANSAC runs on threads, so one run can land in a wrong basin where another does not
     # (the kitchen halves: fitness 0.79 in one run, 0.07 in the next). So several runs, plus the
     # identity (worlds that start at the same place), each refined by the 4-DoF ICP from a coarse
@@ -101,8 +107,8 @@ def global_alignment(source_cloud: np.ndarray, target_cloud: np.ndarray,
     best = (-1.0, float("nan"), np.eye(4))
     for attempt in range(config.ransac_attempts):
         o3d.utility.random.seed(config.seed + attempt)
-        coarse = registration.registration_ransac_based_on_feature_matching(
-            clouds[0], clouds[1], features[0], features[1], True, config.ransac_distance_m,
+        coarse = registration.registration_ransac_based_on_correspondence(
+            target.cloud, source.cloud, pairs, config.ransac_distance_m,
             registration.TransformationEstimationPointToPoint(False), 3,
             [registration.CorrespondenceCheckerBasedOnEdgeLength(0.9),
              registration.CorrespondenceCheckerBasedOnDistance(config.ransac_distance_m)],
@@ -118,32 +124,111 @@ def global_alignment(source_cloud: np.ndarray, target_cloud: np.ndarray,
     return transform, fitness, rmse
 
 
-# The last clouds' Open3D point clouds with normals and FPFH features, by content (`_described`).
-_DESCRIBED: dict[tuple[bytes, tuple[int, ...], float, float], tuple[object, object]] = {}
+# Open3D's feature matching keeps the mutual pairs only where at least this share of the query's
+# features has one; else it pairs every feature with its nearest (`correspondences_from_features`).
+MUTUAL_SHARE = float(np.float32(0.1))
+
+
+def feature_correspondences(query: np.ndarray, reference: np.ndarray, reference_tree: cKDTree | None = None,
+                            share: float = MUTUAL_SHARE) -> np.ndarray:
+    """(K, 2) pairs (i, j) of feature rows, `reference[j]` the nearest of `query[i]` and `query[i]` the
+    nearest of `reference[j]`, by i; where fewer than `share` of the query's rows have such a pair,
+    every row with its nearest. What Open3D's `correspondences_from_features(query, reference, True)`
+    gives (its feature-based RANSAC's pairs), on k-d trees; the way back is asked only of the
+    reference rows some query row chose. reference_tree: `reference`'s, where the caller keeps it.
+
+    Where a nearest row has identical twins (features of points with no neighbours are all zero)
+    the tie is Open3D's to break, so those few rows are asked of Open3D's own k-d tree: the pairs
+    must be Open3D's exactly, for RANSAC draws its samples by their place in the list."""
+    if reference_tree is None:
+        reference_tree = cKDTree(reference)
+    nearest = _nearest(reference_tree, reference, query)
+    chosen = np.unique(nearest)
+    back = np.full(len(reference), -1)
+    back[chosen] = _nearest(cKDTree(query), query, reference[chosen])
+    rows = np.arange(len(query))
+    mutual = np.nonzero(back[nearest] == rows)[0]
+    if len(mutual) < int(share * len(query)):
+        mutual = rows
+    pairs: np.ndarray = np.stack([mutual, nearest[mutual]], axis=1).astype(np.int32)
+    return pairs
+
+
+def _nearest(tree: cKDTree, rows: np.ndarray, queries: np.ndarray) -> np.ndarray:
+    """The index in `rows` (`tree`'s data) of each query's nearest; a nearest with identical twins
+    in `rows` is asked again of Open3D's k-d tree, which breaks the tie its own way."""
+    nearest: np.ndarray = tree.query(queries)[1]
+    _, group, counts = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
+    tied = np.nonzero(counts[group.ravel()][nearest] > 1)[0]
+    if len(tied):
+        import open3d as o3d
+
+        flann = o3d.geometry.KDTreeFlann(np.ascontiguousarray(rows.T))
+        for k in tied:
+            nearest[k] = flann.search_knn_vector_xd(queries[k], 1)[1][0]
+    return nearest
+
+
+@dataclass
+class Described:
+    """A cloud as the global alignment uses it: Open3D's point cloud with normals, its FPFH features
+    (Open3D's and as an (N, 33) array) and, once asked for, the features' k-d tree."""
+
+    cloud: Any
+    features: Any
+    array: np.ndarray
+    _tree: cKDTree | None = None
+
+    def tree(self) -> cKDTree:
+        if self._tree is None:
+            self._tree = cKDTree(self.array)
+        return self._tree
+
+
+# The last clouds described, by content (`_described`), and the last clouds' k-d trees (`point_tree`).
+_DESCRIBED: dict[tuple[bytes, tuple[int, ...], float, float], Described] = {}
 _DESCRIBED_KEPT = 3
+_TREES: dict[tuple[bytes, tuple[int, ...]], cKDTree] = {}
+_TREES_KEPT = 4
 
 
-def _described(cloud: np.ndarray, config: AlignConfig) -> tuple[object, object]:
-    """(Open3D point cloud with normals, its FPFH features) of `cloud`. The source's serve every
-    alignment onto it (the whole target's and its four halves', `ndfa.run.scene_evidence`), so the
-    last few are kept: the same cloud gives the same features, computed once."""
-    import hashlib
+def _content(points: np.ndarray) -> tuple[bytes, tuple[int, ...]]:
+    return hashlib.blake2b(points.tobytes(), digest_size=16).digest(), points.shape
 
+
+def _described(cloud: np.ndarray, config: AlignConfig) -> Described:
+    """`cloud` described (`Described`). The source's serve every alignment onto it (the whole
+    target's and its four halves', `ndfa.run.scene_evidence`), so the last few are kept: the same
+    cloud gives the same features, computed once."""
     import open3d as o3d  # lazily: a run registered by its objects alone never loads Open3D (~1 s)
 
     points = np.ascontiguousarray(cloud, dtype=np.float64)
-    key = (hashlib.blake2b(points.tobytes(), digest_size=16).digest(), points.shape, config.normal_radius_m,
-           config.feature_radius_m)
+    key = (*_content(points), config.normal_radius_m, config.feature_radius_m)
     described = _DESCRIBED.pop(key, None)
     if described is None:
         pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
         pcd.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=config.normal_radius_m, max_nn=30))
-        described = pcd, o3d.pipelines.registration.compute_fpfh_feature(
+        features = o3d.pipelines.registration.compute_fpfh_feature(
             pcd, o3d.geometry.KDTreeSearchParamHybrid(radius=config.feature_radius_m, max_nn=100))
+        described = Described(pcd, features, np.ascontiguousarray(np.asarray(features.data).T))
         while len(_DESCRIBED) >= _DESCRIBED_KEPT:
             _DESCRIBED.pop(next(iter(_DESCRIBED)))  # the least recently used
     _DESCRIBED[key] = described
     return described
+
+
+def point_tree(cloud: np.ndarray) -> cKDTree:
+    """`cloud`'s k-d tree; the last few kept, by content: ICP and the overlap ask for the same
+    source cloud's (or its upright points') dozens of times an alignment."""
+    points = np.ascontiguousarray(cloud, dtype=np.float64)
+    key = _content(points)
+    tree = _TREES.pop(key, None)
+    if tree is None:
+        tree = cKDTree(points)
+        while len(_TREES) >= _TREES_KEPT:
+            _TREES.pop(next(iter(_TREES)))
+    _TREES[key] = tree
+    return tree
 
 
 def turn_search(source_cloud: np.ndarray, target_cloud: np.ndarray, found: np.ndarray,
@@ -175,9 +260,7 @@ def _better(best: tuple[float, float, np.ndarray], source_cloud: np.ndarray, tar
 def icp_coarse_to_fine(source_cloud: np.ndarray, target_cloud: np.ndarray, initial: np.ndarray,
                        config: AlignConfig = AlignConfig()) -> np.ndarray:
     """`icp_yaw` from `initial`, pairing within 4, then 2, then 1 x `icp_distance_m`."""
-    from scipy.spatial import cKDTree
-
-    tree = cKDTree(source_cloud)  # once for the three
+    tree = point_tree(source_cloud)
     transform = initial
     for distance in (4 * config.icp_distance_m, 2 * config.icp_distance_m, config.icp_distance_m):
         transform = icp_yaw(source_cloud, target_cloud, transform, dataclasses.replace(config, icp_distance_m=distance),
@@ -186,14 +269,11 @@ def icp_coarse_to_fine(source_cloud: np.ndarray, target_cloud: np.ndarray, initi
 
 
 def icp_yaw(source_cloud: np.ndarray, target_cloud: np.ndarray, initial: np.ndarray,
-            config: AlignConfig = AlignConfig(), tree: object | None = None) -> np.ndarray:
+            config: AlignConfig = AlignConfig(), tree: cKDTree | None = None) -> np.ndarray:
     """Point-to-point ICP that turns about z and shifts only, from `initial` (target -> source).
-    tree: `source_cloud`'s `cKDTree`, where the caller has built it."""
-    from scipy.spatial import cKDTree
-
+    tree: `source_cloud`'s `cKDTree`, where the caller has it."""
     if tree is None:
-        tree = cKDTree(source_cloud)
-    assert isinstance(tree, cKDTree)
+        tree = point_tree(source_cloud)
     transform = initial
     for _ in range(config.icp_iterations):
         moved = target_cloud @ transform[:3, :3].T + transform[:3, 3]
@@ -211,10 +291,8 @@ def icp_yaw(source_cloud: np.ndarray, target_cloud: np.ndarray, initial: np.ndar
 def overlap(source_cloud: np.ndarray, target_cloud: np.ndarray, transform: np.ndarray,
             distance_m: float) -> tuple[float, float]:
     """(share of target points within `distance_m` of a source point under `transform`, their RMS distance)."""
-    from scipy.spatial import cKDTree
-
     moved = apply_transform(transform, target_cloud)
-    distance, _ = cKDTree(source_cloud).query(moved, distance_upper_bound=distance_m)
+    distance, _ = point_tree(source_cloud).query(moved, distance_upper_bound=distance_m)
     close = distance[np.isfinite(distance)]
     return len(close) / max(len(moved), 1), float(np.sqrt(np.mean(close**2))) if len(close) else float("nan")
 
