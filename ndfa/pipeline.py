@@ -20,6 +20,7 @@ from pathlib import Path
 from ndfa.change.associate import Measurement
 from ndfa.change.detector import ChangeDetector, DetectorConfig
 from ndfa.change.sight import SightRule
+from ndfa.change.sightings import Sighting
 from ndfa.core.events import SESSIONS, Event, FrameEvent, ObservationEvent, Session, TimingEvent
 from ndfa.core.frame import Frame
 from ndfa.core.geometry import transform_points
@@ -143,7 +144,10 @@ class ChangeDetectionPipeline:
             frame = replace(frame, instances=segment_frame(frame, segmentation, tracker))
             stage_ms["segmentation"] = (time.perf_counter() - started) * 1e3
             started = time.perf_counter()
-        observations, skipped = extract_observations(frame, self.config.observation)
+        # Sightings (small masks' centroids, `ndfa.change.sightings`) only of a recording's masks: a
+        # small segment of ndfa's own is as often a piece of clutter or of a larger object.
+        observation = replace(self.config.observation, sighting_pixels=0) if segmented else self.config.observation
+        observations, skipped = extract_observations(frame, observation)
         stage_ms["perception"] = (time.perf_counter() - started) * 1e3
         return ObservedFrame(frame, segmented, observations, skipped, stage_ms)
 
@@ -174,31 +178,39 @@ class ChangeDetectionPipeline:
         if session not in SESSIONS:
             raise ValueError(f"session must be one of {SESSIONS}, got {session!r}")
         started, registering = time.perf_counter(), detector.registrar.seconds
-        events, measurements = self.measure(session, observed)
+        events, measurements, sightings = self.measure(session, observed)
         frame = observed.frame
         for taker, role in ((detector, session), (also_source_of, "source")):
             if taker is not None:  # what the frame showed: a change's place must have been shown
                 taker.add_view(role, frame.index, frame.depth, frame.K, frame.pose_world_camera)  # type: ignore[arg-type]
-        events += (detector.add_source if session == "source" else detector.add_target)(measurements)
+        events += (detector.add_source if session == "source" else detector.add_target)(measurements, sightings)
         if also_source_of is not None:
-            also_source_of.add_source(measurements)
+            also_source_of.add_source(measurements, sightings)
         registration_ms = (detector.registrar.seconds - registering) * 1e3  # T_rel's estimation, within the step
         events.append(TimingEvent(session=session, frame_index=observed.frame.index, stage_ms=observed.stage_ms | {
             "detection": (time.perf_counter() - started) * 1e3 - registration_ms, "registration": registration_ms}))
         return events
 
-    def measure(self, session: Session, observed: ObservedFrame) -> tuple[list[Event], list[Measurement]]:
+    def measure(self, session: Session, observed: ObservedFrame
+                ) -> tuple[list[Event], list[Measurement], list[Sighting]]:
         """An encoded frame's events (the frame, each observation or why it was skipped) and the
-        measurements the detector takes from it (`Measurement.of`)."""
+        measurements and sightings the detector takes from it (`Measurement.of`, `Sighting.of`)."""
         if observed.codes is None:
             raise ValueError("measure() needs an encoded frame (encode())")
         frame = observed.frame
         events: list[Event] = [FrameEvent(session=session, frame=frame)]
         measurements: list[Measurement] = []
+        sightings: list[Sighting] = []
         for skipped_observation in observed.skipped:
-            events.append(ObservationEvent(session=session, frame_index=frame.index,
-                                           instance_id=skipped_observation.instance_id,
-                                           n_pixels=skipped_observation.n_pixels, skipped=skipped_observation.reason))
+            center = skipped_observation.center_camera
+            event = ObservationEvent(
+                session=session, frame_index=frame.index, instance_id=skipped_observation.instance_id,
+                n_pixels=skipped_observation.n_pixels, skipped=skipped_observation.reason,
+                sighting_world=None if center is None else transform_points(frame.pose_world_camera, center[None])[0])
+            events.append(event)
+            sighting = Sighting.of(event)
+            if sighting is not None:
+                sightings.append(sighting)
         for observation, code in zip(observed.observations, observed.codes):
             # No grid point above v0: the NDF does not see a whole object in this view (on the
             # `paper` scene such views gave centers several cm off); logged, not used.
@@ -219,4 +231,4 @@ class ChangeDetectionPipeline:
             events.append(event)
             if skip is None:
                 measurements.append(Measurement.of(event))
-        return events, measurements
+        return events, measurements, sightings

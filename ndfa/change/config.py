@@ -124,6 +124,10 @@ class WaitingConfig:
     """When a verdict is reported (`ndfa.change.policy`, `ndfa.change.verdict`)."""
 
     min_measurements: int = 3      # an object is tested (and reported) only from this many measurements. Off: 1
+    # ... or from one measurement and sightings (views too small to encode: `ndfa.change.sightings`)
+    # making up the rest: an object sighted in many frames is no fragment of one view. Off: False
+    # (measurements only; why it is off: docs/detector.md, "Sightings").
+    sightings: bool = False
     confirm_measurements: int = 8  # a "changed" verdict on fewer measurements waits for more views. Off: 1
     # A target object alone in its target neighbourhood while the source's has company, or one whose
     # graph agrees with no match while it has fewer neighbours than the match, waits (decided at the
@@ -259,7 +263,8 @@ class DetectorConfig:
                                      follow_latest=False),
                "ransac": RansacConfig(candidates=1, min_inliers=0, enough_inliers=0, retry_frames=1, small_maps=False),
                "priors": PriorConfig(enabled=False),
-               "waiting": WaitingConfig(min_measurements=1, confirm_measurements=1, neighbours=False, in_place=False),
+               "waiting": WaitingConfig(min_measurements=1, confirm_measurements=1, neighbours=False, in_place=False,
+                                        sightings=False),
                "evidence": EvidenceConfig(in_place_m=0.0, observed_height_m=0.0, observed_reach_m=0.0, move_similarity=None,
                                             sight_radius_m=0.0, seen_empty=False, side_deg=None),
                "rotation": RotationConfig(threshold_deg=None)}

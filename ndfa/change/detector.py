@@ -2,9 +2,10 @@
 
 Read it top to bottom as the paper's loop:
 
-    source pass   add_source(frame measurements): intra-session update of the source map
-    target pass   add_target(frame measurements):
-                    1. intra-session update of the target map with each -> the objects O touched
+    source pass   add_source(frame measurements, sightings): intra-session update of the source map
+    target pass   add_target(frame measurements, sightings):
+                    1. intra-session update of the target map with each -> the objects O touched;
+                       the frame's sightings counted on the objects they fall on (`ndfa.change.sightings`)
                     2. T_rel: estimated from shape-matched pairs when it is time to (`Registrar`)
                     3. for each O not marked changed: the change test (`ndfa.change.verdict`) at
                        T_rel t_O; the policy (`ndfa.change.policy`) says whether its verdict is
@@ -45,6 +46,7 @@ from ndfa.change.registrar import Registrar
 from ndfa.change.rotation import rotation_of
 from ndfa.change.sides import common_side, mean_azimuth_deg, view_azimuths
 from ndfa.change.sight import SessionViews, Sight, SightRule
+from ndfa.change.sightings import SessionSightings, Sighting
 from ndfa.change.verdict import Verdict, decision_score, graph_verdict, removal_score, shape_verdict
 from ndfa.core.conventions import UNKNOWN_CATEGORY, horizontal
 from ndfa.core.events import SESSIONS, AssociationEvent, DecisionEvent, DecisionKind, Event, Session
@@ -64,6 +66,7 @@ class ChangeDetector:
         self.target = SessionMap(config)
         self.registrar = Registrar(config, self.source, self.target)
         self.policy = DecisionPolicy(config.waiting)
+        self.sightings = {session: SessionSightings(config) for session in SESSIONS}  # views too small to encode
         self.changed: dict[int, DecisionEvent] = {}  # target object -> the decision that marked it
         # source object -> the target objects tested around it (its keys: the source objects observed)
         self.observers: dict[int, set[int]] = {}
@@ -101,15 +104,22 @@ class ChangeDetector:
 
     def _unshown(self, session: Session, place_world: np.ndarray) -> str | None:
         """Why a change at `place_world` is withheld: `session`, the other one, did not show the
-        place, or showed it but not empty while its map holds no object there that stood in it
-        (`EvidenceConfig.seen_empty`); None when it saw the place empty, or the test is off
-        (`EvidenceConfig.sight_radius_m` 0)."""
+        place, or sighted something there that none of its objects is (`WaitingConfig.sightings`,
+        `ndfa.change.sightings`), or showed it but not empty while its map holds no object there
+        that stood in it (`EvidenceConfig.seen_empty`); None when it saw the place empty, or the
+        test is off (`EvidenceConfig.sight_radius_m` 0)."""
         evidence = self.config.evidence
         if evidence.sight_radius_m <= 0:
             return None
         seen = self.sight(session, place_world)
         if not seen.shown:
             return f"its place was {seen.describe(session)}"
+        if self.config.waiting.sightings:  # something too small to encode stood there (`ndfa.change.sightings`)
+            session_map = self.source if session == "source" else self.target
+            sighted = self.sightings[session].unexplained(place_world, session_map)
+            if sighted >= self.config.waiting.min_measurements:
+                return (f"its place was not seen empty: the {session} sighted something there in {sighted} "
+                        "views too small to encode, and none of its objects stood there")
         if not evidence.seen_empty or seen.seen_empty or self._stands_at(session, place_world):
             return None
         return f"its place was {seen.describe_occupied(session)}"
@@ -125,19 +135,27 @@ class ChangeDetector:
                    and abs(o.center_world[2] - place_world[2]) <= evidence.sight_height_m
                    for o in session_map.objects.values())
 
-    def add_source(self, frame: list[Measurement]) -> list[Event]:
-        """One source frame's measurements: intra-session update of the source map."""
-        return [e for m in frame for e in self._associate("source", self.source, m)[1]]
+    def add_source(self, frame: list[Measurement], sightings: list[Sighting] | None = None) -> list[Event]:
+        """One source frame's measurements: intra-session update of the source map; and its
+        sightings (`ndfa.change.sightings`)."""
+        associations, events = [], []
+        for m in frame:
+            association, association_events = self._associate("source", self.source, m)
+            associations.append(association)
+            events += association_events
+        self._sighted("source", self.source, associations, sightings)
+        return events
 
-    def add_target(self, frame: list[Measurement]) -> list[Event]:
+    def add_target(self, frame: list[Measurement], sightings: list[Sighting] | None = None) -> list[Event]:
         """One target frame's measurements: update the target map with all of them first (mugs seen
-        together are each other's neighbours), then register if it is time to, then test the
-        objects the frame touched."""
+        together are each other's neighbours) and count its sightings, then register if it is time
+        to, then test the objects the frame touched."""
         associations, events = [], []
         for m in frame:
             association, association_events = self._associate("target", self.target, m)
             associations.append(association)
             events += association_events
+        self._sighted("target", self.target, associations, sightings)
         if not frame:
             return events
         frame_index = frame[0].frame_index
@@ -162,7 +180,7 @@ class ChangeDetector:
             for object_id in sorted(self.policy.pending):
                 events += self._test(object_id, self._last_frame, final=True)
         candidates = [i for i in sorted(self.observers) if i not in self.matched
-                      and self.source.objects[i].n_measurements >= self.config.waiting.min_measurements
+                      and self.policy.testable(self.source.objects[i].n_measurements, self.sightings["source"].count(i))
                       and not self._part_of_matched(i)]
         unshown: dict[int, str] = {}
         if self.registration is not None and candidates:
@@ -193,7 +211,7 @@ class ChangeDetector:
                 reason=f"changed, and shape-matches removed source object {source_id}",
                 center_world=before.center_world, center_source=before.center_source, partner_id=source_id,
                 instance_ids=before.instance_ids, partner_instance_ids=self.source.objects[source_id].instance_ids,
-                score=before.score, category=self.target.objects[target_id].category))
+                score=before.score, category=self.target.objects[target_id].category, sightings=before.sightings))
         for source_id in removed:
             if source_id in moved_from.values():
                 continue
@@ -202,14 +220,14 @@ class ChangeDetector:
                 frame_index=self._last_frame, session="source", object_id=source_id, kind="removed",
                 reason="observed but never matched", center_world=obj.center_world, center_source=obj.center_world,
                 instance_ids=obj.instance_ids, score=removal_score(len(self.observers[source_id])),
-                category=obj.category))
+                category=obj.category, sightings=self.sightings["source"].count(source_id)))
         for source_id, why in unshown.items():
             obj = self.source.objects[source_id]
             events.append(DecisionEvent(
                 frame_index=self._last_frame, session="source", object_id=source_id, kind="removed",
                 reason="observed but never matched", center_world=obj.center_world, center_source=obj.center_world,
                 instance_ids=obj.instance_ids, score=removal_score(len(self.observers[source_id])),
-                category=obj.category, withheld=why))
+                category=obj.category, withheld=why, sightings=self.sightings["source"].count(source_id)))
         return events + self._rotations()
 
     def _part_of_matched(self, source_id: int) -> bool:
@@ -251,6 +269,14 @@ class ChangeDetector:
             events.append(tree_event(session, m.frame_index, session_map))
         return a, events
 
+    def _sighted(self, session: Session, session_map: SessionMap, associations: list[Association],
+                 sightings: list[Sighting] | None) -> None:
+        """A frame's sightings counted, after its measurements joined `session_map`: the kept ones
+        that fall on an object the frame measured, then the frame's own."""
+        self.sightings[session].claim(sorted({a.object_id for a in associations}), session_map)
+        if sightings:
+            self.sightings[session].add(sightings, session_map)
+
     def _looked_at(self, center_source: np.ndarray, source_ids: list[int]) -> list[int]:
         """The source objects a test at `center_source` counts as observed by the target: its
         neighbours and those within `EvidenceConfig.observed_reach_m` of it, within `observed_height_m`."""
@@ -268,7 +294,7 @@ class ChangeDetector:
         if object_id in self.changed or object_id in self.unseen:
             return []
         obj = self.target.objects[object_id]
-        if not self.policy.testable(obj.n_measurements):
+        if not self.policy.testable(obj.n_measurements, self.sightings["target"].count(object_id)):
             self.policy.hold(object_id, final)
             return []
         assert self.registration is not None  # objects are tested only once T_rel exists
@@ -410,7 +436,8 @@ class ChangeDetector:
         return DecisionEvent(frame_index=frame_index, session="target", object_id=object_id, kind=kind,
                              reason=verdict.reason, center_world=obj.center_world, center_source=center_source,
                              partner_id=verdict.partner_id, instance_ids=obj.instance_ids,
-                             score=decision_score(verdict), category=obj.category, withheld=withheld)
+                             score=decision_score(verdict), category=obj.category, withheld=withheld,
+                             sightings=self.sightings["target"].count(object_id))
 
 
 def reported_changes(decisions: list[DecisionEvent]) -> list[DecisionEvent]:

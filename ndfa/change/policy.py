@@ -22,9 +22,11 @@ class DecisionPolicy:
         self.config = config
         self.pending: set[int] = set()  # target objects waiting for more evidence
 
-    def testable(self, n_measurements: int) -> bool:
-        """Whether an object resting on `n_measurements` measurements is tested at all."""
-        return n_measurements >= self.config.min_measurements
+    def testable(self, n_measurements: int, n_sightings: int = 0) -> bool:
+        """Whether an object resting on `n_measurements` measurements and `n_sightings` sightings
+        (`ndfa.change.sightings`; counted only with `WaitingConfig.sightings`) is tested at all."""
+        views = n_measurements + (n_sightings if self.config.sightings and n_measurements > 0 else 0)
+        return views >= self.config.min_measurements
 
     def hold(self, object_id: int, final: bool) -> None:
         """An object too little measured to be tested waits for more; at the end it is never reported."""

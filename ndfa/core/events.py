@@ -57,6 +57,9 @@ class ObservationEvent:
     heading_strength: float = 0.0            # how sure the NDF is of it
     category: str = UNKNOWN_CATEGORY         # the NDF's likeliest category ("unknown": a model without categories)
     category_probability: float = float("nan")  # and its probability
+    # a skipped one that is a sighting (too small to encode, `ObservationConfig.sighting_pixels`):
+    # its points' centroid, world; the detector counts it toward the object it falls on
+    sighting_world: np.ndarray | None = None
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -161,6 +164,7 @@ class DecisionEvent:
     # Why the change is withheld, not reported: the other session's frames did not show its place
     # well enough to have found the object there (`ndfa.change.sight`); None: reported
     withheld: str | None = None
+    sightings: int = 0                       # the object's sightings (`ndfa.change.sightings`) when decided
 
     @property
     def reported_instances(self) -> tuple[int, ...]:

@@ -281,6 +281,7 @@ class RerunSink:
                 [position], colors=WITHHELD_COLOR if withheld else KIND_COLORS[e.kind], radii=0.03,
                 labels=[f"{withheld}{e.kind} {e.category} {e.session[0]}{e.object_id} {e.score:.2f}{_turn(e)}"]))
         why = "" if e.withheld is None else f"; withheld, not reported: {e.withheld}"
+        why += f" ({e.sightings} sightings)" if e.sightings else ""
         self.rec.log("decisions/log", rr.TextLog(
             f"frame {e.frame_index}: {e.session} object {e.object_id} ({e.category}) {withheld}{e.kind}{_turn(e)} "
             f"(score {e.score:.2f}): {e.reason}{why}",

@@ -3,7 +3,8 @@
     observations.parquet   one row per instance per frame: pixels, points, skip reason, code, center,
                            handle heading about up and its strength (docs/rotation.md), the NDF's
                            likeliest category and its probability ("unknown", NaN: a model without
-                           categories; docs/categories.md)
+                           categories; docs/categories.md); a skipped one's sighting (`sighting_x/y/z`:
+                           its points' centroid, ndfa.change.sightings)
     associations.parquet   the intra-session update of each measurement
     objects.parquet        each session's objects at the end (last state of every object, its category)
     tree_nodes.parquet     each session's interval-tree nodes at the end
@@ -17,7 +18,7 @@
                            changes the run reports (an "added" later found "moved" is reported as
                            the move); a rotation's turn in `angle_deg`; the object's `category`;
                            `withheld`: why a change is not reported (its place not shown by the
-                           other session: ndfa.change.sight)
+                           other session: ndfa.change.sight); `sightings`: the object's sightings
     timings.parquet        ms per stage per frame
     pose_quality.parquet   one row per session whose poses were estimated: the verdict (good /
                            doubtful / unusable), the estimated error and the figures behind it
@@ -106,7 +107,7 @@ class TableSink:
                 **_xyz("center", event.center_world), "shape_code": _list(event.shape_code),
                 "heading_deg": float(np.degrees(event.heading_rad)), "heading_strength": event.heading_strength,
                 "category": event.category, "category_probability": event.category_probability,
-                "truth": self._truth(event.instance_id)})
+                **_xyz("sighting", event.sighting_world), "truth": self._truth(event.instance_id)})
         elif isinstance(event, AssociationEvent):
             row = {"session": event.session, "frame": event.frame_index, "instance_id": event.instance_id,
                    "object_id": event.object_id, "created": event.created, "replaced": event.replaced,
@@ -145,7 +146,7 @@ class TableSink:
                 "reason": event.reason, **_xyz("position", position), "partner_id": event.partner_id,
                 "instance_ids": list(event.instance_ids), "partner_instance_ids": list(event.partner_instance_ids),
                 "score": event.score, "angle_deg": event.angle_deg, "category": event.category,
-                "withheld": event.withheld,
+                "withheld": event.withheld, "sightings": event.sightings,
                 "truth": self._truth(event.instance_ids[0]) if event.instance_ids else None,
                 "kind_right": self._kind_right(event)})
         elif isinstance(event, PoseQualityEvent):

@@ -6,7 +6,9 @@ fewer); cleaned by keeping the largest cluster of points linked through occupied
 `cluster_voxel_m` (close to single linkage / DBSCAN, as the paper's real pipeline cleans its
 segments: depth noise at mask edges throws some pixels onto the background far behind). A mask
 that is too small or falls apart is skipped, with the reason, so that every instance seen in a
-frame is accounted for in the tables.
+frame is accounted for in the tables. A mask skipped only for its size, from `sighting_pixels` up,
+still says where something stood: its cleaned points' centroid (a sighting, no shape; what the
+detector makes of it: `ndfa.change.sightings`).
 
 Pure numpy/scipy; no I/O.
 """
@@ -43,6 +45,10 @@ class ObservationConfig:
         mug's points at any depth in range.
     min_cluster_fraction: the largest cluster must hold at least this share of the points, else
         the mask is skipped as fragmented (e.g. split by an occluder into two unrelated pieces).
+    sighting_pixels: a mask skipped only for its size (below `min_pixels`, not on the border, not
+        fragmented) of at least this many pixels is a sighting: its cleaned points' centroid is
+        kept (`SkippedObservation.center_camera`). Half the bar: a mug at the far end of the depth
+        range still fills it, and fewer pixels are mostly a mask's sliver. Off: 0.
     """
 
     min_depth_m: float = MIN_DEPTH_M
@@ -52,6 +58,7 @@ class ObservationConfig:
     max_points: int = 1000
     cluster_voxel_m: float = 0.015
     min_cluster_fraction: float = 0.5
+    sighting_pixels: int = VISIBLE_PIXELS // 2
     seed: int = 0
 
 
@@ -74,6 +81,8 @@ class SkippedObservation:
     instance_id: int
     n_pixels: int
     reason: str
+    # a sighting (`ObservationConfig.sighting_pixels`): its cleaned points' centroid, camera frame
+    center_camera: np.ndarray | None = None
 
 
 def extract_observations(frame: Frame, config: ObservationConfig = ObservationConfig()
@@ -101,11 +110,13 @@ def extract_observations(frame: Frame, config: ObservationConfig = ObservationCo
     for instance_id, start, count in zip(instance_ids.tolist(), starts, counts):
         pixels = labelled[start:start + count][in_range[start:start + count]]
         n_pixels = len(pixels)
+        border = instance_id in on_border
         if n_pixels < config.min_pixels:
             reason = "no depth in range" if n_pixels == 0 else f"{n_pixels} pixels < min_pixels {config.min_pixels}"
-            skipped.append(SkippedObservation(frame.index, instance_id, n_pixels, reason))
+            sighted = 0 < config.sighting_pixels <= n_pixels and not (border and config.skip_border)
+            center = _sighting(frame, pixels, width, config) if sighted else None
+            skipped.append(SkippedObservation(frame.index, instance_id, n_pixels, reason, center))
             continue
-        border = instance_id in on_border
         if border and config.skip_border:
             skipped.append(SkippedObservation(frame.index, instance_id, n_pixels, "touches the image border"))
             continue
@@ -122,6 +133,18 @@ def extract_observations(frame: Frame, config: ObservationConfig = ObservationCo
             continue
         observations.append(Observation(frame.index, instance_id, points[cluster], n_pixels, border))
     return observations, skipped
+
+
+def _sighting(frame: Frame, pixels: np.ndarray, width: int, config: ObservationConfig) -> np.ndarray | None:
+    """The centroid (camera frame) of a small mask's points, cleaned as an observation's are; None
+    when they fall apart (`min_cluster_fraction`)."""
+    rows, cols = np.divmod(pixels, width)
+    points = backproject(frame.K, rows, cols, frame.depth[rows, cols])
+    cluster = largest_cluster(points, config.cluster_voxel_m)
+    if len(cluster) < config.min_cluster_fraction * len(points):
+        return None
+    center: np.ndarray = points[cluster].mean(axis=0)
+    return center
 
 
 def largest_cluster(points: np.ndarray, voxel_m: float) -> np.ndarray:

@@ -30,6 +30,7 @@ import polars as pl
 from ndfa.change.associate import Measurement
 from ndfa.change.detector import ChangeDetector, DetectorConfig, reported_changes
 from ndfa.change.register import RegistrationPrior
+from ndfa.change.sightings import Sighting
 from ndfa.core.conventions import UNKNOWN_CATEGORY, is_visible
 from ndfa.core.events import CHANGE_SCORE, SESSIONS, DecisionEvent, ObservationEvent
 
@@ -68,6 +69,21 @@ def measurements_by_frame(observations: pl.DataFrame, session: str) -> list[list
     return [frames[f] for f in sorted(frames)]
 
 
+def frames_of(observations: pl.DataFrame, session: str) -> list[tuple[list[Measurement], list[Sighting]]]:
+    """The measurements and sightings (`ndfa.change.sightings`) of one session, grouped by frame
+    in frame order, as the run handed them to its detector (a table written before sightings had
+    none)."""
+    measurements = measurements_by_frame(observations, session)
+    frames: dict[int, tuple[list[Measurement], list[Sighting]]] = {m[0].frame_index: (m, []) for m in measurements}
+    if "sighting_x" in observations.columns:
+        sighted = observations.filter((pl.col("session") == session) & pl.col("sighting_x").is_not_null())
+        for row in sighted.sort("frame", "instance_id").iter_rows(named=True):
+            frames.setdefault(row["frame"], ([], []))[1].append(Sighting(
+                row["frame"], row["instance_id"], np.array([row["sighting_x"], row["sighting_y"], row["sighting_z"]]),
+                row["n_pixels"]))
+    return [frames[f] for f in sorted(frames)]
+
+
 def observation_of(row: dict) -> ObservationEvent:
     """An encoded observation as the observations table holds it (what the detector needs of it)."""
     return ObservationEvent(
@@ -91,10 +107,10 @@ def replay(observations: pl.DataFrame, config: DetectorConfig = DetectorConfig()
     if prior is not None:
         detector.add_registration_prior(prior)
     events: list = []
-    for frame in measurements_by_frame(observations, "source"):
-        events += detector.add_source(frame)
-    for frame in measurements_by_frame(observations, "target"):
-        events += detector.add_target(frame)
+    for frame, sightings in frames_of(observations, "source"):
+        events += detector.add_source(frame, sightings)
+    for frame, sightings in frames_of(observations, "target"):
+        events += detector.add_target(frame, sightings)
     events += detector.finish()
     decisions = [e for e in events if isinstance(e, DecisionEvent)]
     changes = reported_changes(decisions)
