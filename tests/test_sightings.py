@@ -52,7 +52,7 @@ def test_an_object_measured_once_and_sighted_in_other_frames_is_reported_removed
 @pytest.mark.parametrize("before, after, counted", [(0, 0, True), (1, 0, True), (5, 5, False)])
 def test_an_object_measured_once_without_enough_sightings_waits_for_ever(before, after, counted):
     """One measurement and no sightings, one and one sighting (2 views of 3), or sightings not
-    counted (`WaitingConfig.sightings` False, the default): never tested, never reported."""
+    counted (`WaitingConfig.sightings` False): never tested, never reported."""
     assert _removed(before, after, counted) == []
 
 
@@ -115,3 +115,28 @@ def test_an_added_object_where_the_source_sighted_something_is_withheld(sighted,
     assert [e.instance_ids for e in added] == [(3,)]
     assert (added[0].withheld is not None and "sighted something there in 5 views" in added[0].withheld) == withheld
     assert (added[0].withheld is None) == (not withheld)
+
+
+@pytest.mark.parametrize("beside_m, reported", [(0.02, False), (0.15, True)])
+def test_sightings_do_not_make_a_fragment_testable(beside_m, reported):
+    """Target object F, measured once (6 cm from target object A, in A's frame: another object then)
+    and sighted in five frames, ends `beside_m` (horizontally, 9 cm higher) from A, measured in ten
+    frames (where its median drifted; neither was in the source). Two objects cannot stand 2 cm
+    apart: F is a view of A's upper part, its sightings repeat it, and it is never reported;
+    15 cm away it is an object of its own, "added"."""
+    detector = ChangeDetector(DetectorConfig(waiting=WaitingConfig(sightings=True)))
+    detector.add_registration_prior(RegistrationPrior("shared world", np.eye(4)))
+    codes = {i: _code(i) for i in (1, 2, 3, 4)}
+    place = {1: np.array([0.0, 0.0, 0.8]), 2: np.array([0.0, 0.3, 0.8]), 3: np.array([0.5, 0.0, 0.8])}
+    first = place[3] + [max(beside_m, 0.06), 0.0, 0.09]
+    for k in range(10):
+        detector.add_source([Measurement(k, i, codes[i], place[i], 0.7) for i in (1, 2)])
+    for k in range(20, 30):
+        frame = [Measurement(k, i, codes[i], place[i], 0.7) for i in (1, 2, 3)]
+        frame += [Measurement(k, 4, codes[4], first, 0.7)] if k == 24 else []
+        detector.add_target(frame, [Sighting(k, 4, first + [-0.02, 0, 0], 200)] if k > 24 else [])
+    fragment = next(o for o in detector.target.objects.values() if o.instance_ids == (4,))
+    assert fragment.n_measurements == 1 and detector.sightings["target"].count(fragment.object_id) == 5
+    fragment.center_world = place[3] + [beside_m, 0.0, 0.09]
+    added = [e for e in [*detector.changed.values(), *detector.finish()] if getattr(e, "kind", None) == "added"]
+    assert sorted(e.instance_ids for e in added) == ([(3,), (4,)] if reported else [(3,)])

@@ -125,9 +125,10 @@ class WaitingConfig:
 
     min_measurements: int = 3      # an object is tested (and reported) only from this many measurements. Off: 1
     # ... or from one measurement and sightings (views too small to encode: `ndfa.change.sightings`)
-    # making up the rest: an object sighted in many frames is no fragment of one view. Off: False
-    # (measurements only; why it is off: docs/detector.md, "Sightings").
-    sightings: bool = False
+    # making up the rest: an object sighted in many frames is no fragment of one view (unless
+    # another object stands in its place); and a session's sightings that none of its objects is
+    # withhold a change at their place (docs/detector.md, "Sightings"). Off: False (measurements only)
+    sightings: bool = True
     confirm_measurements: int = 8  # a "changed" verdict on fewer measurements waits for more views. Off: 1
     # A target object alone in its target neighbourhood while the source's has company, or one whose
     # graph agrees with no match while it has fewer neighbours than the match, waits (decided at the

@@ -180,7 +180,7 @@ class ChangeDetector:
             for object_id in sorted(self.policy.pending):
                 events += self._test(object_id, self._last_frame, final=True)
         candidates = [i for i in sorted(self.observers) if i not in self.matched
-                      and self.policy.testable(self.source.objects[i].n_measurements, self.sightings["source"].count(i))
+                      and self.policy.testable(self.source.objects[i].n_measurements, self._sightings_of("source", i))
                       and not self._part_of_matched(i)]
         unshown: dict[int, str] = {}
         if self.registration is not None and candidates:
@@ -277,6 +277,21 @@ class ChangeDetector:
         if sightings:
             self.sightings[session].add(sightings, session_map)
 
+    def _sightings_of(self, session: Session, object_id: int) -> int:
+        """The sightings that count toward an object's waiting minimum (`ndfa.change.sightings`):
+        none while another object of its map stands in its place (`ViewsConfig.same_place_m`, on
+        one level): two objects cannot stand that close, so it is a fragment of that one (a view of
+        its upper part, the rest hidden), and its sightings repeat that view."""
+        count = self.sightings[session].count(object_id)
+        session_map = self.source if session == "source" else self.target
+        if count == 0 or self.config.views.same_place_m <= 0:
+            return count
+        obj = session_map.objects[object_id]
+        others = [o.center_world for i, o in session_map.objects.items() if i != object_id]
+        if others and session_map._same_place(np.array(others) - obj.center_world).any():
+            return 0
+        return count
+
     def _looked_at(self, center_source: np.ndarray, source_ids: list[int]) -> list[int]:
         """The source objects a test at `center_source` counts as observed by the target: its
         neighbours and those within `EvidenceConfig.observed_reach_m` of it, within `observed_height_m`."""
@@ -294,7 +309,7 @@ class ChangeDetector:
         if object_id in self.changed or object_id in self.unseen:
             return []
         obj = self.target.objects[object_id]
-        if not self.policy.testable(obj.n_measurements, self.sightings["target"].count(object_id)):
+        if not self.policy.testable(obj.n_measurements, self._sightings_of("target", object_id)):
             self.policy.hold(object_id, final)
             return []
         assert self.registration is not None  # objects are tested only once T_rel exists
