@@ -70,6 +70,8 @@ def run(source: str, target: str, out: Path, options: list[str]) -> None:
         for session, reader in readers.items():
             pairs = {}
             for frame in reader.frames():
+                if worlds[session].poses is not None and frame.index not in worlds[session].poses:
+                    continue  # a run on every n-th frame estimates those frames' poses alone
                 true = frame.pose_world_camera_true if frame.pose_world_camera_true is not None else frame.pose_world_camera
                 pairs[frame.index] = (worlds[session].apply(frame).pose_world_camera, true)
             cameras[session] = pairs

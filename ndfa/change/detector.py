@@ -128,12 +128,16 @@ class ChangeDetector:
         """Whether `session`'s map holds an object standing in the place (its center within two
         `sight_radius_m` horizontally and `sight_height_m` in height: two such objects would touch):
         what the depth ended on there is then that object, and a change claimed against it (a
-        different object there: a switch) stands."""
+        different object there: a switch) stands. Only an object the detector would test counts
+        (`DecisionPolicy.testable`: `waiting.min_measurements` views): one or two odd views there
+        (of a monitor's post, say) are something perception glimpsed, no object a switch could be
+        claimed against."""
         evidence = self.config.evidence
         session_map = self.source if session == "source" else self.target
         return any(np.linalg.norm(horizontal(o.center_world - place_world)) <= 2 * evidence.sight_radius_m
                    and abs(o.center_world[2] - place_world[2]) <= evidence.sight_height_m
-                   for o in session_map.objects.values())
+                   and self.policy.testable(o.n_measurements, self.sightings[session].count(object_id))
+                   for object_id, o in session_map.objects.items())
 
     def add_source(self, frame: list[Measurement], sightings: list[Sighting] | None = None) -> list[Event]:
         """One source frame's measurements: intra-session update of the source map; and its

@@ -31,7 +31,9 @@ lies more than the cylinder's radius beyond it (the ray crossed the place's fron
 nothing), and *stopped* when it ends closer (on a surface in the place). A frame shows something
 standing in the place when more of them are stopped than seen through and the surface the depth
 ended on inside the place rises (`STANDING_M`: not a table top that drift between the sessions set
-the place into), and the place empty otherwise; the place counts as seen empty when at least half the frames that showed it well
+the place into), and the place empty otherwise, but only where it saw the place's upper half
+(`SAW_UPPER` of those samples not hidden): a frame that saw the place's foot alone, the rest behind
+something nearer, did not see it empty; the place counts as seen empty when at least half the frames that showed it well
 showed it empty (`Sight.seen_empty`). The detector asks it only where
 the other session's map holds no object at the place to explain what stood there (a switch:
 `ndfa.change.detector`).
@@ -76,6 +78,10 @@ TURN_SCALE_M = 1.0
 # depth's noise (the Kinect's disparity step at 3 m, ~2.5 cm along the ray, under 1.5 cm in height
 # at the usual downward views); a mug's face seen there spans 5-7 cm.
 STANDING_M = 0.03
+# A frame says whether a place was empty only where it saw at least this share of the place's upper
+# facing samples (not hidden by a nearer surface, not without depth): the rest of its upper half
+# hidden, what its depth did or did not end on there says nothing of what stood in it.
+SAW_UPPER = 0.5
 
 
 @dataclass(frozen=True)
@@ -99,7 +105,8 @@ class Sight:
     `well`: frames (of those whose depth is kept) whose pixels reach the rule's minimum, `empty`: of
     those, the ones whose depth passed through the place (the module docstring says how);
     `stopped`: the share of the upper facing samples the depth ended on in the best such frame that
-    did not show it empty (NaN when every one did)."""
+    did not show it empty (NaN when every one did), `hidden_above`: the share of that frame's upper
+    facing samples hidden."""
 
     shown: bool
     pixels: float
@@ -113,6 +120,7 @@ class Sight:
     empty: int = 0
     stopped: float = float("nan")
     stopped_frame: int | None = None
+    hidden_above: float = float("nan")
 
     @property
     def seen_empty(self) -> bool:
@@ -122,10 +130,10 @@ class Sight:
 
     def describe_occupied(self, session: str) -> str:
         """One line: why the place, though shown, does not count as seen empty by `session`."""
-        return (f"shown but not seen empty: the {session}'s depth ended inside it in {self.well - self.empty} of the "
-                f"{self.well} frames that showed it well (frame {self.stopped_frame}: {self.stopped:.0%} of its upper "
-                f"surface stopped), and the {session}'s map has no object there: something stood there that was not "
-                f"taken as an object")
+        return (f"shown but not seen empty: the {session}'s depth ended inside it, or did not reach its upper half, in "
+                f"{self.well - self.empty} of the {self.well} frames that showed it well (frame {self.stopped_frame}: "
+                f"{self.stopped:.0%} of its upper surface stopped, {self.hidden_above:.0%} of it hidden), and the "
+                f"{session}'s map has no object there: something stood there that was not taken as an object")
 
     def describe(self, session: str) -> str:
         """One line: why the place counts as shown by `session`, or not."""
@@ -239,9 +247,12 @@ class SessionViews:
         free = (measured > 0) & (measured >= z[frames] - OCCLUSION_MARGIN_M)
         unhidden = (free & facing[frames]).sum(axis=1) / np.maximum(facing[frames].sum(axis=1), 1)
         # Seen through or stopped: the upper facing samples not hidden (the module docstring).
-        upper = (facing[frames] & (samples[:, 2] >= float(np.asarray(place_world)[2]) - 1e-9)[None]) & free
+        upper_facing = facing[frames] & (samples[:, 2] >= float(np.asarray(place_world)[2]) - 1e-9)[None]
+        upper = upper_facing & free
         through = upper & (measured > z[frames] + radius_m)
         n_through, n_upper = through.sum(axis=1), upper.sum(axis=1)
+        # ... of a place whose upper half the frame saw: most of those samples not hidden
+        saw_upper = n_upper >= SAW_UPPER * upper_facing.sum(axis=1)
         # ... and what stopped them rises: the heights of the points where the facing rays ended
         # inside the place (any height), from the 10th to the 90th percentile
         stopped = facing[frames] & free & (measured <= z[frames] + radius_m)
@@ -249,8 +260,10 @@ class SessionViews:
         heights = np.einsum("fj,fsj->fs", poses[frames, 2, :3], ended) + poses[frames, 2, 3][:, None]
         rise = np.array([np.subtract(*np.percentile(h[m], [90, 10])) if m.sum() > 1 else 0.0
                          for h, m in zip(heights, stopped)])
-        # no more stopped than seen through (none: no evidence), or what stopped them lies flat
-        empty = (n_through >= n_upper - n_through) | (rise < STANDING_M)
+        # no more stopped than seen through (none: no evidence), or what stopped them lies flat, the
+        # latter only where the frame saw the place's upper half (a few rays left ending on the
+        # table under a place hidden above say nothing of what stood in it)
+        empty = (n_through >= n_upper - n_through) | (saw_upper & (rise < STANDING_M))
         offsets = np.asarray(place_world, dtype=float) - cameras[frames]
         distance = np.linalg.norm(offsets, axis=1)
         elevation = np.abs(offsets[:, 2]) / np.maximum(distance, 1e-9)   # sin of the sight line's slope
@@ -264,7 +277,8 @@ class SessionViews:
                      self.indices[frames[best]], float(distance[best]), float(unhidden[best]), rule.min_pixels,
                      int(well.sum()), int((well & empty).sum()),
                      float("nan") if worst is None else float(1 - n_through[worst] / max(n_upper[worst], 1)),
-                     None if worst is None else self.indices[frames[worst]])
+                     None if worst is None else self.indices[frames[worst]],
+                     float("nan") if worst is None else float(1 - n_upper[worst] / max(upper_facing[worst].sum(), 1)))
 
 
 def view_distance(pose: np.ndarray, poses: np.ndarray) -> np.ndarray:
