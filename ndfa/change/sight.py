@@ -31,9 +31,9 @@ lies more than the cylinder's radius beyond it (the ray crossed the place's fron
 nothing), and *stopped* when it ends closer (on a surface in the place). A frame shows something
 standing in the place when more of them are stopped than seen through and the surface the depth
 ended on inside the place rises (`STANDING_M`: not a table top that drift between the sessions set
-the place into), and the place empty otherwise, but only where it saw the place's upper half
-(`SAW_UPPER` of those samples not hidden): a frame that saw the place's foot alone, the rest behind
-something nearer, did not see it empty; the place counts as seen empty when at least half the frames that showed it well
+the place into) or the frame did not see the place's upper half (`SAW_UPPER` of those samples not
+hidden: the few rays left ending on the table under a place hidden above say nothing of what stood
+in it), and the place empty otherwise; the place counts as seen empty when at least half the frames that showed it well
 showed it empty (`Sight.seen_empty`). The detector asks it only where
 the other session's map holds no object at the place to explain what stood there (a switch:
 `ndfa.change.detector`).
@@ -78,9 +78,9 @@ TURN_SCALE_M = 1.0
 # depth's noise (the Kinect's disparity step at 3 m, ~2.5 cm along the ray, under 1.5 cm in height
 # at the usual downward views); a mug's face seen there spans 5-7 cm.
 STANDING_M = 0.03
-# A frame says whether a place was empty only where it saw at least this share of the place's upper
-# facing samples (not hidden by a nearer surface, not without depth): the rest of its upper half
-# hidden, what its depth did or did not end on there says nothing of what stood in it.
+# A frame's flat stop (`STANDING_M`) counts as the place seen empty only where it saw at least this
+# share of the place's upper facing samples (not hidden by a nearer surface, not without depth): the
+# rest of its upper half hidden, the few rays left ending low say nothing of what stood in it.
 SAW_UPPER = 0.5
 
 
