@@ -31,9 +31,10 @@ class _Sightings(DetectorConfig):
 if __name__ == "__main__":
     if sys.argv[1] not in ("on", "off"):
         sys.exit("usage: python studies/sightings.py on|off SRC TGT [ndfa detect options]")
+    shipped = WaitingConfig().sightings
     _Sightings.sightings = sys.argv[1] == "on"
     assert _Sightings().waiting.sightings == _Sightings.sightings and isinstance(_Sightings(), DetectorConfig)
-    assert WaitingConfig().sightings is True     # the shipped default is untouched
+    assert WaitingConfig().sightings is shipped  # the shipped default is untouched
     detect_command.DetectorConfig = _Sightings   # type: ignore[misc]
     sys.argv = ["ndfa", "detect"] + sys.argv[2:]
     main()
