@@ -10,9 +10,9 @@ from ndfa.change.config import DetectorConfig, WaitingConfig
 from ndfa.change.detector import ChangeDetector, reported_changes
 from ndfa.change.register import RegistrationPrior
 from ndfa.change.sightings import Sighting
-from ndfa.io.recording import Frame
 from ndfa.perception.observations import ObservationConfig, extract_observations
 from ndfa.sim.camera import PinholeCamera
+from tests.test_perception import _frame
 
 
 def _code(seed: int) -> np.ndarray:
@@ -71,12 +71,6 @@ def test_a_sighting_counts_for_the_nearest_object_in_reach_not_measured_in_its_f
     assert counts.count(0) == 1 and counts.count(1) == 1 and len(counts.loose) == 2  # above it, beside: kept
     detector.add_source([Measurement(4, 8, _code(8), a + [0.2, 0.2, 0.0], 0.7)])
     assert counts.count(2) == 1 and len(counts.loose) == 1        # claimed by the object measured there
-
-
-def _frame(depth, instances):
-    camera = PinholeCamera()
-    return Frame(index=3, timestamp=0.0, rgb=None, depth=depth, K=camera.K, pose_world_camera=np.eye(4),
-                 instances=instances)
 
 
 def test_a_mask_skipped_only_for_its_size_gives_its_centroid():
