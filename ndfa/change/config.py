@@ -128,9 +128,7 @@ class WaitingConfig:
     # making up the rest: an object sighted in many frames is no fragment of one view (unless
     # another object stands in its place); and a session's sightings that none of its objects is
     # withhold a change at their place (docs/detector.md, "Sightings"). Off: False (measurements only).
-    # Off by default until its place count is frame-independent: a bag round trip of the sample
-    # (its up estimated, not given) flips one switched mug's report between "added" and "moved".
-    sightings: bool = False
+    sightings: bool = True
     confirm_measurements: int = 8  # a "changed" verdict on fewer measurements waits for more views. Off: 1
     # A target object alone in its target neighbourhood while the source's has company, or one whose
     # graph agrees with no match while it has fewer neighbours than the match, waits (decided at the

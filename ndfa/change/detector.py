@@ -70,8 +70,9 @@ class ChangeDetector:
         self.changed: dict[int, DecisionEvent] = {}  # target object -> the decision that marked it
         # source object -> the target objects tested around it (its keys: the source objects observed)
         self.observers: dict[int, set[int]] = {}
-        self.matched: dict[int, int] = {}  # source object -> the target object first found consistent with it
-        self.partners: dict[int, int] = {}  # target object -> the source object its latest "unchanged" test named
+        # target object -> the source object its latest test found it consistent with; dropped when a
+        # later test (more views) finds it changed: the source object was then never matched by it
+        self.partners: dict[int, int] = {}
         # target object found changed at the end with a source object standing in its place -> that
         # source object: its decision is made in `finish`, once the removals and moves are known
         self.in_place_of: dict[int, int] = {}
@@ -183,9 +184,10 @@ class ChangeDetector:
         if self.registration is not None:
             for object_id in sorted(self.policy.pending):
                 events += self._test(object_id, self._last_frame, final=True)
-        candidates = [i for i in sorted(self.observers) if i not in self.matched
+        matched = set(self.partners.values())
+        candidates = [i for i in sorted(self.observers) if i not in matched
                       and self.policy.testable(self.source.objects[i].n_measurements, self._sightings_of("source", i))
-                      and not self._part_of_matched(i)]
+                      and not self._part_of_matched(i, matched)]
         unshown: dict[int, str] = {}
         if self.registration is not None and candidates:
             to_target = invert_pose(self.registration.transform)
@@ -234,7 +236,7 @@ class ChangeDetector:
                 category=obj.category, withheld=why, sightings=self.sightings["source"].count(source_id)))
         return events + self._rotations()
 
-    def _part_of_matched(self, source_id: int) -> bool:
+    def _part_of_matched(self, source_id: int, matched: set[int]) -> bool:
         """Whether source object `source_id` stood in the same place (`ViewsConfig.same_place_m`,
         on one level) as a source object the target matched: one object the source's map held
         twice, not a removal. Two objects cannot stand that close, so either their centers are
@@ -244,7 +246,7 @@ class ChangeDetector:
         by the map: docs/detector.md, "One object twice, by its views")."""
         if self.config.views.same_place_m <= 0:
             return False
-        others = [j for j in self.matched if j != source_id]
+        others = [j for j in sorted(matched) if j != source_id]
         if not others:
             return False
         obj = self.source.objects[source_id]
@@ -343,10 +345,10 @@ class ChangeDetector:
             for c in verdict.comparisons]
         if verdict.kind == "unchanged":
             assert verdict.partner_id is not None  # an "unchanged" verdict names its partner
-            self.matched.setdefault(verdict.partner_id, object_id)
             self.partners[object_id] = verdict.partner_id
             return events + [self._decision(frame_index, object_id, "unchanged", verdict, center_source)]
         if verdict.kind == "changed":
+            self.partners.pop(object_id, None)
             decision = self._decision(frame_index, object_id, "added", verdict, center_source,
                                       withheld=self._unshown("source", center_source))
             (self.changed if decision.withheld is None else self.unseen)[object_id] = decision
