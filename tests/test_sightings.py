@@ -9,7 +9,7 @@ from ndfa.change.associate import Measurement
 from ndfa.change.config import DetectorConfig, WaitingConfig
 from ndfa.change.detector import ChangeDetector, reported_changes
 from ndfa.change.register import RegistrationPrior
-from ndfa.change.sightings import Sighting
+from ndfa.change.sightings import SessionSightings, Sighting
 from ndfa.perception.observations import ObservationConfig, extract_observations
 from ndfa.sim.camera import PinholeCamera
 from tests.test_perception import _frame
@@ -134,3 +134,17 @@ def test_sightings_do_not_make_a_fragment_testable(beside_m, reported):
     fragment.center_world = place[3] + [beside_m, 0.0, 0.09]
     added = [e for e in [*detector.changed.values(), *detector.finish()] if getattr(e, "kind", None) == "added"]
     assert sorted(e.instance_ids for e in added) == ([(3,), (4,)] if reported else [(3,)])
+
+
+@pytest.mark.parametrize("origin", [[0.0, 0.0, 0.0], [0.013, -0.007, 0.004], [1.237, 2.519, -0.011]])
+def test_the_sightings_at_a_place_do_not_depend_on_the_worlds_origin(origin):
+    """Sightings 5 mm inside and 5 mm outside the reach of a place: 3 counted wherever the world's
+    origin lies (a count over cells of the points would move them across the reach with it)."""
+    sightings = SessionSightings(DetectorConfig(waiting=WaitingConfig(sightings=True)))
+    session_map = ChangeDetector(DetectorConfig()).source  # no objects: every sighting unclaimed
+    place = np.array([0.4, 0.2, 0.8]) + origin
+    inside, outside = sightings.reach_m - 0.005, sightings.reach_m + 0.005
+    for k, (radius, angle) in enumerate([(inside, 0.3), (inside, 2.0), (inside, 4.1), (outside, 1.0), (outside, 5.0)]):
+        offset = [radius * np.cos(angle), radius * np.sin(angle), 0.0]
+        sightings.add([Sighting(k, 9, place + offset, 200)], session_map)
+    assert sightings.unexplained(place, session_map) == 3

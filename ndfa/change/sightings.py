@@ -21,7 +21,9 @@ The same evidence stands against a change: where a session sighted something in 
 `WaitingConfig.min_measurements` frames and its map holds no object there to be it, it did not see
 the place empty, and an "added" (the source's sightings) or "removed" (the target's) object there
 is withheld (`unexplained`; the detector's place test, `ndfa.change.detector`). Every sighting that
-fell on no object is kept for it in cells of `CELL_M` (memory bounded by the scene's size).
+fell on no object is kept for it, its point exact: a count that binned points in cells would depend
+on where the world's origin lies, and a few centimetres of world frame (a bag round trip's estimated
+up) would move a place's count across the bar. `MAX_UNCLAIMED` bounds them.
 
 Pure numpy; no I/O. Why and what it changes: docs/detector.md, "Sightings".
 """
@@ -41,8 +43,9 @@ from ndfa.core.events import ObservationEvent
 # The unclaimed sightings a session keeps (the latest): a few seconds of frames with a few small
 # masks each, so that an object approached from afar claims its early sightings when first measured.
 KEEP = 256
-# The cells (metres) in which the sightings that fell on no object are counted for `unexplained`.
-CELL_M = 0.02
+# The sightings that fell on no object kept for `unexplained`, the latest: a few small masks a frame
+# over tens of thousands of frames (a few MB at most), so memory stays flat in a recording's length.
+MAX_UNCLAIMED = 100_000
 
 
 @dataclass(frozen=True)
@@ -70,8 +73,9 @@ class SessionSightings:
         self.reach_m = evidence.sight_radius_m + config.association.distance_m
         self.height_m = evidence.sight_height_m
         self.counts: dict[int, int] = {}
-        self.loose: deque[Sighting] = deque(maxlen=KEEP)
-        self.unclaimed: dict[tuple[int, ...], int] = {}  # cell -> the sightings there that fell on no object
+        self.loose: deque[tuple[int, Sighting]] = deque(maxlen=KEEP)  # (its key in `unclaimed`, it)
+        self.unclaimed: dict[int, np.ndarray] = {}  # the points of the sightings that fell on no object
+        self._kept = 0  # sightings kept so far: the next key
 
     def count(self, object_id: int) -> int:
         return self.counts.get(object_id, 0)
@@ -82,8 +86,7 @@ class SessionSightings:
         for sighting in sightings:
             object_id = self._falls_on(sighting, session_map, list(session_map.objects))
             if object_id is None:
-                self.loose.append(sighting)
-                self._tally(sighting, 1)
+                self._keep(sighting)
             else:
                 self.counts[object_id] = self.count(object_id) + 1
 
@@ -92,42 +95,38 @@ class SessionSightings:
         in height, as a sighting falls on an object), none of the map's objects within reach of them."""
         if not self.unclaimed:
             return 0
-        cells = np.array(list(self.unclaimed))
-        points = (cells + 0.5) * CELL_M
-        counts = np.array(list(self.unclaimed.values()))
-        near = self._within(points - place)
-        if not near.any():
-            return 0
-        points, counts = points[near], counts[near]
-        if session_map.objects:
+        points = np.array(list(self.unclaimed.values()))
+        points = points[self._within(points - place)]
+        if len(points) and session_map.objects:
             centers = np.array([o.center_world for o in session_map.objects.values()])
-            explained = self._within(points[:, None, :] - centers[None]).any(axis=1)
-            points, counts = points[~explained], counts[~explained]
-        return int(counts.sum())
+            points = points[~self._within(points[:, None, :] - centers[None]).any(axis=1)]
+        return len(points)
 
     def _within(self, offsets: np.ndarray) -> np.ndarray:
         within: np.ndarray = ((np.linalg.norm(horizontal(offsets), axis=-1) <= self.reach_m)
                               & (np.abs(offsets[..., UP_AXIS]) <= self.height_m))
         return within
 
-    def _tally(self, sighting: Sighting, count: int) -> None:
-        cell = tuple(np.floor(sighting.center_world / CELL_M).astype(int).tolist())
-        self.unclaimed[cell] = self.unclaimed.get(cell, 0) + count
-        if self.unclaimed[cell] <= 0:
-            del self.unclaimed[cell]
+    def _keep(self, sighting: Sighting) -> None:
+        """A sighting that fell on no object: kept to be claimed, and counted by `unexplained`."""
+        self.loose.append((self._kept, sighting))
+        self.unclaimed[self._kept] = np.asarray(sighting.center_world, dtype=float)
+        self._kept += 1
+        if len(self.unclaimed) > MAX_UNCLAIMED:
+            del self.unclaimed[next(iter(self.unclaimed))]
 
     def claim(self, object_ids: list[int], session_map: SessionMap) -> None:
         """The kept sightings that fall on one of `object_ids` (just measured) now count for it."""
         if not self.loose or not object_ids:
             return
-        kept: deque[Sighting] = deque(maxlen=KEEP)
-        for sighting in self.loose:
+        kept: deque[tuple[int, Sighting]] = deque(maxlen=KEEP)
+        for key, sighting in self.loose:
             object_id = self._falls_on(sighting, session_map, object_ids)
             if object_id is None:
-                kept.append(sighting)
+                kept.append((key, sighting))
             else:
                 self.counts[object_id] = self.count(object_id) + 1
-                self._tally(sighting, -1)
+                self.unclaimed.pop(key, None)
         self.loose = kept
 
     def _falls_on(self, sighting: Sighting, session_map: SessionMap, object_ids: list[int]) -> int | None:
