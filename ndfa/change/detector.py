@@ -361,8 +361,7 @@ class ChangeDetector:
 
     def _doubtful_pairs(self, moved_from: dict[int, int]) -> dict[int, str]:
         """The "added" target objects standing in the place of a source object that no other target
-        object was found to be (removed, or matched by the added object itself before its later
-        views turned its verdict), neither the end of a move, the categories not differing, whose
+        object was found to be (a removal), neither the end of a move, the categories not differing, whose
         codes were compared across no common side (`EvidenceConfig.side_deg`: fewer than
         `WaitingConfig.min_measurements` views of either within it of the other's): one object seen
         from opposite sides can give codes as unlike as two objects', so "replaced" is doubtful
@@ -375,8 +374,7 @@ class ChangeDetector:
         for target_id, source_id in sorted(self.in_place_of.items()):
             if target_id in moved_from or source_id in moved_from.values():
                 continue
-            if any(s == source_id and t != target_id and t not in self.changed and t not in self.unseen
-                   for t, s in self.partners.items()):
+            if any(s == source_id and t != target_id for t, s in self.partners.items()):
                 continue  # another target object is the source object, unchanged: this one is new beside it
             target, source = self.target.objects[target_id], self.source.objects[source_id]
             if UNKNOWN_CATEGORY not in (target.category, source.category) and target.category != source.category:
@@ -422,9 +420,7 @@ class ChangeDetector:
             return []
         rotation = self.registration.transform[:3, :3]
         events: list[Event] = []
-        for object_id, partner_id in sorted(self.partners.items()):
-            if object_id in self.changed:
-                continue
+        for object_id, partner_id in sorted(self.partners.items()):  # the unchanged ones
             obj, partner = self.target.objects[object_id], self.source.objects[partner_id]
             turned = rotation_of(obj, partner, rotation, self.config.rotation, self._sides(obj, partner),
                                  self.config.evidence.side_deg)
