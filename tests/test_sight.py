@@ -1,7 +1,10 @@
 """A change needs the other session to have shown its place (`ndfa.change.sight`), in the detector
 and in the scoring's scope (`ndfa.eval.scoring.scorable_instances`)."""
 
+from dataclasses import replace
+
 import numpy as np
+import pytest
 
 from ndfa.change.associate import Measurement
 from ndfa.change.config import DetectorConfig, RegistrationConfig
@@ -51,6 +54,15 @@ def test_a_place_is_shown_near_and_in_the_open_and_not_far_hidden_without_depth_
 
 def _code(seed: int) -> np.ndarray:
     return np.random.default_rng(seed).normal(size=16)
+
+
+def _reported_and_withheld(detector: ChangeDetector) -> tuple[set[int], dict[int, str]]:
+    """At the end of a run: the reported objects and the withheld ones with the reasons, by their
+    first measurement's instance."""
+    decisions = [e for e in detector.finish() if hasattr(e, "kind")] + list(detector.changed.values()) \
+        + list(detector.unseen.values())
+    return ({d.instance_ids[0] for d in reported_changes(decisions)},
+            {d.instance_ids[0]: d.withheld for d in decisions if d.withheld is not None})
 
 
 def test_an_added_mug_where_the_source_never_looked_is_withheld_and_one_it_saw_is_reported():
@@ -215,10 +227,7 @@ def _added_where_the_source_had(stood: bool, source_object: bool, object_views: 
                                         c + rng.normal(scale=0.003, size=3), 0.8) for i, c in layout.items()
                             if i != 30 or view < object_views]
             (detector.add_source if session == "source" else detector.add_target)(measurements)
-    decisions = [e for e in detector.finish() if hasattr(e, "kind")] + list(detector.changed.values()) \
-        + list(detector.unseen.values())
-    return ({d.instance_ids[0] for d in reported_changes(decisions)},
-            {d.instance_ids[0]: d.withheld for d in decisions if d.withheld is not None})
+    return _reported_and_withheld(detector)
 
 
 def test_an_added_mug_where_the_source_saw_something_it_took_no_object_of_is_withheld():
@@ -277,3 +286,60 @@ def test_an_object_seen_too_few_times_to_be_tested_is_no_switch_partner():
     assert 20 in reported and 20 not in withheld
     reported, withheld = _added_where_the_source_had(stood=True, source_object=True, object_views=2)
     assert 20 not in reported and "map has no object there" in withheld[20]
+
+
+def _added_seen_from_afar(pixels: int, config: DetectorConfig = DetectorConfig()) -> tuple[set[int], dict[int, str]]:
+    """A table of four mugs, and object 20 added to it, which the target measured at 1.3 m with
+    `pixels` pixels a view; the source saw the table only from 2.8 m, where a large mug (the
+    place's cylinder) would have given it about 380 px, over perception's 300. The reported and the
+    withheld objects, with the reasons."""
+    table = np.array([0.0, 3.0])
+    mugs = {k + 1: np.r_[table + offset, 0.8] for k, offset in enumerate([(-0.2, -0.15), (0.2, -0.1), (-0.15, 0.2),
+                                                                             (0.25, 0.2)])}
+    place = np.r_[table, 0.8]
+    layouts = {"source": mugs, "target": dict(mugs) | {20: place}}
+    eyes = {"source": [-1.2, 0.5, 1.3], "target": [-1.2, 3.0, 1.3]}
+    codes = {i: _code(100 + i) for i in layouts["target"]}
+    rng = np.random.default_rng(0)
+    detector = ChangeDetector(replace(config, registration=RegistrationConfig(pairs=4)))
+    for first, session in enumerate(("source", "target")):
+        for view in range(10):
+            frame = 20 * first + view
+            detector.add_view(session, frame, np.full((480, 640), 9.0, np.float32), K,  # type: ignore[arg-type]
+                              look_at(np.add(eyes[session], [0, 0.01 * view, 0]), place))
+            measurements = [Measurement(frame, i, codes[i] + rng.normal(scale=0.02, size=16),
+                                        c + rng.normal(scale=0.003, size=3), 0.8, n_pixels=pixels if i == 20 else 1500)
+                            for i, c in layouts[session].items()]
+            (detector.add_source if session == "source" else detector.add_target)(measurements)
+    return _reported_and_withheld(detector)
+
+
+def test_a_small_objects_place_seen_from_where_only_a_mug_would_have_shown_is_not_shown():
+    """`EvidenceConfig.sight_typical_m`: the place's cylinder is a large mug's, and a place the
+    source saw from 2.8 m counts as shown for a mug. An object whose own views show it a third of a
+    mug's size (a small cup: 500 px at 1.3 m, where a median mug gives about 1200) would have given
+    the source about a third of the pixels, under perception's bar: its "added" is withheld, with
+    the reason. The same object as large as a mug in its own views is reported."""
+    reported, withheld = _added_seen_from_afar(pixels=1500)
+    assert reported == {20} and withheld == {}
+    reported, withheld = _added_seen_from_afar(pixels=500)
+    assert reported == set() and "for an object of its own size" in withheld[20]
+    assert "not shown well enough" in withheld[20]
+    every_object_a_large_mug = replace(DetectorConfig(), evidence=replace(DetectorConfig().evidence, sight_typical_m=None))
+    assert _added_seen_from_afar(pixels=500, config=every_object_a_large_mug) == ({20}, {})
+
+
+def test_an_objects_own_size_is_its_fuller_views_against_a_median_mugs_and_at_most_one():
+    from ndfa.change.sight import own_size, projected_area
+
+    center = np.array([1.0, 0.0, 0.8])
+    cameras = np.array([[-0.5, 0.0, 1.3]] * 10)
+    mug = K[0, 0] * K[1, 1] * float(projected_area(0.04, 0.09, np.array(0.5 / np.hypot(1.5, 0.5)))) / (1.5**2 + 0.5**2)
+    # ten views, most a third of a mug, one whole: the 90th percentile
+    pixels = np.r_[np.full(9, mug / 3), mug / 2]
+    assert own_size(pixels, cameras, center, K, 0.04, 0.09) == pytest.approx(1 / 3 + 0.1 * (1 / 2 - 1 / 3), rel=1e-6)
+    assert own_size(np.full(10, 2 * mug), cameras, center, K, 0.04, 0.09) == 1.0   # larger: as a large mug
+    assert own_size(np.zeros(10), cameras, center, K, 0.04, 0.09) == 1.0            # not known
+    # the same object from twice as far shows a quarter of the pixels: the same size
+    far = np.array([[-2.0, 0.0, 1.8]] * 10)
+    assert own_size(pixels / 4, far, center, K, 0.04, 0.09) == pytest.approx(own_size(pixels, cameras, center, K, 0.04, 0.09), rel=1e-6)

@@ -49,6 +49,7 @@ class Measurement:
     heading_strength: float = 0.0
     category: str = UNKNOWN_CATEGORY  # the NDF's likeliest category, and its probability
     category_probability: float = float("nan")
+    n_pixels: int = 0  # the view's pixels (perception's count, `ObservationEvent.n_pixels`); 0: not known
 
     @classmethod
     def of(cls, observation: ObservationEvent) -> Measurement:
@@ -59,7 +60,8 @@ class Measurement:
                              f"a skipped or unencoded observation is no measurement ({observation.skipped})")
         return cls(observation.frame_index, observation.instance_id, observation.shape_code,
                    observation.center_world, observation.mean_occupancy, observation.heading_rad,
-                   observation.heading_strength, observation.category, observation.category_probability)
+                   observation.heading_strength, observation.category, observation.category_probability,
+                   observation.n_pixels)
 
 
 @dataclass
@@ -80,7 +82,9 @@ class SessionObject:
     headings: list[tuple[float, float]] = field(default_factory=list)
     # the frame of each measurement in `headings` (and in `centers`): which frames saw it
     frames: list[int] = field(default_factory=list)
-    # `centers`, `headings` and `frames` keep every `history_stride`-th measurement (`keep_in_history`)
+    # ... and its pixels (`Measurement.n_pixels`): how large the object showed in each
+    pixels: list[int] = field(default_factory=list)
+    # `centers`, `headings`, `frames` and `pixels` keep every `history_stride`-th measurement (`keep_in_history`)
     history_stride: int = 1
     latest_center: np.ndarray | None = None  # its latest measurement's center (None: its center)
     # category -> the summed probability of its measurements that found it the likeliest (`category`)
@@ -199,7 +203,7 @@ class SessionMap:
             self.objects[object_id] = SessionObject(
                 object_id, m.shape_code, m.center_world, m.mean_occupancy, m.frame_index, m.frame_index,
                 instance_ids=(m.instance_id,), code_sum=_unit(m.shape_code), centers=[m.center_world],
-                headings=[(m.heading_rad, m.heading_strength)], frames=[m.frame_index])
+                headings=[(m.heading_rad, m.heading_strength)], frames=[m.frame_index], pixels=[m.n_pixels])
             self.objects[object_id].vote(m)
             self.tree.insert(object_id, m.center_world)
             return Association(object_id, True, False, float("nan"), float("nan"), len(candidates))
@@ -211,6 +215,7 @@ class SessionMap:
         if kept:
             best.headings.append((m.heading_rad, m.heading_strength))
             best.frames.append(m.frame_index)
+            best.pixels.append(m.n_pixels)
         if m.instance_id not in best.instance_ids:
             best.instance_ids += (m.instance_id,)
         if views.fusion == "mean":
@@ -244,6 +249,7 @@ def keep_in_history(obj: SessionObject) -> bool:
     if len(obj.headings) >= MAX_HISTORY:
         obj.headings = obj.headings[::2]
         obj.frames = obj.frames[::2]
+        obj.pixels = obj.pixels[::2]
         if obj.centers is not None:
             obj.centers = obj.centers[::2]
         obj.history_stride *= 2

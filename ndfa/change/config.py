@@ -172,6 +172,12 @@ class EvidenceConfig:
     # Off: radius 0.
     sight_radius_m: float = 0.05
     sight_height_m: float = 0.11
+    # ... for the object claimed, where its own views show it smaller than a median mug, a cylinder
+    # of this radius and height (about the median mug's pixels in the masks; the large one above is
+    # about their 90th percentile): its expected pixels are the large mug's times that share
+    # (`ndfa.change.sight.own_size`), so that a cup's place seen from where a mug would just have
+    # shown is not taken as shown. Off: None (every object as a large mug).
+    sight_typical_m: tuple[float, float] | None = (0.04, 0.09)
     # ... and seen empty there: a place whose depth ended on something standing in it (most of the
     # frames that showed it well), with no object of that session's map there to be what stood in
     # it, was not seen empty, and the change is withheld with the reason (`ndfa.change.sight`,

@@ -45,7 +45,7 @@ from ndfa.change.register import Registration, RegistrationPrior, apply
 from ndfa.change.registrar import Registrar
 from ndfa.change.rotation import rotation_of
 from ndfa.change.sides import common_side, mean_azimuth_deg, view_azimuths
-from ndfa.change.sight import SessionViews, Sight, SightRule
+from ndfa.change.sight import SessionViews, Sight, SightRule, own_size
 from ndfa.change.sightings import SessionSightings, Sighting
 from ndfa.change.verdict import Verdict, decision_score, graph_verdict, removal_score, shape_verdict
 from ndfa.core.conventions import UNKNOWN_CATEGORY, horizontal
@@ -97,13 +97,24 @@ class ChangeDetector:
         if self.config.evidence.sight_radius_m > 0:
             self.views[session].add(frame_index, depth, K, pose_world_camera)
 
-    def sight(self, session: Session, place_world: np.ndarray) -> Sight:
+    def sight(self, session: Session, place_world: np.ndarray, size: float = 1.0) -> Sight:
         """How well `session`'s frames showed an object of the category standing at `place_world`
-        (that session's world): `ndfa.change.sight`, sized by `EvidenceConfig.sight_*`."""
+        (that session's world): `ndfa.change.sight`, sized by `EvidenceConfig.sight_*` (and
+        `size`: `_own_size`)."""
         evidence = self.config.evidence
-        return self.views[session].sight(place_world, evidence.sight_radius_m, evidence.sight_height_m)
+        return self.views[session].sight(place_world, evidence.sight_radius_m, evidence.sight_height_m, size)
 
-    def _unshown(self, session: Session, place_world: np.ndarray) -> str | None:
+    def _own_size(self, session: Session, obj: SessionObject) -> float:
+        """The claimed object's size as its own views (`session`'s) show it, as a share of
+        `EvidenceConfig.sight_typical_m`'s cylinder, at most 1 (`ndfa.change.sight.own_size`): 1
+        when the rule is off or its cameras are not known (a replay)."""
+        typical, views = self.config.evidence.sight_typical_m, self.views[session]
+        cameras = views.cameras(obj.frames)
+        if typical is None or cameras is None or views.K is None:
+            return 1.0
+        return own_size(np.asarray(obj.pixels), cameras, obj.center_world, views.K, *typical)
+
+    def _unshown(self, session: Session, place_world: np.ndarray, size: float = 1.0) -> str | None:
         """Why a change at `place_world` is withheld: `session`, the other one, did not show the
         place, or sighted something there that none of its objects is (`WaitingConfig.sightings`,
         `ndfa.change.sightings`), or showed it but not empty while its map holds no object there
@@ -112,7 +123,7 @@ class ChangeDetector:
         evidence = self.config.evidence
         if evidence.sight_radius_m <= 0:
             return None
-        seen = self.sight(session, place_world)
+        seen = self.sight(session, place_world, size)
         if not seen.shown:
             return f"its place was {seen.describe(session)}"
         if self.config.waiting.sightings:  # something too small to encode stood there (`ndfa.change.sightings`)
@@ -192,7 +203,8 @@ class ChangeDetector:
         if self.registration is not None and candidates:
             to_target = invert_pose(self.registration.transform)
             for source_id in candidates:
-                why = self._unshown("target", apply(to_target, self.source.objects[source_id].center_world[None])[0])
+                obj = self.source.objects[source_id]
+                why = self._unshown("target", apply(to_target, obj.center_world[None])[0], self._own_size("source", obj))
                 if why is not None:
                     unshown[source_id] = why
         removed = [i for i in candidates if i not in unshown]
@@ -237,29 +249,33 @@ class ChangeDetector:
         return events + self._rotations()
 
     def _part_of_matched(self, source_id: int, matched: set[int]) -> bool:
-        """Whether source object `source_id` stood in the same place (`ViewsConfig.same_place_m`,
-        on one level) as a source object the target matched: one object the source's map held
-        twice, not a removal. Two objects cannot stand that close, so either their centers are
-        that close (a bowl's front wall and its back wall, whose codes parted: docs/categories.md,
-        "One object twice in a map"), or one of its measurements was that close to one of the
-        matched object's (a box whose partial views' centers wander by their face, split in two
-        by the map: docs/detector.md, "One object twice, by its views")."""
+        """Whether source object `source_id` stood in the same place as a source object the target
+        matched (`_one_object`): one object the source's map held twice, not a removal."""
+        return any(self._one_object(self.source, source_id, j) for j in sorted(matched) if j != source_id)
+
+    def _held_twice(self, object_id: int) -> int | None:
+        """The target object already decided (found changed, withheld, or unchanged) that target
+        object `object_id` stands in the same place as (`_one_object`): the target's map holding one
+        object twice, whose second copy is no second change; None when there is none."""
+        decided = sorted(set(self.changed) | set(self.unseen) | set(self.partners))
+        return next((j for j in decided if j != object_id and self._one_object(self.target, object_id, j)), None)
+
+    def _one_object(self, session_map: SessionMap, first: int, second: int) -> bool:
+        """Whether two objects of `session_map` stood in the same place (`ViewsConfig.same_place_m`,
+        on one level), so that they are one object the map holds twice: two objects cannot stand
+        that close, so either their centers are that close (a bowl's front wall and its back wall,
+        whose codes parted: docs/categories.md, "One object twice in a map"), or one of the
+        measurements of one was that close to one of the other's (a box whose partial views'
+        centers wander by their face, split in two by the map: docs/detector.md, "One object
+        twice, by its views"). False when the rule is off (`same_place_m` 0)."""
         if self.config.views.same_place_m <= 0:
             return False
-        others = [j for j in sorted(matched) if j != source_id]
-        if not others:
-            return False
-        obj = self.source.objects[source_id]
-        offsets = np.array([self.source.objects[j].center_world for j in others]) - obj.center_world
-        if self.source._same_place(offsets).any():
+        a, b = session_map.objects[first], session_map.objects[second]
+        if session_map._same_place((b.center_world - a.center_world)[None]).any():
             return True
-        mine = np.array(obj.centers if obj.centers else [obj.center_world])
-        for j in others:
-            other = self.source.objects[j]
-            theirs = np.array(other.centers if other.centers else [other.center_world])
-            if self.source._same_place((theirs[:, None, :] - mine[None, :, :]).reshape(-1, 3)).any():
-                return True
-        return False
+        mine = np.array(a.centers if a.centers else [a.center_world])
+        theirs = np.array(b.centers if b.centers else [b.center_world])
+        return bool(session_map._same_place((theirs[:, None, :] - mine[None, :, :]).reshape(-1, 3)).any())
 
     # -- steps ----------------------------------------------------------------------------------
 
@@ -349,8 +365,10 @@ class ChangeDetector:
             return events + [self._decision(frame_index, object_id, "unchanged", verdict, center_source)]
         if verdict.kind == "changed":
             self.partners.pop(object_id, None)
-            decision = self._decision(frame_index, object_id, "added", verdict, center_source,
-                                      withheld=self._unshown("source", center_source))
+            twin = self._held_twice(object_id)
+            withheld = (f"one object held twice: target object {twin}, already decided, stood in its place"
+                        if twin is not None else self._unshown("source", center_source, self._own_size("target", obj)))
+            decision = self._decision(frame_index, object_id, "added", verdict, center_source, withheld=withheld)
             (self.changed if decision.withheld is None else self.unseen)[object_id] = decision
             if self.config.waiting.in_place and decision.withheld is None and standing is not None:
                 # decided at the end on every view: whether it stands where another stood, see `finish`

@@ -14,7 +14,9 @@ pipeline from `ObservationConfig`: one bar for both).
 
 The object is a vertical cylinder of the category's size (`EvidenceConfig.sight_radius_m`,
 `sight_height_m`) standing at the place's center. Its pixels in a view are its projected area (the
-side's rectangle foreshortened by the view's elevation, the top's ellipse) times the share of its
+side's rectangle foreshortened by the view's elevation, the top's ellipse), times the claimed
+object's own size where its own views show it smaller than a median mug (`own_size`: a small cup
+seen from where a mug would just have shown would not have), times the share of its
 camera-facing surface samples not hidden: a sample is hidden when the depth at its pixel is more
 than `OCCLUSION_MARGIN_M` nearer than the sample, or missing (a black screen, the aligned
 sensor's band at an edge: nothing says what is behind). Where the place was empty the depth there
@@ -78,6 +80,9 @@ TURN_SCALE_M = 1.0
 # depth's noise (the Kinect's disparity step at 3 m, ~2.5 cm along the ray, under 1.5 cm in height
 # at the usual downward views); a mug's face seen there spans 5-7 cm.
 STANDING_M = 0.03
+# An object's own size (`own_size`) is read at this percentile of its views' pixels against the
+# cylinder's: its fullest views show it whole, the others partly hidden or cut by the support.
+OWN_SIZE_PERCENTILE = 90
 # A frame's flat stop (`STANDING_M`) counts as the place seen empty only where it saw at least this
 # share of the place's upper facing samples (not hidden by a nearer surface, not without depth): the
 # rest of its upper half hidden, the few rays left ending low say nothing of what stood in it.
@@ -106,7 +111,7 @@ class Sight:
     those, the ones whose depth passed through the place (the module docstring says how);
     `stopped`: the share of the upper facing samples the depth ended on in the best such frame that
     did not show it empty (NaN when every one did), `hidden_above`: the share of that frame's upper
-    facing samples hidden."""
+    facing samples hidden; `size`: the object's pixels as a share of the cylinder's (`own_size`)."""
 
     shown: bool
     pixels: float
@@ -121,6 +126,7 @@ class Sight:
     stopped: float = float("nan")
     stopped_frame: int | None = None
     hidden_above: float = float("nan")
+    size: float = 1.0
 
     @property
     def seen_empty(self) -> bool:
@@ -141,7 +147,8 @@ class Sight:
             return f"the {session}'s frames are not known"
         if self.in_view == 0:
             return f"never whole in view of the {session}'s {self.frames} frames within range"
-        best = (f"at best {self.pixels:.0f} px expected (frame {self.frame_index}, {self.distance_m:.1f} m away, "
+        size = "" if self.size >= 1 else f" for an object of its own size ({self.size:.0%} of a mug's)"
+        best = (f"at best {self.pixels:.0f} px expected{size} (frame {self.frame_index}, {self.distance_m:.1f} m away, "
                 f"{self.unhidden:.0%} not hidden) in {self.in_view} of the {session}'s {self.frames} frames")
         verb = "shown" if self.shown else f"not shown well enough to find an object there (< {self.min_pixels} px)"
         return f"{verb}: {best}"
@@ -211,9 +218,11 @@ class SessionViews:
             return None
         return np.array([self.poses[i][:3, 3] for i in position]).reshape(-1, 3)
 
-    def sight(self, place_world: np.ndarray, radius_m: float, height_m: float) -> Sight:
+    def sight(self, place_world: np.ndarray, radius_m: float, height_m: float, size: float = 1.0) -> Sight:
         """How well these frames showed an object of `radius_m` and `height_m` standing centred at
-        `place_world` (this session's world; the module docstring says how)."""
+        `place_world` (this session's world; the module docstring says how); `size`: the object's
+        pixels as a share of that cylinder's (`own_size`, at most 1), which scales the pixels that
+        decide `shown` and nothing else (the frames that judge emptiness are the cylinder's)."""
         rule = self.rule
         if not self.indices:
             return Sight(True, float("nan"), 0, min_pixels=rule.min_pixels)
@@ -267,10 +276,13 @@ class SessionViews:
         offsets = np.asarray(place_world, dtype=float) - cameras[frames]
         distance = np.linalg.norm(offsets, axis=1)
         elevation = np.abs(offsets[:, 2]) / np.maximum(distance, 1e-9)   # sin of the sight line's slope
-        area = 2 * radius_m * height_m * np.sqrt(1 - elevation**2) + np.pi * radius_m**2 * elevation
-        pixels = self.K[0, 0] * self.K[1, 1] * area / np.maximum(distance, 1e-9) ** 2 * unhidden
-        best = int(np.argmax(pixels))
+        pixels = self.K[0, 0] * self.K[1, 1] * projected_area(radius_m, height_m, elevation) / np.maximum(distance, 1e-9) ** 2 \
+            * unhidden
+        # the frames that judge whether the place was seen empty are the cylinder's own; the object's
+        # size (at most 1) only lowers what the best frame would have given it
         well = pixels >= rule.min_pixels
+        pixels = size * pixels
+        best = int(np.argmax(pixels))
         occupied = np.flatnonzero(well & ~empty)
         worst = int(occupied[np.argmax(pixels[occupied])]) if len(occupied) else None
         return Sight(bool(pixels[best] >= rule.min_pixels), float(pixels[best]), len(self), int(in_view.sum()),
@@ -278,7 +290,30 @@ class SessionViews:
                      int(well.sum()), int((well & empty).sum()),
                      float("nan") if worst is None else float(1 - n_through[worst] / max(n_upper[worst], 1)),
                      None if worst is None else self.indices[frames[worst]],
-                     float("nan") if worst is None else float(1 - n_upper[worst] / max(upper_facing[worst].sum(), 1)))
+                     float("nan") if worst is None else float(1 - n_upper[worst] / max(upper_facing[worst].sum(), 1)),
+                     size)
+
+
+def projected_area(radius_m: float, height_m: float, elevation: np.ndarray) -> np.ndarray:
+    """The area (m^2, at 1 m) a vertical cylinder shows a camera whose sight line to it slopes by
+    `elevation` (its sine): the side's rectangle foreshortened, and the top's ellipse."""
+    return np.asarray(2 * radius_m * height_m * np.sqrt(1 - elevation**2) + np.pi * radius_m**2 * elevation)
+
+
+def own_size(pixels: np.ndarray, cameras: np.ndarray, center: np.ndarray, K: np.ndarray, radius_m: float,
+             height_m: float) -> float:
+    """How large an object showed in its own views, as a share of a cylinder of `radius_m` x
+    `height_m` standing at its `center`: each view's pixels (`pixels`, 0: not known) over those the
+    cylinder would have given from that view's camera (`cameras`, (N, 3), the same world), at
+    `OWN_SIZE_PERCENTILE` of the views; at most 1, and 1 when no view's pixels are known."""
+    pixels = np.asarray(pixels, dtype=float)
+    known = pixels > 0
+    if not known.any():
+        return 1.0
+    offsets = np.asarray(center, dtype=float) - np.asarray(cameras, dtype=float)[known]
+    distance = np.maximum(np.linalg.norm(offsets, axis=1), 1e-9)
+    cylinder = K[0, 0] * K[1, 1] * projected_area(radius_m, height_m, np.abs(offsets[:, 2]) / distance) / distance**2
+    return float(min(1.0, np.percentile(pixels[known] / cylinder, OWN_SIZE_PERCENTILE)))
 
 
 def view_distance(pose: np.ndarray, poses: np.ndarray) -> np.ndarray:
