@@ -162,6 +162,30 @@ def test_a_synthetic_recording_with_estimated_poses_has_its_up_estimated(tmp_pat
     assert prepare_session(RecordingReader(short), "source").up_source.startswith("z (a synthetic")
 
 
+@pytest.mark.slow
+def test_the_up_from_the_patches_the_odometry_found_is_the_up_of_the_frames_read_again(tmp_path, monkeypatch):
+    # The odometry finds the up's frames' planar patches as it reads them; the up is then made
+    # from those and the poses, without reading the file again, and must be what reading gives.
+    import ndfa.run.world as world_module
+    from ndfa.run.world import UP_FRAMES, spread, up_under_poses
+    from ndfa.trajectory.up import estimate_up
+
+    short = _rewritten(SAMPLE / "source.mcap", tmp_path / "short.mcap", np.eye(4), {}, stop=14)
+    reader = RecordingReader(short)
+    positions = [0, 2, 3, 5, 7, 8, 10, 13]  # a run that uses some frames (`--rate`)
+
+    def unused(*args, **kwargs):
+        raise AssertionError("the up read the frames again")
+
+    with monkeypatch.context() as patched:
+        patched.setattr(world_module, "estimate_up", unused)
+        world = prepare_session(reader, "source", poses="estimate", positions=positions)
+    read_again = up_under_poses(estimate_up(
+        world.apply(f) for f in reader.frames(positions=spread(len(reader), UP_FRAMES, positions))), world.pose_quality)
+    assert world.up is not None and world.up.frames_used == len(positions)
+    assert {**world.up.to_dict(), "seconds": 0} == {**read_again.to_dict(), "seconds": 0}
+
+
 
 @pytest.mark.slow
 def test_estimated_poses_are_checked_backwards_only_when_asked(tmp_path, monkeypatch):

@@ -25,7 +25,9 @@ The odometry reads the frames the run uses (`positions`: every frame, or those o
 or `--rate`, `ndfa.run.rate`), and only those get poses; the up estimate and the scene cloud then
 look at those frames only (`spread`). `keep_depth` keeps, on the way, the depth of the frames the
 scene cloud is fused from (`ndfa.run.align.scene_cloud`), thinned as it thins them, so that the
-scene alignment need not read them again (`SessionWorld.kept_depth`).
+scene alignment need not read them again (`SessionWorld.kept_depth`). Where the up is to be
+estimated from the planes, the odometry finds the planar patches of the up's frames as it reads
+them too (`frame_patches`: they need no pose), so the file is not read again for the up.
 """
 
 from __future__ import annotations
@@ -51,7 +53,7 @@ from ndfa.trajectory.session import (
     frames_backwards,
     rgbd_config_for,
 )
-from ndfa.trajectory.up import UpEstimate, angle_deg, estimate_up
+from ndfa.trajectory.up import UpEstimate, angle_deg, estimate_up, frame_patches, up_from_patches
 from ndfa.trajectory.up_imu import imu_gravity, up_from_imu
 
 UpMode = Literal["auto", "z", "estimate"]
@@ -201,6 +203,8 @@ def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
     if poses not in POSE_MODES:
         raise ValueError(f"poses must be one of {POSE_MODES}, got {poses!r}")
     world = SessionWorld(session, pose_source="given", up_source="")
+    # The up's frames' planar patches in their cameras' frames, by frame index, where the odometry found them.
+    patches: dict[int, tuple[np.ndarray, np.ndarray]] | None = None
     if poses == "truth":
         world.poses, world.pose_source = _true_poses(reader), "true (the ground-truth channel)"
     elif poses == "estimate" or (poses == "auto" and not reader.has_poses):
@@ -208,8 +212,11 @@ def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
         kept: list[KeptFrame] = []
         if positions is not None and len(positions) < len(reader):
             world.posed = positions
+        if up != "z":  # estimated poses: the up is estimated (below)
+            patches = {}
         world.poses, world.pose_source, input_notes, truth, world.pose_quality = _estimate_poses(
-            reader, world.posed, check_poses_backward, None if keep_depth is None else (keep_depth, kept))
+            reader, world.posed, check_poses_backward, None if keep_depth is None else (keep_depth, kept),
+            None if patches is None else (set(spread(len(reader), UP_FRAMES, world.posed)), patches))
         if keep_depth is not None:
             world.kept_depth = (keep_depth, kept)
         world.seconds["odometry"] = time.perf_counter() - started
@@ -229,8 +236,13 @@ def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
     started = time.perf_counter()
     spread_out = spread(len(reader), UP_FRAMES, world.posed)  # among the frames with poses
     imu = _up_from_imu(reader, world, spread_out)
-    planes = estimate_up((world.apply(f) for f in reader.frames(positions=spread_out)),
-                         prior_up=None if imu is None else imu.up_world)
+    prior_up = None if imu is None else imu.up_world
+    if patches is not None and world.poses is not None and len(patches) == len(spread_out):
+        # in the order read: the frames at `spread_out`, as `reader.frames` gives them
+        planes = up_from_patches(((world.poses[index][:3, :3], *found) for index, found in patches.items()),
+                                 prior_up=prior_up, started=started)
+    else:
+        planes = estimate_up((world.apply(f) for f in reader.frames(positions=spread_out)), prior_up=prior_up)
     if imu is not None:
         # The IMU measures gravity; the planes check it (a wrong mounting in the tf, wrong poses).
         world.up, world.up_source, world.up_check = imu, "imu", planes
@@ -312,11 +324,13 @@ def _pose_error(estimate: dict[int, np.ndarray], truth: dict[int, np.ndarray]) -
 
 def _estimate_poses(reader: RecordingReader, positions: Sequence[int] | None = None, backward: bool = False,
                     keep: tuple[KeepDepth, list[KeptFrame]] | None = None,
+                    patches: tuple[set[int], dict[int, tuple[np.ndarray, np.ndarray]]] | None = None,
                     ) -> tuple[dict[int, np.ndarray], str, list[str], dict[int, np.ndarray], PoseQuality | None]:
     """The pose of every frame at `positions` (None: every frame) by odometry over the whole
     session (`ndfa.trajectory.session`) on those frames alone, how they were estimated, warnings
     about the input, the frames' true poses (those it has) and the poses' quality judged without
-    them. keep: the depth of the frames it picks is added to its list."""
+    them. keep: the depth of the frames it picks is added to its list. patches: the planar patches
+    (`frame_patches`) of the frames at these positions are added to the dict, by frame index."""
     truth: dict[int, np.ndarray] = {}
     used = range(len(reader)) if positions is None else positions
     kept_at = set() if keep is None else set(keep[0].positions(len(reader), positions))
@@ -330,6 +344,8 @@ def _estimate_poses(reader: RecordingReader, positions: Sequence[int] | None = N
             stride = keep[0].pixel_stride
             keep[1].append(KeptFrame(frame.index, frame.K, frame.pose_world_camera,
                                      frame.depth[::stride, ::stride].copy()))
+        if patches is not None and used[count] in patches[0]:
+            patches[1][frame.index] = frame_patches(frame)
         count += 1
 
     backward_frames = frames_backwards(reader, positions=positions) if backward else None

@@ -237,11 +237,24 @@ def estimate_up(frames: Iterable[Frame], config: UpConfig = UpConfig(), prior_up
         cameras must still have been upright.
     """
     started = time.perf_counter()
+    return up_from_patches(((frame.pose_world_camera[:3, :3], *frame_patches(frame, config)) for frame in frames),
+                           config, prior_up, started)
+
+
+def frame_patches(frame: Frame, config: UpConfig = UpConfig()) -> tuple[np.ndarray, np.ndarray]:
+    """(unit normals (n, 3) in the camera's frame, areas (n,)) of the frame's planar patches: what
+    `estimate_up` takes of a frame but its pose, so they can be found where the frame is read,
+    before its pose is known (`ndfa.run.world`: while the odometry reads it)."""
+    return planar_patches(frame.depth, frame.K, config.patches)
+
+
+def up_from_patches(views: Iterable[tuple[np.ndarray, np.ndarray, np.ndarray]], config: UpConfig = UpConfig(),
+                    prior_up: np.ndarray | None = None, started: float | None = None) -> UpEstimate:
+    """`estimate_up` of frames given as (camera-to-world rotation (3, 3), `frame_patches`' normals
+    and areas), one per frame."""
     rotations, normals, areas = [], [], []
-    for frame in frames:
-        rotation = frame.pose_world_camera[:3, :3]
+    for rotation, frame_normals, frame_areas in views:
         rotations.append(rotation)
-        frame_normals, frame_areas = planar_patches(frame.depth, frame.K, config.patches)
         if len(frame_normals) >= config.min_patches_per_frame:
             normals.append(frame_normals @ rotation.T)
             areas.append(frame_areas)
