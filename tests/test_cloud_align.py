@@ -108,3 +108,34 @@ def test_ties_between_identical_features_are_broken_as_open3d_breaks_them():
     expected = np.asarray(o3d.pipelines.registration.correspondences_from_features(feature(query), feature(reference),
                                                                                   True))
     np.testing.assert_array_equal(feature_correspondences(query, reference), expected)
+
+
+def test_icp_coarse_stages_pair_the_target_thinned_to_their_pairing_distance(monkeypatch):
+    import ndfa.run.cloud_align as cloud_align
+
+    rng = np.random.default_rng(5)
+    source, scene = _scene(rng), _scene(rng)  # two samplings of one scene
+    truth = make_pose(rotation_z(np.radians(6.0)), np.array([0.12, -0.08, 0.0]))  # target -> source
+    target = (scene - truth[:3, 3]) @ truth[:3, :3]
+    queried: list[int] = []
+    icp_yaw = cloud_align.icp_yaw
+
+    def counting(source_cloud, target_cloud, *args, **kwargs):
+        queried.append(len(target_cloud))
+        return icp_yaw(source_cloud, target_cloud, *args, **kwargs)
+
+    monkeypatch.setattr(cloud_align, "icp_yaw", counting)
+    config = AlignConfig()
+    found = {coarse: cloud_align.icp_coarse_to_fine(source, target, np.eye(4), AlignConfig(icp_coarse_voxels=coarse))
+             for coarse in (True, False)}
+    assert queried[3:] == [len(target)] * 3
+    assert queried[0] < queried[1] < queried[2] == len(target)  # 20 cm, 10 cm voxels, then all
+    for transform in found.values():
+        error = np.linalg.norm(cloud_align.apply_transform(transform, target) - cloud_align.apply_transform(truth, target),
+                               axis=1)
+        assert error.max() < 0.01
+    # the thinned clouds are `voxel_thin`'s, kept by content; the cloud itself at its own voxels
+    assert cloud_align.coarse_cloud(target, config.voxel_m, config) is target
+    coarse = cloud_align.coarse_cloud(target, 0.2, config)
+    np.testing.assert_array_equal(coarse, voxel_thin(target, 0.2))
+    assert cloud_align.coarse_cloud(target.copy(), 0.2, config) is coarse

@@ -47,6 +47,9 @@ class AlignConfig:
     ransac_iterations: int = 100_000
     icp_distance_m: float = 0.05     # closest points farther than this are not paired (1 voxel)
     icp_iterations: int = 30
+    # ICP's coarse stages (pairing within 4 and 2 x icp_distance_m) on the target thinned to voxels
+    # of their pairing distance (`icp_coarse_to_fine`); False: every stage on the whole target cloud.
+    icp_coarse_voxels: bool = True
     min_fitness: float = 0.4         # scene alignment: share of the target cloud within icp_distance_m of the source's
     binding_fitness: float = 0.6     # ... from which RANSAC's fits must agree with it (RegistrationPrior.binding)
     upright_max_nz: float = 0.5      # shared world: points whose normal has |z| below this are upright
@@ -185,11 +188,14 @@ class Described:
         return self._tree
 
 
-# The last clouds described, by content (`_described`), and the last clouds' k-d trees (`point_tree`).
+# The last clouds described, by content (`_described`), the last clouds' k-d trees (`point_tree`)
+# and the last clouds thinned for ICP's coarse stages (`coarse_cloud`).
 _DESCRIBED: dict[tuple[bytes, tuple[int, ...], float, float], Described] = {}
 _DESCRIBED_KEPT = 3
 _TREES: dict[tuple[bytes, tuple[int, ...]], cKDTree] = {}
 _TREES_KEPT = 4
+_COARSE: dict[tuple[bytes, tuple[int, ...], float], np.ndarray] = {}
+_COARSE_KEPT = 10
 
 
 def _content(points: np.ndarray) -> tuple[bytes, tuple[int, ...]]:
@@ -259,13 +265,34 @@ def _better(best: tuple[float, float, np.ndarray], source_cloud: np.ndarray, tar
 
 def icp_coarse_to_fine(source_cloud: np.ndarray, target_cloud: np.ndarray, initial: np.ndarray,
                        config: AlignConfig = AlignConfig()) -> np.ndarray:
-    """`icp_yaw` from `initial`, pairing within 4, then 2, then 1 x `icp_distance_m`."""
+    """`icp_yaw` from `initial`, pairing within 4, then 2, then 1 x `icp_distance_m`; with
+    `icp_coarse_voxels`, the two coarse stages pair the target thinned to voxels of their pairing
+    distance (`coarse_cloud`) with the whole source: a stage's pairs are that far apart anyway, and
+    a fifth to a tenth of the points take most of ICP's time off where most runs use all their
+    iterations (docs/speed.md, 2026-12-07)."""
     tree = point_tree(source_cloud)
     transform = initial
     for distance in (4 * config.icp_distance_m, 2 * config.icp_distance_m, config.icp_distance_m):
-        transform = icp_yaw(source_cloud, target_cloud, transform, dataclasses.replace(config, icp_distance_m=distance),
-                            tree)
+        target = coarse_cloud(target_cloud, distance, config) if config.icp_coarse_voxels else target_cloud
+        transform = icp_yaw(source_cloud, target, transform, dataclasses.replace(config, icp_distance_m=distance), tree)
     return transform
+
+
+def coarse_cloud(cloud: np.ndarray, voxel_m: float, config: AlignConfig = AlignConfig()) -> np.ndarray:
+    """`cloud` thinned to one point per `voxel_m` voxel (`voxel_thin`); `cloud` itself at voxels no
+    larger than the cloud's own (`config.voxel_m`). The last few kept, by content: every ICP run
+    onto the same target asks for the same."""
+    if voxel_m <= config.voxel_m:
+        return cloud
+    points = np.ascontiguousarray(cloud, dtype=np.float64)
+    key = (*_content(points), voxel_m)
+    thinned = _COARSE.pop(key, None)
+    if thinned is None:
+        thinned = voxel_thin(points, voxel_m)
+        while len(_COARSE) >= _COARSE_KEPT:
+            _COARSE.pop(next(iter(_COARSE)))
+    _COARSE[key] = thinned
+    return thinned
 
 
 def icp_yaw(source_cloud: np.ndarray, target_cloud: np.ndarray, initial: np.ndarray,
