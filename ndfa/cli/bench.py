@@ -192,8 +192,11 @@ def _bench_raw(source: Path, target: Path, before_ref: str | None, load: bool, r
             console.print(f"{row['label']}, {len(runs)} runs: frames/s {', '.join(f'{f:.1f}' for f in runs)}")
     if before_ref is not None:
         before = rows[0]
-        console.print(f"before ({before_ref}, ndfa detect in a child process, its start included): its target pass "
-                      + ", ".join(f"{k} {v:.1f}" for k, v in before["stage_ms_target"].items()) + " ms per target frame")
+        if "stage_ms_target" in before:  # a revision without `raw_pass`: its `ndfa detect`
+            console.print(f"before ({before_ref}, ndfa detect in a child process, its start included): its target pass "
+                          + ", ".join(f"{k} {v:.1f}" for k, v in before["stage_ms_target"].items()) + " ms per target frame")
+        else:
+            console.print(f"before ({before_ref}): its own raw pass in a child process, timed as now's")
         console.print(f"now over before: {now['fps'] / before['fps']:.2f}x the frames/s, "
                       f"{before['cpu_s'] / now['cpu_s']:.2f}x less CPU")
     if load:

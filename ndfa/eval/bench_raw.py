@@ -87,15 +87,25 @@ def _cpu_s() -> float:
 
 
 def raw_pass_of(tree: Path, ref: str, source: Path, target: Path, threads: int = 1, frame_step: int = 1) -> dict:
-    """`ndfa detect SOURCE TARGET --json` as the code of git revision `ref` of this checkout runs it
-    (its files in `tree`, from `ndfa.eval.revision.revision_tree`; run in a child process):
+    """The raw pass as the code of git revision `ref` of this checkout runs it (its files in `tree`,
+    from `ndfa.eval.revision.revision_tree`; run in a child process): that revision's own `raw_pass`
+    where it has one (every stage, timed as now's), else `ndfa detect SOURCE TARGET --json`:
     `wall_s`, `fps`, `cpu_s` (the child's), `score`, and the stage timings its summary gives
-    (`stage_ms_target`: ms per target frame of the target pass). The wall and CPU time include the
-    child's start (Python, the NDF's loading: a few seconds), which the in-process `raw_pass` leaves out."""
+    (`stage_ms_target`: ms per target frame of the target pass). The wall and CPU time of the
+    latter include the child's start (Python, the NDF's loading: a few seconds), which `raw_pass`
+    leaves out."""
     import json
 
     from ndfa.io.recording import RecordingReader
 
+    module = tree / "ndfa" / "eval" / "bench_raw.py"
+    if module.is_file() and "def raw_pass(" in (text := module.read_text()) and "frame_step: int" in text:
+        out = tree / "raw_pass.json"
+        run_in_tree(tree, ref, ["-c", _RAW_PASS_IN_CHILD, str(source.resolve()), str(target.resolve()), str(threads),
+                                str(frame_step), str(out)], "its raw pass")
+        before: dict = json.loads(out.read_text())
+        return before | {"score": None if before["score"] is None else tuple(before["score"]),
+                         "stages": f"as its raw pass ran them ({before['stages']})"}
     summary = tree / "summary.json"
     wall_s, cpu_s = run_in_tree(tree, ref, ["-c", "from ndfa.cli import main; main()", "detect", str(source.resolve()),
                                             str(target.resolve()), "--threads", str(threads),
@@ -106,6 +116,17 @@ def raw_pass_of(tree: Path, ref: str, source: Path, target: Path, threads: int =
             "stage_ms": {}, "stage_ms_target": result.get("stage_ms", {}),
             "score": (result["tp"], result["fp"], result["fn"]) if "tp" in result else None,
             "stages": "as ndfa detect ran them at that revision", "machine": machine()}
+
+
+# What the before's child runs where its revision has `raw_pass` (`raw_pass_of`): argv source,
+# target, threads, frame step, the JSON to write.
+_RAW_PASS_IN_CHILD = """
+import json, sys
+from pathlib import Path
+from ndfa.eval.bench_raw import raw_pass
+result = raw_pass(Path(sys.argv[1]), Path(sys.argv[2]), threads=int(sys.argv[3]), frame_step=int(sys.argv[4]))
+Path(sys.argv[5]).write_text(json.dumps(result))
+"""
 
 
 def raw_pass_runs(source: Path, target: Path, now: PipelineConfig | None = None, before_ref: str | None = None,
