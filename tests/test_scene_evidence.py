@@ -112,7 +112,8 @@ def test_the_turn_search_leaves_the_basin_where_the_smaller_part_of_a_bent_cloud
     assert np.abs(apply(found, target[len(target_left):]) - apply(right_fits, target[len(target_left):])).max() < 0.02
     # Where the alignment is already the best, the search keeps it.
     kept_fitness, _, kept = turn_search(source, target, found, config)
-    assert kept_fitness == pytest.approx(fitness) and np.abs(apply(kept, target) - apply(found, target)).max() < 0.005
+    # (a point more or less may fit: the coarse stages pair a thinned target, `AlignConfig.icp_coarse_voxels`)
+    assert kept_fitness == pytest.approx(fitness, abs=1e-3) and np.abs(apply(kept, target) - apply(found, target)).max() < 0.005
 
 
 def _measure(codes: dict[int, np.ndarray], centers: dict[int, np.ndarray], frame: int) -> list[Measurement]:
