@@ -253,16 +253,21 @@ def test_ingest_tum_with_estimated_poses_runs_the_whole_session_estimate(tmp_pat
 
 
 def test_the_same_frames_give_the_same_poses_and_the_thread_limit_is_restored():
-    """Open3D's reductions meet in the order its threads finish: without the one-thread limit
-    (`ndfa.trajectory.open3d_threads`) this test failed in each of four tries on 2 cores."""
+    """Open3D's reductions meet in the order its threads finish, so the odometry runs them on one
+    thread (`ndfa.trajectory.open3d_threads`). Even so Open3D 0.20's RGB-D odometry is not
+    bit-reproducible on every CPU: on an AMD EPYC (2026-12-07) one call with the same owned inputs,
+    one thread, one core, gave transforms 1e-5 to 1e-4 m apart from call to call, which this bare
+    clip amplifies to 2.7-4.5 mm of ATE between two runs (each about 3 cm off the truth). So two
+    runs must agree to well within the odometry's own error, not to the bit."""
     import open3d as o3d
 
     from ndfa.trajectory.session import estimate_session_poses
 
     before = o3d.utility.get_max_threads()
     frames = clip(8)
-    first, second = (np.stack(estimate_session_poses(frames, "rgbd", "clip").poses) for _ in range(2))
-    assert np.array_equal(first, second)
+    first, second = (estimate_session_poses(frames, "rgbd", "clip").poses for _ in range(2))
+    truth = [frame.pose_world_camera for frame in frames]
+    assert absolute_trajectory_error(first, second).rmse_m < absolute_trajectory_error(first, truth).rmse_m / 3
     assert o3d.utility.get_max_threads() == before
 
 

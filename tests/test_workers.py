@@ -90,7 +90,18 @@ def test_a_run_with_a_worker_process_gives_what_it_gives_in_one(small_raw_pair):
             for workers in (1, 2)}
     one, two = (untimed(runs[w].summary()) for w in (1, 2))
     assert two["world"]["target"]["poses"].startswith("estimated")
-    assert one == two
+    # The same run either way: the same frames through the same stages, the worlds estimated the same
+    # way with the same verdicts, the scene alignment run on them. Not its figures and decisions to
+    # the bit: Open3D's RGB-D odometry is not bit-reproducible on every CPU (tests/test_trajectory_rgbd.py,
+    # "the same frames"), and on this bare pair two in-process runs differ already (an AMD EPYC,
+    # 2026-12-07: 1 target object or none); before, on other machines, the summaries were equal.
+    assert one.keys() == two.keys()
+    assert [one[k] for k in ("frames", "frames_source", "frames_target")] == [two[k] for k in ("frames", "frames_source", "frames_target")]
+    for session in ("source", "target"):
+        worlds = one["world"][session], two["world"][session]
+        assert worlds[0]["poses"] == worlds[1]["poses"] and worlds[0]["up"] == worlds[1]["up"]
+        assert (worlds[0]["pose_quality"] or {}).get("verdict") == (worlds[1]["pose_quality"] or {}).get("verdict")
+    assert one["scene_alignment"]["method"] == two["scene_alignment"]["method"]
     # The worker's timings came back with its results.
     assert runs[2].worlds["target"].seconds["odometry"] > 0
     assert runs[2].alignment is not None and runs[2].alignment.seconds > 0

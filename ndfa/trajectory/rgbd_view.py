@@ -80,14 +80,22 @@ def prepare_view(frame: Frame, config: RgbdOdometryConfig, defer_features: bool 
             features = detect_features(gray, full_depth, frame.K, config.features)
     K = frame.K.copy()
     K[:2] /= step  # pixel (step*i) becomes pixel i: centres at integer coordinates stay so
-    rgbd = o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(np.ascontiguousarray(rgb)),
-                                    o3d.t.geometry.Image(np.ascontiguousarray(depth[..., None])))
+    rgbd = o3d.t.geometry.RGBDImage(_owned_image(rgb), _owned_image(depth[..., None]))
     return View(rgbd=rgbd, features=features, K=o3d.core.Tensor(K), plane_information=plane_information(depth, K),
                 unseen_information=unseen_information(depth, K),
                  median_depth_m=float(np.median(depth[valid])) if valid.any() else 1.0,
                  valid_fraction=float(valid.mean()),
                  textured=frame.rgb is not None and textured_fraction(rgb, valid, config.gradient_threshold) >= config.textured_fraction,
                  coloured=frame.rgb is not None, pending=pending)
+
+
+def _owned_image(array: np.ndarray) -> object:
+    """An Open3D image holding its own copy of `array`. `o3d.t.geometry.Image(array)` shares the
+    numpy buffer without keeping it alive: once the array is freed the image reads whatever memory
+    takes its place, and the same frames gave other poses from run to run (2026-12-07)."""
+    import open3d as o3d
+
+    return o3d.t.geometry.Image(o3d.core.Tensor(np.ascontiguousarray(array)))
 
 
 def local_contrast(view: View, sigma_px: float, gain: float) -> View:
@@ -107,7 +115,7 @@ def local_contrast(view: View, sigma_px: float, gain: float) -> View:
         gray = rgb.astype(np.float32) @ np.array([0.299, 0.587, 0.114], np.float32)
         detail = gray - cv2.GaussianBlur(gray, (0, 0), sigmaX=sigma_px)
         image = np.clip(128.0 + gain * detail + 0.5, 0.0, 255.0).astype(np.uint8)
-        rgbd = o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(np.ascontiguousarray(np.repeat(image[..., None], 3, axis=2))),
+        rgbd = o3d.t.geometry.RGBDImage(_owned_image(np.repeat(image[..., None], 3, axis=2)),
                                         view.rgbd.depth)  # type: ignore[attr-defined]
         view.contrast = dataclasses.replace(view, rgbd=rgbd)
     return view.contrast
