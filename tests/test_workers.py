@@ -135,7 +135,11 @@ def test_poses_are_estimated_on_the_frames_the_run_uses_alone(small_raw_pair):
 @pytest.mark.slow
 def test_a_run_at_a_frame_step_estimates_and_uses_every_nth_frame(small_raw_pair):
     paths = small_raw_pair / "source.mcap", small_raw_pair / "target.mcap"
-    result = run_detection(*paths, PipelineConfig(), options=RunOptions(frame_step=2, workers=2))
+    # The world's up is given (the simulator's is z): estimated from this pair's poses at every 2nd
+    # frame (0.6 m apart) it sits at its bar's edge, and Open3D's odometry, not bit-reproducible, put
+    # it over once (CI, 2026-12-07: the cameras' -y 47.8 deg RMS from up, bar 45). This test is of
+    # the frame step, not of the up.
+    result = run_detection(*paths, PipelineConfig(), options=RunOptions(frame_step=2, workers=2, up="z"))
     for name, path in zip(("source", "target"), paths):
         reader = RecordingReader(path)
         assert result.frames[name] == len(range(0, len(reader), 2))
