@@ -28,7 +28,11 @@ class SceneEvidenceConfig:
     max_rmse_m: float = 0.03      # their RMS distance
     agree_m: float = 0.05         # each half's own alignment this close to the whole's, at the half's center ...
     agree_deg: float = 2.0        # ... and turned this little against it about up
-    contradict_margin: float = 0.05  # a half elsewhere that fits this much better than at the whole's contradicts it
+    # A half's own alignment that moves its points less than bend_m (RMS) from the whole's is within
+    # the coarse ICP's reach (its first stage pairs within 4 x icp_distance_m): a bent cloud, not
+    # another registration. Beyond it, a half fitting contradict_margin better than at the whole's contradicts.
+    bend_m: float = 0.20
+    contradict_margin: float = 0.05
     min_agreeing: int = 1         # halves (of four) that must agree (a box room's halves fit themselves turned)
     rival_ratio: float = 0.8      # the alignment turned or shifted to a rival must overlap less than this share of it
     min_half_points: int = 100    # fewer upright points (or points in a half) cannot be judged: weak

@@ -15,12 +15,16 @@ its evidence is strong, each figure measured on the clouds:
   (four halves, two disjoint pairs); each half is aligned onto the source from scratch (its own
   FPFH + RANSAC, its own ICP; nothing of the whole's result). A half *agrees* when it lands where
   the whole did (within `agree_m` at the half's center and `agree_deg` about up); it *contradicts*
-  when it lands elsewhere and fits better there than at the whole's alignment (by more than
-  `contradict_margin` of its points); otherwise it says nothing (a half that fits itself turned
-  half a turn as well, or whose own search found a poorer fit). No half may contradict, and at
-  least `min_agreeing` must agree. Poses that bent a session's cloud (odometry that failed), or a
-  scene that aligns several ways (rooms of identical tables, a corridor), make the halves land in
-  different places.
+  when it lands elsewhere, beyond the ICP's reach of the whole's alignment (its points moved by
+  more than `bend_m`, RMS), and fits better there than at the whole's alignment (by more than
+  `contradict_margin` of its points). A half that lands within reach but outside the agreement's
+  bars is *bent*: a cloud the odometry bent a few centimetres or degrees, whose halves each fit a
+  little apart. Otherwise a half says nothing (one that fits itself turned half a turn as well, or
+  whose own search found a poorer fit). No half may contradict, and at least `min_agreeing` must
+  agree, or all four must land within reach (agree or be bent): one registration of a bent cloud,
+  whose precision the rmse bar above judges. Poses that bent a session's cloud far (odometry that
+  failed), or a scene that aligns several ways (rooms of identical tables, a corridor), make the
+  halves land in different places.
 - **no rival**: the whole alignment turned by 90, 180 and 270 degrees about the target's center,
   or shifted by 0.6 or 1.2 m along x or y, and refined by ICP, must overlap clearly less
   (`rival_ratio`): a rectangular room fits itself turned half a turn, a row of identical tables
@@ -63,11 +67,13 @@ class SubsetCheck:
     shift_m: float       # horizontal distance, at the half's center, between its alignment and the whole's
     turn_deg: float      # turn about up between them
     fitness_at_whole: float  # the half's fitness at the whole's alignment (refined by ICP from it)
+    moved_m: float = float("inf")  # RMS horizontal distance between the half's points under its alignment and the whole's
 
     def as_dict(self) -> dict:
         return {"half": self.half, "points": self.points, "fitness": round(self.fitness, 3),
                 "shift_m": round(self.shift_m, 4), "turn_deg": round(self.turn_deg, 2),
-                "fitness_at_whole": round(self.fitness_at_whole, 3)}
+                "fitness_at_whole": round(self.fitness_at_whole, 3),
+                "moved_m": round(self.moved_m, 4) if np.isfinite(self.moved_m) else None}
 
 
 @dataclass(frozen=True)
@@ -97,7 +103,10 @@ class OwnEvidence:
             agreeing = [s for s, v in zip(self.subsets, verdicts) if v == "agrees"]
             worst = "" if not agreeing else \
                 f" within {max(s.shift_m for s in agreeing) * 100:.1f} cm, {max(s.turn_deg for s in agreeing):.1f} deg"
-            parts.append(f"{len(agreeing)}/{len(self.subsets)} independent halves agree{worst}, "
+            bent = [s for s, v in zip(self.subsets, verdicts) if v == "bent"]
+            within = "" if not bent else \
+                f", {len(bent)} bent (within {max(s.moved_m for s in bent) * 100:.1f} cm RMS)"
+            parts.append(f"{len(agreeing)}/{len(self.subsets)} independent halves agree{worst}{within}, "
                          f"{verdicts.count('contradicts')} contradict")
         if np.isfinite(self.rival_fitness):
             parts.append(f"best rival {self.rival_fitness:.2f}")
@@ -112,14 +121,22 @@ class OwnEvidence:
                 "rival_fitness": number(self.rival_fitness)}
 
     def verdict(self, subset: SubsetCheck) -> str:
-        """"agrees", "contradicts" or "silent" (see the module docstring)."""
+        """"agrees", "bent", "contradicts" or "silent" (see the module docstring)."""
         if subset.points < self.config.min_half_points:
             return "silent"
         if subset.shift_m <= self.config.agree_m and subset.turn_deg <= self.config.agree_deg:
             return "agrees"
+        if subset.moved_m <= self.config.bend_m:
+            return "bent"
         if subset.fitness > subset.fitness_at_whole + self.config.contradict_margin:
             return "contradicts"
         return "silent"
+
+    def halves_hold(self) -> bool:
+        """`min_agreeing` halves agree, or all four land within reach (agree or are bent)."""
+        verdicts = [self.verdict(s) for s in self.subsets]
+        return verdicts.count("agrees") >= self.config.min_agreeing or \
+            (len(verdicts) == 4 and all(v in ("agrees", "bent") for v in verdicts))
 
 
 def own_evidence(source_cloud: np.ndarray, target_cloud: np.ndarray, transform: np.ndarray,
@@ -145,10 +162,10 @@ def own_evidence(source_cloud: np.ndarray, target_cloud: np.ndarray, transform: 
         return dataclasses.replace(evidence, reason=(
             f"the half {s.half} fits better {s.shift_m * 100:.0f} cm / {s.turn_deg:.0f} deg from the whole's "
             f"alignment ({s.fitness:.2f} against {s.fitness_at_whole:.2f})"))
-    agreeing = sum(evidence.verdict(s) == "agrees" for s in subsets)
-    if agreeing < config.min_agreeing:
+    if not evidence.halves_hold():
+        agreeing = sum(evidence.verdict(s) == "agrees" for s in subsets)
         return dataclasses.replace(evidence, reason=f"{agreeing} independent halves agree with it, fewer than "
-                                                    f"{config.min_agreeing}")
+                                                    f"{config.min_agreeing}, and not all land within reach")
     rival = _rival_fitness(source_cloud, target_cloud, source_upright, target_upright, transform, align)
     evidence = dataclasses.replace(evidence, rival_fitness=rival)
     if rival >= config.rival_ratio * fitness:
@@ -175,8 +192,9 @@ def _subset_checks(source_cloud: np.ndarray, target_cloud: np.ndarray, transform
             shift = apply_transform(own_transform, center[None])[0] - apply_transform(transform, center[None])[0]
             difference = own_transform[:3, :3] @ transform[:3, :3].T
             turn = abs(float(np.degrees(np.arctan2(difference[1, 0], difference[0, 0]))))
+            moved = apply_transform(own_transform, points)[:, :2] - apply_transform(transform, points)[:, :2]
             checks.append(SubsetCheck(name + side, len(points), own_fitness, float(np.linalg.norm(shift[:2])), turn,
-                                      at_whole))
+                                      at_whole, float(np.sqrt(np.mean(np.sum(moved**2, axis=1))))))
     return checks
 
 
