@@ -110,6 +110,28 @@ def test_a_half_that_fits_better_within_the_icps_reach_is_a_bend_and_one_beyond_
     assert not dataclasses.replace(evidence, subsets=halves[:3] + (far,)).halves_hold()
 
 
+@pytest.mark.slow
+def test_a_wrong_alignment_moves_to_where_a_contradicting_half_fits_the_whole_better():
+    # RANSAC stops at its first fit above the bar; a room fits itself half a turn off on its floor.
+    # The halves, aligned on their own, land on the right alignment, and the whole fits better there.
+    from ndfa.run.scene_evidence import better_from_halves
+
+    rng = np.random.default_rng(3)
+    def scan() -> np.ndarray:  # a closed box room: turned half a turn, its walls fit
+        return voxel_thin(np.concatenate([_room(rng), _plane(rng, [0, 0, 0], [5, 0, 0], [0, 0, 2], 2500)]), 0.05)
+
+    source, target = np.concatenate([scan() for _ in range(2)]), scan()  # the source denser: a small rmse
+    config = AlignConfig()
+    pivot = np.array([2.5, 2.0, 0.0])
+    turned = icp_coarse_to_fine(source, target, make_pose(rotation_z(np.pi), pivot - rotation_z(np.pi) @ pivot), config)
+    wrong_fitness = overlap(source, target, turned, config.icp_distance_m)[0]
+    evidence = own_evidence(source, target, turned, config)
+    assert not evidence.ok and "fits better" in evidence.reason, evidence.describe()
+    better = better_from_halves(source, target, evidence, wrong_fitness, config)
+    assert better is not None and better[1] > wrong_fitness + 0.05
+    np.testing.assert_allclose(better[0], np.eye(4), atol=0.03)
+
+
 def _two_parts(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """Boxes on the left (few points) and on the right (more), with nothing between them."""
     left = [(0.2, 0.5, (0.4, 0.3, 0.5)), (0.6, 2.0, (0.3, 0.6, 0.8))]

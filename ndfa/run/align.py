@@ -36,7 +36,7 @@ from ndfa.core.events import RegistrationMethod
 from ndfa.core.geometry import backproject, make_pose, rotation_z
 from ndfa.io.recording import RecordingReader
 from ndfa.run.cloud_align import AlignConfig, apply_transform, global_alignment, overlap, upright, voxel_thin
-from ndfa.run.scene_evidence import OwnEvidence, own_evidence
+from ndfa.run.scene_evidence import OwnEvidence, better_from_halves, own_evidence
 from ndfa.run.world import KeepDepth, KeptFrame, SessionWorld
 
 RegistrationMode = Literal["auto", "objects", "shared-world", "scene"]
@@ -116,9 +116,27 @@ def registration_prior(source: RecordingReader, target: RecordingReader, worlds:
         # (given poses in different worlds can overlap that much by chance); its own evidence asks
         # what a found alignment must show, halves aligned from scratch and no rival included.
         result.evidence = own_evidence(source_cloud, target_cloud, result.transform, config)
+        if result.method == "scene alignment":
+            _move_to_a_better_half(source_cloud, target_cloud, result, config)
         unbind_without_upright_overlap(result)
     result.seconds = time.perf_counter() - started
     return result
+
+
+def _move_to_a_better_half(source_cloud: np.ndarray, target_cloud: np.ndarray, alignment: SceneAlignment,
+                           config: AlignConfig) -> None:
+    """Where a half that contradicts the alignment (`better_from_halves`) fits the whole target
+    better, the alignment moves there and is judged again, once."""
+    assert alignment.evidence is not None and alignment.transform is not None
+    better = better_from_halves(source_cloud, target_cloud, alignment.evidence, alignment.fitness, config)
+    if better is None:
+        return
+    transform, fitness, rmse = better
+    alignment.reason += (f"; moved to where a half's own alignment put it: the whole fits {fitness:.2f} there, "
+                         f"{alignment.fitness:.2f} at RANSAC's")
+    alignment.transform, alignment.fitness, alignment.rmse_m = transform, fitness, rmse
+    alignment.binding = fitness >= config.binding_fitness
+    alignment.evidence = own_evidence(source_cloud, target_cloud, transform, config)
 
 
 def unbind_without_upright_overlap(alignment: SceneAlignment) -> None:

@@ -68,6 +68,7 @@ class SubsetCheck:
     turn_deg: float      # turn about up between them
     fitness_at_whole: float  # the half's fitness at the whole's alignment (refined by ICP from it)
     moved_m: float = float("inf")  # RMS horizontal distance between the half's points under its alignment and the whole's
+    transform: np.ndarray | None = field(default=None, compare=False, repr=False)  # the half's own alignment
 
     def as_dict(self) -> dict:
         return {"half": self.half, "points": self.points, "fitness": round(self.fitness, 3),
@@ -174,6 +175,23 @@ def own_evidence(source_cloud: np.ndarray, target_cloud: np.ndarray, transform: 
     return dataclasses.replace(evidence, ok=True, reason="the static scene registers the sessions on its own")
 
 
+def better_from_halves(source_cloud: np.ndarray, target_cloud: np.ndarray, evidence: OwnEvidence,
+                       fitness: float, align: AlignConfig = AlignConfig()) -> tuple[np.ndarray, float, float] | None:
+    """(transform, fitness, rmse) of the whole target cloud at a contradicting half's own alignment,
+    refined by ICP, where the whole fits there better than `fitness` (its alignment's) by the
+    contradiction's margin; else None. RANSAC stops at its first fit above the bar, and a room
+    can fit itself half a turn off well enough (a furnished room: 0.76 there, 0.96 at the half's)."""
+    best = None
+    for subset in evidence.subsets:
+        if evidence.verdict(subset) != "contradicts" or subset.transform is None:
+            continue
+        transform = icp_coarse_to_fine(source_cloud, target_cloud, subset.transform, align)
+        found, rmse = overlap(source_cloud, target_cloud, transform, align.icp_distance_m)
+        if found > fitness + evidence.config.contradict_margin and (best is None or found > best[1]):
+            best = (transform, found, rmse)
+    return best
+
+
 def _subset_checks(source_cloud: np.ndarray, target_cloud: np.ndarray, transform: np.ndarray,
                    align: AlignConfig) -> list[SubsetCheck]:
     """Each half of the target cloud (either side of its median x, then y) aligned from scratch."""
@@ -194,7 +212,7 @@ def _subset_checks(source_cloud: np.ndarray, target_cloud: np.ndarray, transform
             turn = abs(float(np.degrees(np.arctan2(difference[1, 0], difference[0, 0]))))
             moved = apply_transform(own_transform, points)[:, :2] - apply_transform(transform, points)[:, :2]
             checks.append(SubsetCheck(name + side, len(points), own_fitness, float(np.linalg.norm(shift[:2])), turn,
-                                      at_whole, float(np.sqrt(np.mean(np.sum(moved**2, axis=1))))))
+                                      at_whole, float(np.sqrt(np.mean(np.sum(moved**2, axis=1)))), own_transform))
     return checks
 
 
