@@ -275,9 +275,7 @@ class SessionViews:
         empty = (n_through >= n_upper - n_through) | (saw_upper & (rise < STANDING_M))
         offsets = np.asarray(place_world, dtype=float) - cameras[frames]
         distance = np.linalg.norm(offsets, axis=1)
-        elevation = np.abs(offsets[:, 2]) / np.maximum(distance, 1e-9)   # sin of the sight line's slope
-        pixels = self.K[0, 0] * self.K[1, 1] * projected_area(radius_m, height_m, elevation) / np.maximum(distance, 1e-9) ** 2 \
-            * unhidden
+        pixels = cylinder_pixels(self.K, radius_m, height_m, offsets) * unhidden
         # the frames that judge whether the place was seen empty are the cylinder's own; the object's
         # size (at most 1) only lowers what the best frame would have given it
         well = pixels >= rule.min_pixels
@@ -300,6 +298,14 @@ def projected_area(radius_m: float, height_m: float, elevation: np.ndarray) -> n
     return np.asarray(2 * radius_m * height_m * np.sqrt(1 - elevation**2) + np.pi * radius_m**2 * elevation)
 
 
+def cylinder_pixels(K: np.ndarray, radius_m: float, height_m: float, offsets: np.ndarray) -> np.ndarray:
+    """The pixels a vertical cylinder of `radius_m` x `height_m` covers, unhidden, in each view
+    whose camera sees its center at `offsets` ((N, 3): center less camera, in a z-up world)."""
+    distance = np.maximum(np.linalg.norm(offsets, axis=1), 1e-9)
+    elevation = np.abs(offsets[:, 2]) / distance  # sin of the sight line's slope
+    return np.asarray(K[0, 0] * K[1, 1] * projected_area(radius_m, height_m, elevation) / distance**2)
+
+
 def own_size(pixels: np.ndarray, cameras: np.ndarray, center: np.ndarray, K: np.ndarray, radius_m: float,
              height_m: float) -> float:
     """How large an object showed in its own views, as a share of a cylinder of `radius_m` x
@@ -310,9 +316,7 @@ def own_size(pixels: np.ndarray, cameras: np.ndarray, center: np.ndarray, K: np.
     known = pixels > 0
     if not known.any():
         return 1.0
-    offsets = np.asarray(center, dtype=float) - np.asarray(cameras, dtype=float)[known]
-    distance = np.maximum(np.linalg.norm(offsets, axis=1), 1e-9)
-    cylinder = K[0, 0] * K[1, 1] * projected_area(radius_m, height_m, np.abs(offsets[:, 2]) / distance) / distance**2
+    cylinder = cylinder_pixels(K, radius_m, height_m, np.asarray(center, dtype=float) - np.asarray(cameras, dtype=float)[known])
     return float(min(1.0, np.percentile(pixels[known] / cylinder, OWN_SIZE_PERCENTILE)))
 
 

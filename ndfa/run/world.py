@@ -216,7 +216,7 @@ def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
             patches = {}
         world.poses, world.pose_source, input_notes, truth, world.pose_quality = _estimate_poses(
             reader, world.posed, check_poses_backward, None if keep_depth is None else (keep_depth, kept),
-            None if patches is None else (set(spread(len(reader), UP_FRAMES, world.posed)), patches))
+            None if patches is None else (set(_up_positions(reader, world)), patches))
         if keep_depth is not None:
             world.kept_depth = (keep_depth, kept)
         world.seconds["odometry"] = time.perf_counter() - started
@@ -234,7 +234,7 @@ def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
         world.up_source = "z (a synthetic recording's world is z-up)"
         return world
     started = time.perf_counter()
-    spread_out = spread(len(reader), UP_FRAMES, world.posed)  # among the frames with poses
+    spread_out = _up_positions(reader, world)
     imu = _up_from_imu(reader, world, spread_out)
     prior_up = None if imu is None else imu.up_world
     if patches is not None and world.poses is not None and len(patches) == len(spread_out):
@@ -320,6 +320,11 @@ def _pose_error(estimate: dict[int, np.ndarray], truth: dict[int, np.ndarray]) -
     rpe = relative_pose_error([estimate[i] for i in indices], [truth[i] for i in indices])
     return {"frames": len(indices), "ate_rmse_m": ate.rmse_m, "ate_max_m": ate.max_m,
             "rpe_translation_m": rpe.translation_rmse_m, "rpe_rotation_deg": rpe.rotation_rmse_deg}
+
+
+def _up_positions(reader: RecordingReader, world: SessionWorld) -> list[int]:
+    """The positions of the frames the up is estimated from: `UP_FRAMES` spread among those with poses."""
+    return spread(len(reader), UP_FRAMES, world.posed)
 
 
 def _estimate_poses(reader: RecordingReader, positions: Sequence[int] | None = None, backward: bool = False,
