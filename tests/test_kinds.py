@@ -123,3 +123,35 @@ def test_the_decisions_table_says_whether_each_change_is_of_the_right_kind(tmp_p
     per_kind = decisions.filter("reported").group_by("kind").agg(pl.len(), pl.col("kind_right").sum()).sort("kind")
     assert per_kind.rows() == [("added", 1, 0), ("moved", 2, 1), ("removed", 1, 1)]
     assert decisions["partner_instance_ids"].to_list()[1:3] == [[1], [3]]
+
+
+def test_a_removed_mug_and_an_added_mug_of_one_model_are_a_move_to_any_observer(tmp_path):
+    import polars as pl
+
+    from ndfa.io.recording.ground_truth import REAL_MODEL, identical_moves
+    from ndfa.log.table_sink import TableSink
+
+    # Mugs 1 and 2 are one model (as the random preset draws a model for several places), 3 another,
+    # 5 and 6 the recording's own objects (`ndfa plant`), which are no one's twins.
+    truth = {"objects": [{"instance_id": 1, "model_id": "mug-7", "change": "removed"},
+                         {"instance_id": 2, "model_id": "mug-7", "change": "added"},
+                         {"instance_id": 3, "model_id": "mug-8", "change": "added"},
+                         {"instance_id": 4, "model_id": "mug-7", "change": "unchanged"},
+                         {"instance_id": 5, "model_id": REAL_MODEL, "change": "removed"},
+                         {"instance_id": 6, "model_id": REAL_MODEL, "change": "added"}]}
+    assert identical_moves(truth) == {(1, 2)}
+    kinds = [KindReport("moved", 2, 1),   # mug 1's twin where mug 1 was not: a move as far as any view says
+             KindReport("moved", 3, 1),   # another model: not a move
+             KindReport("moved", 6, 5)]   # two real objects: not a move
+    result = score([2, 3, 6], truth, kinds=kinds)
+    assert result.kinds == {"moved": (3, 1)}
+    assert result.kinds_found == {"removed": (2, 1), "added": (3, 1)}  # mugs 1 and 2 named rightly, by one move
+
+    sink = TableSink(tmp_path, {1: "removed", 2: "added", 3: "added"}, identical_moves=identical_moves(truth))
+    here = np.zeros(3)
+    for ids, partner in (((2,), (1,)), ((3,), (1,))):
+        sink.log(DecisionEvent(frame_index=0, session="target", object_id=ids[0], kind="moved", reason="",
+                               center_world=here, center_source=here, instance_ids=ids, partner_instance_ids=partner,
+                               score=0.7))
+    sink.close()
+    assert pl.read_parquet(tmp_path / "decisions.parquet")["kind_right"].to_list() == [True, False]

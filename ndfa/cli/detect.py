@@ -28,7 +28,7 @@ from ndfa.cli.checks import (
 from ndfa.core.errors import OptionError
 from ndfa.io.atomic import atomic_path
 from ndfa.io.recording import RecordingReader
-from ndfa.io.recording.ground_truth import changed_instances
+from ndfa.io.recording.ground_truth import changed_instances, identical_moves
 from ndfa.perception.segmentation_config import GATES
 from ndfa.run.align import REGISTRATION_MODES
 from ndfa.run.rate import used_positions
@@ -193,7 +193,9 @@ def detect_command(
         from ndfa.log.table_sink import TableSink  # lazy: polars takes a third of a second
 
         truth = RecordingReader(target).ground_truth
-        sinks.append(TableSink(tables, changed_instances(truth) if truth and "objects" in truth else None))
+        known = truth is not None and "objects" in truth
+        sinks.append(TableSink(tables, changed_instances(truth) if known else None,
+                               identical_moves=identical_moves(truth) if known else frozenset()))
     with progress_bar() as progress:
         result = score_detection(run_detection(
             source, target, config, sinks, options, on_frame=bar_per_label(progress), pipeline=pipeline,

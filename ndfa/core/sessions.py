@@ -37,13 +37,15 @@ class PairEvent:
     """The registration, graph and decision events that follow compare session `source` (index
     `index`) with session `target` (index `index + 1`). `placement`: the source session's world in
     the first session's (4, 4), None when it could not be registered. `truth`: mask instance id ->
-    the ground-truth change between the two sessions, when the recordings carry it."""
+    the ground-truth change between the two sessions, when the recordings carry it;
+    `identical_moves`: its (removed, added) mugs of one model (`ndfa.io.recording.ground_truth`)."""
 
     index: int
     source: str
     target: str
     placement: np.ndarray | None = None
     truth: dict[int, str] | None = None
+    identical_moves: frozenset[tuple[int, int]] = frozenset()
 
     @property
     def label(self) -> str:

@@ -16,7 +16,8 @@ its mug's true change is one the kind describes (`ndfa.io.recording.ground_truth
 "added" a mug that appeared at the place: added, moved or switched; "removed" one that left it;
 "rotated" one turned in place), and a "moved" report also needs the same mug at both ends (its
 source object's mug is its target object's): a removed mug and a different mug added elsewhere
-are not a move. For the rotated mugs the score also says how many were reported as "rotated"
+are not a move, unless the two are of one model (`ground_truth.identical_moves`: no view tells
+two mugs of one shape apart, so a report of a move is then as right as any observer can be). For the rotated mugs the score also says how many were reported as "rotated"
 (`Score.rotated_found_ids` of `rotated_ids`): a turned mug reported as moved or added is a TP
 but not found as turned; one reported as unchanged (no report) is an FN and not found either.
 
@@ -38,7 +39,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from ndfa.core.conventions import UNKNOWN_CATEGORY
-from ndfa.io.recording.ground_truth import changed_instances, kind_is_right
+from ndfa.io.recording.ground_truth import changed_instances, identical_moves, kind_is_right
 
 
 @dataclass(frozen=True)
@@ -50,9 +51,9 @@ class KindReport:
     partner_id: int | None = None  # "moved": the mug of its source object (None: unknown)
     category: str = UNKNOWN_CATEGORY  # the category the detector gave its object
 
-    def right(self, truth: dict[int, str]) -> bool:
-        """Whether the kind is right for the mug's true change (`ground_truth.RIGHT_KIND`)."""
-        return kind_is_right(self.kind, self.instance_id, self.partner_id, truth)
+    def right(self, truth: dict[int, str], identical: frozenset[tuple[int, int]] = frozenset()) -> bool:
+        """Whether the kind is right for the mug's true change (`ground_truth.kind_is_right`)."""
+        return kind_is_right(self.kind, self.instance_id, self.partner_id, truth, identical)
 
 
 @dataclass(frozen=True)
@@ -205,12 +206,15 @@ def score(reported_instances: list[int], ground_truth: dict, visible: dict[str, 
     fn = sorted(truth.keys() - reported)
     turned = sorted(i for i, kind in truth.items() if kind == "rotated")
     found = sorted(set(turned) & set(rotated_instances))
+    identical = identical_moves(ground_truth)
     per_kind: dict[str, tuple[int, int]] = {}
     for report in kinds:
         if report.instance_id in scored:
             n, right = per_kind.get(report.kind, (0, 0))
-            per_kind[report.kind] = (n + 1, right + int(report.right(truth)))
-    found_rightly = {report.instance_id for report in kinds if report.right(truth)}
+            per_kind[report.kind] = (n + 1, right + int(report.right(truth, identical)))
+    # A move between two mugs of one model names both rightly: the one removed and the one added.
+    found_rightly = {i for report in kinds if report.right(truth, identical)
+                     for i in (report.instance_id, report.partner_id) if i is not None}
     per_change: dict[str, tuple[int, int]] = {}
     for instance_id, change in truth.items() if kinds else ():
         n, right = per_change.get(change, (0, 0))

@@ -62,11 +62,14 @@ TABLES = ("observations", "associations", "objects", "tree_nodes", "registration
 
 
 class TableSink:
-    def __init__(self, directory: Path, truth: dict[int, str] | None = None, flush_every: int = 100) -> None:
-        """truth: mask instance id -> ground-truth change ("unchanged", "added", ...), when known."""
+    def __init__(self, directory: Path, truth: dict[int, str] | None = None, flush_every: int = 100,
+                 identical_moves: frozenset[tuple[int, int]] = frozenset()) -> None:
+        """truth: mask instance id -> ground-truth change ("unchanged", "added", ...), when known;
+        identical_moves: its (removed, added) mugs of one model (`ground_truth.identical_moves`)."""
         self.directory = Path(directory)
         self.directory.mkdir(parents=True, exist_ok=True)
         self.truth = truth
+        self.identical_moves = identical_moves
         self.flush_every = flush_every
         self.rows: dict[str, list[dict]] = {name: [] for name in TABLES if name not in ("objects", "tree_nodes")}
         self._objects: dict[tuple[str, int], dict] = {}
@@ -80,6 +83,7 @@ class TableSink:
             self._pair = event.label
             if event.truth is not None:
                 self.truth = event.truth  # the changes between this pair's sessions
+                self.identical_moves = event.identical_moves
             return
         if isinstance(event, HistoryEvent):
             self._history = [_history_row(row) for row in event.rows]
@@ -189,7 +193,7 @@ class TableSink:
         if self.truth is None or event.kind == "unchanged" or not event.instance_ids:
             return None
         partner = event.partner_instance_ids[0] if event.partner_instance_ids else None
-        return kind_is_right(event.kind, event.instance_ids[0], partner, self.truth)
+        return kind_is_right(event.kind, event.instance_ids[0], partner, self.truth, self.identical_moves)
 
     def _truth(self, instance_id: int) -> str | None:
         if self.truth is None:

@@ -29,6 +29,7 @@ from ndfa.core.frame import Frame
 from ndfa.core.geometry import invert_pose, make_pose, rotation_z
 from ndfa.core.progress import LabelledProgress
 from ndfa.io.recording import RecordingReader, RecordingWriter
+from ndfa.io.recording.ground_truth import REAL_MODEL
 from ndfa.perception.segmentation import segment_frame
 from ndfa.run.plant_plan import CLEARANCE_M, PlantedObject, auto_plan, load_mesh, mesh_color
 from ndfa.run.world import prepare_session
@@ -280,7 +281,7 @@ def _ground_truth(plan: list[PlantedObject], placed: dict[str, list[_Placed]], p
     the levelling (so that scoring measures horizontal distances), and the plan."""
     objects = []
     for instance_id, obj in enumerate(plan, start=1):
-        entry: dict = {"instance_id": instance_id, "model_id": "real" if obj.real else obj.mesh, "name": obj.name,
+        entry: dict = {"instance_id": instance_id, "model_id": REAL_MODEL if obj.real else obj.mesh, "name": obj.name,
                        "change": obj.change, "partner": None}
         for session in SESSIONS:
             here = next((p for p in placed[session] if p.instance_id == instance_id), None)

@@ -34,7 +34,7 @@ from ndfa.core.events import AssociationEvent, DecisionEvent, ObservationEvent, 
 from ndfa.core.progress import LabelledProgress
 from ndfa.core.sessions import HistoryEvent, HistoryRow, PairEvent, SessionStartEvent
 from ndfa.io.recording import RecordingReader
-from ndfa.io.recording.ground_truth import changed_instances
+from ndfa.io.recording.ground_truth import changed_instances, identical_moves
 from ndfa.pipeline import ChangeDetectionPipeline, PipelineConfig
 from ndfa.run.align import SceneAlignment
 from ndfa.run.history import LinkConfig, SessionObjects, compose_placements, link_history
@@ -212,10 +212,10 @@ def session_pass(
                 if alignment is not None and on_alignment is not None:
                     on_alignment(ending.label, alignment)
                 if session_events:
-                    truth = reader.ground_truth
+                    truth = reader.ground_truth if reader.ground_truth and "objects" in reader.ground_truth else None
                     emit(PairEvent(index=ending.index, source=ending.source, target=ending.target,
-                                   placement=placement,
-                                   truth=changed_instances(truth) if truth and "objects" in truth else None), sinks)
+                                   placement=placement, truth=changed_instances(truth) if truth else None,
+                                   identical_moves=identical_moves(truth) if truth else frozenset()), sinks)
             starting = None  # the pair whose source this session is
             if index < len(names) - 1:
                 starting = PairResult(index, names[index], names[index + 1], pipeline.new_detector())

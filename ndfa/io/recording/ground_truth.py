@@ -19,14 +19,37 @@ def changed_instances(ground_truth: dict[str, Any]) -> dict[int, str]:
 
 
 # The true changes a report of each kind describes rightly (a "moved" report also needs one mug at
-# both ends: a removed mug and a different mug added elsewhere are not a move).
+# both ends: a removed mug and a different mug added elsewhere are not a move, unless the two are
+# of one model: `identical_moves`).
 RIGHT_KIND = {"added": ("added", "moved", "switched"), "removed": ("removed", "moved", "switched"),
               "moved": ("moved", "switched"), "rotated": ("rotated",)}
 
+# The model id `ndfa plant` gives the recording's own objects: each is itself, none another's twin.
+REAL_MODEL = "real"
 
-def kind_is_right(kind: str, instance_id: int, partner_id: int | None, truth: dict[int, str]) -> bool:
+
+def identical_moves(ground_truth: dict[str, Any]) -> frozenset[tuple[int, int]]:
+    """(removed, added) instance-id pairs of one model. Two mugs of one model have one shape: which
+    of them stands where is in no view, so one removed here and one added there is, to any
+    observer, one mug moved, and a "moved" report from the one to the other is of the right kind.
+    Objects without a model id, or with `REAL_MODEL`, pair with none."""
+    objects = ground_truth.get("objects", [])
+    by_change: dict[str, list[tuple[int, Any]]] = {"removed": [], "added": []}
+    for o in objects:
+        model = o.get("model_id")
+        if o.get("change") in by_change and model not in (None, REAL_MODEL):
+            by_change[o["change"]].append((int(o["instance_id"]), model))
+    return frozenset((removed, added) for removed, model in by_change["removed"]
+                     for added, other in by_change["added"] if model == other)
+
+
+def kind_is_right(kind: str, instance_id: int, partner_id: int | None, truth: dict[int, str],
+                  identical: frozenset[tuple[int, int]] = frozenset()) -> bool:
     """Whether a report of `kind` on the mug `instance_id` (a move: from the mug `partner_id`, its
-    source object's; None: unknown) is right for the true changes `truth` (`changed_instances`)."""
+    source object's; None: unknown) is right for the true changes `truth` (`changed_instances`);
+    `identical`: the removed and added mugs of one model (`identical_moves`)."""
+    if kind == "moved" and (partner_id, instance_id) in identical:
+        return True
     if truth.get(instance_id, "unchanged") not in RIGHT_KIND.get(kind, ()):
         return False
     return kind != "moved" or partner_id == instance_id
