@@ -4,6 +4,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from ndfa.change.associate import Measurement
@@ -22,10 +24,11 @@ def _unit(i: int, n: int = 16) -> np.ndarray:
 
 def _run(codes_source: dict[int, np.ndarray], centers_source: dict[int, np.ndarray],
          codes_target: dict[int, np.ndarray], centers_target: dict[int, np.ndarray],
-         first_codes_target: dict[int, np.ndarray] | None = None, target_frames: int = 10) -> list:
+         first_codes_target: dict[int, np.ndarray] | None = None, target_frames: int = 10,
+         config: DetectorConfig = DetectorConfig()) -> list:
     """Both sessions in one world (a shared-world prior the unchanged mugs confirm); changes reported.
     `first_codes_target`: the codes some target objects show in their first 3 frames instead."""
-    detector = ChangeDetector(DetectorConfig())
+    detector = ChangeDetector(config)
     detector.add_registration_prior(RegistrationPrior("shared world", np.eye(4)))
     for f in range(10):
         detector.add_source([Measurement(f, i, codes_source[i], centers_source[i], 0.8) for i in codes_source])
@@ -155,3 +158,27 @@ def test_a_removed_mug_and_an_added_mug_of_one_model_are_a_move_to_any_observer(
                                score=0.7))
     sink.close()
     assert pl.read_parquet(tmp_path / "decisions.parquet")["kind_right"].to_list() == [True, False]
+
+
+def _code(degrees: float) -> np.ndarray:
+    """A unit code in the plane of `_unit(0)` and `_unit(1)`, this many degrees from `_unit(0)`."""
+    return np.cos(np.radians(degrees)) * _unit(0) + np.sin(np.radians(degrees)) * _unit(1)
+
+
+def test_two_similar_objects_that_swapped_places_are_both_moved():
+    # A bowl (1) and a mug-like bowl (4) a hand apart swap places. Their codes agree to 0.79, above
+    # delta_s (0.35), so each is consistent with what stood in its new place; but each is nearer its
+    # own source object (0.996) than its place's (0.84), and that is the swap.
+    stay = {2: np.array([0.3, 0.1, 0.8]), 3: np.array([-0.2, 0.4, 0.8])}
+    bowl, mug = _code(0.0), _code(37.8)
+    assert 0.7 < float(bowl @ mug) < 0.8
+    here, there = np.array([0.0, 0.0, 0.8]), np.array([0.0, 0.2, 0.8])
+    source = {1: bowl, 2: _unit(2), 3: _unit(3), 4: mug}
+    target = {1: _code(5.0), 2: _unit(2), 3: _unit(3), 4: _code(32.8)}
+    reports = _run(source, stay | {1: here, 4: there}, target, stay | {1: there, 4: here})
+    assert reports == [("moved", "target", 1, (1,)), ("moved", "target", 4, (4,))]
+    # Unchanged, the same codes are each nearest their own: nothing to report.
+    assert _run(source, stay | {1: here, 4: there}, target, stay | {1: here, 4: there}) == []
+    # Off: each is consistent with what stands in its place, and the swap goes unseen.
+    off = DetectorConfig(evidence=replace(DetectorConfig().evidence, swap_margin=None))
+    assert _run(source, stay | {1: here, 4: there}, target, stay | {1: there, 4: here}, config=off) == []

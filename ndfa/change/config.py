@@ -196,6 +196,14 @@ class EvidenceConfig:
     # the same object. One object's codes from opposite sides were measured down to 0.35 (`shelves`,
     # object means) and 0.17 (the kitchen's white mug, means of four views; docs/detector.md, "Drift").
     doubtful_share: float = 0.5
+    # Two objects that swapped places: a target object consistent with the source object in its
+    # place, but whose code is this much nearer another source object around it, while a target
+    # object standing in that one's place is this much nearer the first: each is more like the other's
+    # source object than like its own place's, so they switched (a bowl and a mug-like bowl a hand
+    # apart; delta_s, 0.35, lets most such pairs through as unchanged). One object's codes across
+    # two sessions spread by about 0.1 (the same mug: median 0.97, lowest 0.86; docs/registration.md,
+    # "The right kind"), and twins stay within it. Off: None.
+    swap_margin: float | None = 0.1
 
 
 @dataclass(frozen=True)
@@ -273,7 +281,7 @@ class DetectorConfig:
                "waiting": WaitingConfig(min_measurements=1, confirm_measurements=1, neighbours=False, in_place=False,
                                         sightings=False),
                "evidence": EvidenceConfig(in_place_m=0.0, observed_height_m=0.0, observed_reach_m=0.0, move_similarity=None,
-                                            sight_radius_m=0.0, seen_empty=False, side_deg=None),
+                                            sight_radius_m=0.0, seen_empty=False, side_deg=None, swap_margin=None),
                "rotation": RotationConfig(threshold_deg=None)}
         values = {name: getattr(self, name) for name in ("association", "registration", "decision") + ADDITIONS}
         return DetectorConfig(**(values | {name: off[name] for name in additions}))

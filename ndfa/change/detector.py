@@ -354,6 +354,11 @@ class ChangeDetector:
             target_graph = local_graph(object_id, target_ids, self.target.objects)
             verdict = graph_verdict(target_graph, center_source, source_ids, similarity, self.source.objects, rotation,
                                     shape_similarity, self.config, obj.center_scatter_m)
+        swapped_with = None
+        if verdict.kind == "unchanged":
+            swap = self._swapped(object_id, verdict, source_ids, similarity)
+            if swap is not None:
+                swapped_with, verdict = swap
         standing = self._in_place(obj, center_source, source_ids) if verdict.kind != "unchanged" else None
         verdict = self.policy.settle(object_id, obj.n_measurements, verdict, final, standing)
         events: list[Event] = [
@@ -370,12 +375,54 @@ class ChangeDetector:
                         if twin is not None else self._unshown("source", center_source, self._own_size("target", obj)))
             decision = self._decision(frame_index, object_id, "added", verdict, center_source, withheld=withheld)
             (self.changed if decision.withheld is None else self.unseen)[object_id] = decision
+            if swapped_with is not None and swapped_with in self.partners:
+                events += self._test(swapped_with, frame_index, final)  # the other end of the swap, found unchanged before
             if self.config.waiting.in_place and decision.withheld is None and standing is not None:
                 # decided at the end on every view: whether it stands where another stood, see `finish`
                 self.in_place_of[object_id] = standing
                 return events
             return events + [decision]
         return events  # undecided: O waits (the policy holds it pending)
+
+    def _swapped(self, object_id: int, verdict: Verdict, source_ids: list[int],
+                 similarity: dict[int, float]) -> tuple[int, Verdict] | None:
+        """(the target object O swapped places with, O's "changed" verdict) when O, found consistent
+        with the source object P in its place, is `EvidenceConfig.swap_margin` nearer in code to
+        another source object B around it, and a target object standing in B's place is as much
+        nearer P than B; None otherwise. O then does not stand where it stood: B is itself."""
+        margin = self.config.evidence.swap_margin
+        partner_id = verdict.partner_id
+        if margin is None or partner_id is None or self.registration is None or self._split(self.target, object_id):
+            return None
+        transform = self.registration.transform
+        partner_code = self.source.objects[partner_id].shape_code
+        for other_id in sorted(source_ids, key=lambda s: -similarity[s]):
+            if similarity[other_id] < similarity[partner_id] + margin:
+                return None
+            if self._split(self.source, other_id) or self._split(self.source, partner_id):
+                continue
+            other = self.source.objects[other_id]
+            for target_id, target in sorted(self.target.objects.items()):
+                if target_id == object_id or self._split(self.target, target_id):
+                    continue
+                center_source = apply(transform, target.center_world[None])[0]
+                if self._in_place(target, center_source, [other_id]) is None:
+                    continue
+                to_partner = float(cosine_similarity(target.shape_code, partner_code))
+                to_other = float(cosine_similarity(target.shape_code, other.shape_code))
+                if to_partner >= to_other + margin:
+                    reason = (f"swapped places with target object {target_id}: nearer source object {other_id} "
+                              f"(cosine {similarity[other_id]:.2f}) than source object {partner_id} in its place "
+                              f"({similarity[partner_id]:.2f}), and target object {target_id} in {other_id}'s place "
+                              f"nearer {partner_id} ({to_partner:.2f}) than {other_id} ({to_other:.2f})")
+                    return target_id, Verdict("changed", reason, comparisons=verdict.comparisons,
+                                              shortfall=verdict.shortfall)
+        return None
+
+    def _split(self, session_map: SessionMap, object_id: int) -> bool:
+        """Whether the map holds the object twice (`_one_object` with another of its objects): each
+        copy's code is of a part of it, too unsure to say it swapped with another."""
+        return any(other != object_id and self._one_object(session_map, object_id, other) for other in session_map.objects)
 
     def _doubtful_pairs(self, moved_from: dict[int, int]) -> dict[int, str]:
         """The "added" target objects standing in the place of a source object that no other target
