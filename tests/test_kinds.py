@@ -143,6 +143,9 @@ def test_a_removed_mug_and_an_added_mug_of_one_model_are_a_move_to_any_observer(
                          {"instance_id": 5, "model_id": REAL_MODEL, "change": "removed"},
                          {"instance_id": 6, "model_id": REAL_MODEL, "change": "added"}]}
     assert identical_moves(truth) == {(1, 2)}
+    # A mug of the model that moved (or switched) left its place as a removed one does.
+    moved = {"objects": truth["objects"] + [{"instance_id": 7, "model_id": "mug-8", "change": "moved"}]}
+    assert identical_moves(moved) == {(1, 2), (7, 3)}
     kinds = [KindReport("moved", 2, 1),   # mug 1's twin where mug 1 was not: a move as far as any view says
              KindReport("moved", 3, 1),   # another model: not a move
              KindReport("moved", 6, 5)]   # two real objects: not a move

@@ -29,18 +29,22 @@ REAL_MODEL = "real"
 
 
 def identical_moves(ground_truth: dict[str, Any]) -> frozenset[tuple[int, int]]:
-    """(removed, added) instance-id pairs of one model. Two mugs of one model have one shape: which
-    of them stands where is in no view, so one removed here and one added there is, to any
-    observer, one mug moved, and a "moved" report from the one to the other is of the right kind.
-    Objects without a model id, or with `REAL_MODEL`, pair with none."""
-    objects = ground_truth.get("objects", [])
-    by_change: dict[str, list[tuple[int, Any]]] = {"removed": [], "added": []}
-    for o in objects:
+    """(left, arrived) instance-id pairs of one model: a mug that left its source place (removed,
+    moved or switched) and another of its model that arrived at a target place (added, moved or
+    switched). Two mugs of one model have one shape: which of them stands where is in no view, so
+    a mug of that model gone from here and one come there is, to any observer, a move, and a
+    "moved" report from the one to the other is of the right kind. Objects without a model id,
+    or with `REAL_MODEL`, pair with none."""
+    left, arrived = [], []
+    for o in ground_truth.get("objects", []):
         model = o.get("model_id")
-        if o.get("change") in by_change and model not in (None, REAL_MODEL):
-            by_change[o["change"]].append((int(o["instance_id"]), model))
-    return frozenset((removed, added) for removed, model in by_change["removed"]
-                     for added, other in by_change["added"] if model == other)
+        if model in (None, REAL_MODEL):
+            continue
+        if o.get("change") in ("removed", "moved", "switched"):
+            left.append((int(o["instance_id"]), model))
+        if o.get("change") in ("added", "moved", "switched"):
+            arrived.append((int(o["instance_id"]), model))
+    return frozenset((a, b) for a, model in left for b, other in arrived if model == other and a != b)
 
 
 def kind_is_right(kind: str, instance_id: int, partner_id: int | None, truth: dict[int, str],
