@@ -43,6 +43,9 @@ def test_summary_scores_the_sample_against_its_ground_truth(run):
     assert summary["ndf_runtime"] == "onnxruntime"  # the default where it is installed (docs/speed.md)
     # the added mug (instance 14) stands where the source had nothing: it must be found
     assert any(14 in change["instance_ids"] for change in summary["changes"])
+    # a move says where from: its source object and that object's masks
+    moves = [change for change in summary["changes"] if change["kind"] == "moved"]
+    assert moves and all(change["from_object"] >= 0 and change["from_instance_ids"] for change in moves)
     # measured with the shipped weights: TP 5, FP 0, FN 0 (docs/results.md; FP 1 before the unshown removal was
     # withheld: ndfa.change.sight); a worse model or detector fails here
     assert summary["recall"] == 1.0 and summary["fp"] <= 2

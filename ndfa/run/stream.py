@@ -136,7 +136,9 @@ def change_summary(c: DecisionEvent) -> dict:
             "position": [round(float(v), 4) for v in position], "instance_ids": list(c.instance_ids),
             "category": c.category,
             "score": None if np.isnan(c.score) else round(float(c.score), 4)} \
-        | ({} if c.angle_deg is None else {"angle_deg": round(c.angle_deg, 1)})
+        | ({} if c.angle_deg is None else {"angle_deg": round(c.angle_deg, 1)}) \
+        | ({} if c.partner_id is None or c.kind != "moved" else
+           {"from_object": c.partner_id, "from_instance_ids": list(c.partner_instance_ids)})
 
 
 def registration_summary(event: RegistrationEvent) -> dict:
