@@ -150,15 +150,20 @@ class Registrar:
                 check = dataclasses.replace(check, method=OWN_EVIDENCE[prior.method], evidence=prior.evidence)
             verified.append((prior, check, confirmed or prior.standalone))
         # A binding prior vetoes RANSAC's fits only while the objects support it: one they do not
-        # (a confident but wrong scene alignment) must not stop a registration they do support.
+        # (a confident but wrong scene alignment) must not stop a registration they do support. Nor
+        # does any prior veto a fit of `enough_inliers` pairs or more: the veto is against layouts of
+        # a few objects that fit by chance, and that many do not (a wrong scene alignment that two
+        # pairs happened to confirm vetoed the hand-held office's 12-pair registration: docs/registration.md).
         vetoes = [prior for prior, _, supported in verified if prior.binding and supported]
+        enough = self.ransac.enough_inliers
         # A small source map may have fewer objects than N: then all of them are enough (`small_maps`).
         needed = min(self.config.pairs, len(source.objects)) if self.ransac.small_maps else self.config.pairs
         if len({t for t, _ in pairs}) >= needed:
             result = ransac_registration(pairs, target_centers, source_centers, self.config.inlier_m,
                                          seed=self.config.seed)
+            many = result is not None and 0 < enough <= len(result.inliers)
             candidates.append((result, result is not None and len(result.inliers) >= self.ransac.min_inliers
-                               and _agrees_with(result, vetoes, pairs, target_centers, self.config.inlier_m)))
+                               and (many or _agrees_with(result, vetoes, pairs, target_centers, self.config.inlier_m))))
         candidates += [(check, supported) for _, check, supported in verified]
         passing = [r for r, ok in candidates if ok and r is not None]
         best = max(passing, key=lambda r: len(r.inliers), default=None)  # the first (RANSAC's) on a tie
