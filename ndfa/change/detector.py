@@ -389,11 +389,15 @@ class ChangeDetector:
         """(the target object O swapped places with, O's "changed" verdict) when O, found consistent
         with the source object P in its place, is `EvidenceConfig.swap_margin` nearer in code to
         another source object B around it, and a target object standing in B's place is as much
-        nearer P than B; None otherwise. O then does not stand where it stood: B is itself."""
+        nearer P than B, each pair that stands in one place seen from a common side
+        (`_like_with_like`: one object's codes from opposite sides can cross two objects'); None
+        otherwise. O then does not stand where it stood: B is itself."""
         margin = self.config.evidence.swap_margin
         partner_id = verdict.partner_id
         if margin is None or partner_id is None or self.registration is None or self._split(self.target, object_id):
             return None
+        if not self._like_with_like(object_id, partner_id):
+            return None  # O unlike what stands in its place only as seen from another side
         transform = self.registration.transform
         partner_code = self.source.objects[partner_id].shape_code
         for other_id in sorted(source_ids, key=lambda s: -similarity[s]):
@@ -410,7 +414,7 @@ class ChangeDetector:
                     continue
                 to_partner = float(cosine_similarity(target.shape_code, partner_code))
                 to_other = float(cosine_similarity(target.shape_code, other.shape_code))
-                if to_partner >= to_other + margin:
+                if to_partner >= to_other + margin and self._like_with_like(target_id, other_id):
                     reason = (f"swapped places with target object {target_id}: nearer source object {other_id} "
                               f"(cosine {similarity[other_id]:.2f}) than source object {partner_id} in its place "
                               f"({similarity[partner_id]:.2f}), and target object {target_id} in {other_id}'s place "
@@ -418,6 +422,20 @@ class ChangeDetector:
                     return target_id, Verdict("changed", reason, comparisons=verdict.comparisons,
                                               shortfall=verdict.shortfall)
         return None
+
+    def _like_with_like(self, target_id: int, source_id: int) -> bool:
+        """Whether a target and a source object were seen from a common side (`EvidenceConfig.side_deg`:
+        at least `WaitingConfig.min_measurements` views of each within it of the other's), so that
+        their codes' disagreement is the objects', not the sides' (`ndfa.change.sides`); True where
+        the test is off or the cameras are not known (a replay)."""
+        side_deg = self.config.evidence.side_deg
+        target, source = self.target.objects[target_id], self.source.objects[source_id]
+        sides = self._sides(target, source) if side_deg is not None else None
+        if side_deg is None or sides is None:
+            return True
+        target_common, source_common = common_side(sides[0], sides[1], side_deg)
+        least = self.config.waiting.min_measurements
+        return bool(target_common.sum() >= least and source_common.sum() >= least)
 
     def _split(self, session_map: SessionMap, object_id: int) -> bool:
         """Whether the map holds the object twice (`_one_object` with another of its objects): each
