@@ -343,3 +343,40 @@ def test_an_objects_own_size_is_its_fuller_views_against_a_median_mugs_and_at_mo
     # the same object from twice as far shows a quarter of the pixels: the same size
     far = np.array([[-2.0, 0.0, 1.8]] * 10)
     assert own_size(pixels / 4, far, center, K, 0.04, 0.09) == pytest.approx(own_size(pixels, cameras, center, K, 0.04, 0.09), rel=1e-6)
+
+
+def test_a_short_objects_place_on_a_table_is_not_hidden_by_the_table_under_it():
+    """A small box (4 cm tall) stands on a table seen from 1.4 m above and aside; the place's
+    cylinder (11 cm) centred at the box's center reaches 3.5 cm into the table, whose top hides
+    those samples from the camera. They lie inside the support, not behind anything: with the
+    height the box stands at (`floor_m`, its views' lowest points) they are left out, and the
+    place counts as shown whole, as it did for a mug standing there."""
+    table_m, eye = 0.75, np.array([0.0, 0.0, 1.5])
+    box = np.array([1.2, 0.0, table_m + 0.02])
+    pose = look_at(eye, box)
+    views = SessionViews(SightRule())
+    views.add(0, _table_at(table_m, pose), K, pose)
+    plain = views.sight(box, *SIZE)
+    standing = views.sight(box, *SIZE, floor_m=table_m)
+    assert plain.unhidden < 0.9 and standing.unhidden == 1.0
+    assert standing.pixels > plain.pixels and standing.seen_empty
+    mug = box + [0, 0, 0.035]     # a mug's center, 5.5 cm above the table: nothing of it under the top
+    assert views.sight(mug, *SIZE, floor_m=table_m).unhidden == pytest.approx(views.sight(mug, *SIZE).unhidden)
+
+
+def test_a_measurement_stands_at_its_views_lowest_points_and_an_object_at_its_lowest_measurement():
+    from ndfa.change.associate import SessionMap, lowest_height
+    from ndfa.core.events import ObservationEvent
+
+    rng = np.random.default_rng(3)
+    points = np.c_[rng.uniform(-0.03, 0.03, (400, 2)), rng.uniform(0.76, 0.80, 400)]
+    points[0, 2] = 0.2                       # one stray point far below: not where it stands
+    assert lowest_height(points) == pytest.approx(0.762, abs=0.002)
+    assert np.isnan(lowest_height(None))
+    event = ObservationEvent(session="source", frame_index=0, instance_id=1, n_pixels=500, skipped=None,
+                             points_world=points, shape_code=_code(1), center_world=np.array([0.0, 0.0, 0.78]))
+    session = SessionMap(DetectorConfig())
+    first = session.update(Measurement.of(event))
+    session.update(replace(Measurement.of(event), frame_index=1, base_height=0.755))
+    session.update(replace(Measurement.of(event), frame_index=2, base_height=float("nan")))
+    assert session.objects[first.object_id].base_height == pytest.approx(0.755)

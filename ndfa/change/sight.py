@@ -20,7 +20,10 @@ seen from where a mug would just have shown would not have), times the share of 
 camera-facing surface samples not hidden: a sample is hidden when the depth at its pixel is more
 than `OCCLUSION_MARGIN_M` nearer than the sample, or missing (a black screen, the aligned
 sensor's band at an edge: nothing says what is behind). Where the place was empty the depth there
-is the table or the wall behind it, which hides nothing.
+is the table or the wall behind it, which hides nothing. Centred at the object's center, the
+cylinder of an object shorter than it (a small box, a can) reaches into the support, whose top
+would hide those samples from every view: the samples below the height the object stands at (its
+views' lowest points, `SessionObject.base_height`) are left out.
 
 Shown is not yet shown *empty*: a claim of a change says the other session saw no object there,
 and a place whose depth ended on something standing in it was not seen empty, whatever perception
@@ -218,11 +221,14 @@ class SessionViews:
             return None
         return np.array([self.poses[i][:3, 3] for i in position]).reshape(-1, 3)
 
-    def sight(self, place_world: np.ndarray, radius_m: float, height_m: float, size: float = 1.0) -> Sight:
+    def sight(self, place_world: np.ndarray, radius_m: float, height_m: float, size: float = 1.0,
+              floor_m: float = -np.inf) -> Sight:
         """How well these frames showed an object of `radius_m` and `height_m` standing centred at
         `place_world` (this session's world; the module docstring says how); `size`: the object's
         pixels as a share of that cylinder's (`own_size`, at most 1), which scales the pixels that
-        decide `shown` and nothing else (the frames that judge emptiness are the cylinder's)."""
+        decide `shown` and nothing else (the frames that judge emptiness are the cylinder's);
+        `floor_m`: the height the object stands at, whose samples below it are inside the support,
+        not hidden by anything in front, and are left out (an object shorter than the cylinder)."""
         rule = self.rule
         if not self.indices:
             return Sight(True, float("nan"), 0, min_pixels=rule.min_pixels)
@@ -245,7 +251,7 @@ class SessionViews:
         in_view = inside.all(axis=1) & (center_depth >= rule.min_depth_m) & (center_depth <= rule.max_depth_m)
         if not in_view.any():
             return Sight(False, 0.0, len(self), min_pixels=rule.min_pixels)
-        facing = np.einsum("fsj,sj->fs", cameras[:, None, :] - samples[None], normals) > 0
+        facing = (np.einsum("fsj,sj->fs", cameras[:, None, :] - samples[None], normals) > 0) & (samples[:, 2] >= floor_m)[None]
         rows = np.clip(np.rint((v - STRIDE // 2) / STRIDE), 0, self.depths[0].shape[0] - 1).astype(int)
         cols = np.clip(np.rint((u - STRIDE // 2) / STRIDE), 0, self.depths[0].shape[1] - 1).astype(int)
         kept = [k for k, f in enumerate(self.kept) if in_view[f]]    # the frames in view with their depth
