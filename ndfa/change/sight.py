@@ -23,7 +23,8 @@ sensor's band at an edge: nothing says what is behind). Where the place was empt
 is the table or the wall behind it, which hides nothing. Centred at the object's center, the
 cylinder of an object shorter than it (a small box, a can) reaches into the support, whose top
 would hide those samples from every view: the samples below the height the object stands at (its
-views' lowest points, `SessionObject.base_height`) are left out.
+views' lowest points, `SessionObject.base_height`) are left out of that share (not of the tests of
+emptiness below, which read how far a face the depth stopped on rises).
 
 Shown is not yet shown *empty*: a claim of a change says the other session saw no object there,
 and a place whose depth ended on something standing in it was not seen empty, whatever perception
@@ -227,8 +228,9 @@ class SessionViews:
         `place_world` (this session's world; the module docstring says how); `size`: the object's
         pixels as a share of that cylinder's (`own_size`, at most 1), which scales the pixels that
         decide `shown` and nothing else (the frames that judge emptiness are the cylinder's);
-        `floor_m`: the height the object stands at, whose samples below it are inside the support,
-        not hidden by anything in front, and are left out (an object shorter than the cylinder)."""
+        `floor_m`: the height the object stands at: the samples below it are inside the support,
+        not hidden by anything in front, and are left out of the share not hidden (an object shorter
+        than the cylinder); whether the place was seen empty is judged on every sample as before."""
         rule = self.rule
         if not self.indices:
             return Sight(True, float("nan"), 0, min_pixels=rule.min_pixels)
@@ -251,7 +253,7 @@ class SessionViews:
         in_view = inside.all(axis=1) & (center_depth >= rule.min_depth_m) & (center_depth <= rule.max_depth_m)
         if not in_view.any():
             return Sight(False, 0.0, len(self), min_pixels=rule.min_pixels)
-        facing = (np.einsum("fsj,sj->fs", cameras[:, None, :] - samples[None], normals) > 0) & (samples[:, 2] >= floor_m)[None]
+        facing = np.einsum("fsj,sj->fs", cameras[:, None, :] - samples[None], normals) > 0
         rows = np.clip(np.rint((v - STRIDE // 2) / STRIDE), 0, self.depths[0].shape[0] - 1).astype(int)
         cols = np.clip(np.rint((u - STRIDE // 2) / STRIDE), 0, self.depths[0].shape[1] - 1).astype(int)
         kept = [k for k, f in enumerate(self.kept) if in_view[f]]    # the frames in view with their depth
@@ -260,7 +262,10 @@ class SessionViews:
         frames = np.array([self.kept[k] for k in kept])
         measured = np.stack([self.depths[k][rows[f], cols[f]] for k, f in zip(kept, frames)]).astype(np.float32)
         free = (measured > 0) & (measured >= z[frames] - OCCLUSION_MARGIN_M)
-        unhidden = (free & facing[frames]).sum(axis=1) / np.maximum(facing[frames].sum(axis=1), 1)
+        # ... of the samples above the floor (those under it are inside the support); the tests of
+        # emptiness below keep every sample: a face the depth stopped on rises from the support up
+        above = facing[frames] & (samples[:, 2] >= floor_m)[None]
+        unhidden = (free & above).sum(axis=1) / np.maximum(above.sum(axis=1), 1)
         # Seen through or stopped: the upper facing samples not hidden (the module docstring).
         upper_facing = facing[frames] & (samples[:, 2] >= float(np.asarray(place_world)[2]) - 1e-9)[None]
         upper = upper_facing & free
