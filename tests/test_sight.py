@@ -388,3 +388,41 @@ def test_a_measurement_stands_at_its_views_lowest_points_and_an_object_at_its_lo
     session.update(replace(Measurement.of(event), frame_index=1, base_height=0.755))
     session.update(replace(Measurement.of(event), frame_index=2, base_height=float("nan")))
     assert session.objects[first.object_id].base_height == pytest.approx(0.755)
+
+
+def _removed_beside(target_new: bool) -> tuple[set[int], dict[int, str]]:
+    """A table of four mugs and mug 5 in its middle, seen by both sessions; the source's map also
+    holds object 40, 6 cm from mug 5 (a big object's far view taken as a second object), which the
+    target's map does not: the target's depth ends on something standing in 40's place. With
+    `target_new` that something is target object 20, new there (a switch: 40 gone, 20 in its place);
+    without, nothing but mug 5, matched unchanged. The reported and the withheld objects."""
+    table = np.array([0.0, 0.0])
+    mugs = {k + 1: np.r_[table + offset, 0.8] for k, offset in enumerate([(-0.2, -0.15), (0.2, -0.1), (-0.15, 0.2),
+                                                                             (0.25, 0.2)])}
+    mugs[5] = np.r_[table, 0.8]
+    ghost = np.r_[table + (0.06, 0.0), 0.8]
+    source = dict(mugs) | {40: ghost}
+    target = dict(mugs) | ({20: ghost} if target_new else {})
+    codes = {i: _code(100 + i) for i in set(source) | set(target)}
+    rng = np.random.default_rng(1)
+    detector = ChangeDetector(DetectorConfig(registration=RegistrationConfig(pairs=4)))
+    for session, layout, first in (("source", source, 0), ("target", target, 20)):
+        for view in range(10):
+            frame, eye = first + view, [-1.2, 0.02 * view, 1.3]
+            pose = look_at(eye, ghost)
+            depth = _box_at(ghost, pose) if session == "target" else np.full((480, 640), 9.0, np.float32)
+            detector.add_view(session, frame, depth, K, pose)  # type: ignore[arg-type]
+            measurements = [Measurement(frame, i, codes[i] + rng.normal(scale=0.02, size=16),
+                                        c + rng.normal(scale=0.003, size=3), 0.8) for i, c in layout.items()]
+            (detector.add_source if session == "source" else detector.add_target)(measurements)
+    return _reported_and_withheld(detector)
+
+
+def test_a_removal_against_an_object_that_stayed_is_no_switch_and_one_against_a_new_object_is():
+    """A removed object's place the target did not see empty stands as a switch only where the target
+    object standing there is new: matched unchanged to a source object, it is what the depth ended on,
+    and the source held it twice (raw seed 3's cereal box seen end-on from afar, docs/categories.md)."""
+    reported, withheld = _removed_beside(target_new=False)
+    assert 40 not in reported and "not seen empty" in withheld[40]
+    reported, withheld = _removed_beside(target_new=True)
+    assert {40, 20} <= reported
