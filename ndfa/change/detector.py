@@ -147,7 +147,9 @@ class ChangeDetector:
         """Whether `session`'s map holds an object standing in the place (its center within two
         `sight_radius_m` horizontally and `sight_height_m` in height: two such objects would touch):
         what the depth ended on there is then that object, and a change claimed against it (a
-        different object there: a switch) stands. Only an object the detector would test counts
+        different object there: a switch) stands. For a removal (`session` "target") that object must
+        be new there: not matched unchanged to a source object (then the source held that one object
+        twice), its own addition not withheld. Only an object the detector would test counts
         (`DecisionPolicy.testable`: `waiting.min_measurements` views): one or two odd views there
         (of a monitor's post, say) are something perception glimpsed, no object a switch could be
         claimed against."""
