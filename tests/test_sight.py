@@ -203,31 +203,41 @@ def _stood_on_table(place: np.ndarray, pose: np.ndarray):
     return views.sight(place, *SIZE)
 
 
+def _table_mugs() -> dict[int, np.ndarray]:
+    """Four mugs 1-4 around a table's middle (the origin), at 0.8 m."""
+    return {k + 1: np.r_[offset, 0.8] for k, offset in enumerate([(-0.2, -0.15), (0.2, -0.1), (-0.15, 0.2), (0.25, 0.2)])}
+
+
+def _two_walks(source: dict, target: dict, place: np.ndarray, stood_in: str | None, seed: int,
+               seen=lambda object_id, view: True) -> tuple[set[int], dict[int, str]]:
+    """Each session walks past `place` in 10 views, measuring its layout's objects (those `seen` in a
+    view, by number); the depth of `stood_in`'s views ends on a box standing at `place`, the other's
+    passes through. The reported and the withheld objects, with the reasons."""
+    codes = {i: _code(100 + i) for i in set(source) | set(target)}
+    rng = np.random.default_rng(seed)
+    detector = ChangeDetector(DetectorConfig(registration=RegistrationConfig(pairs=4)))
+    for session, layout, first in (("source", source, 0), ("target", target, 20)):
+        for view in range(10):
+            frame, pose = first + view, look_at([-1.2, 0.02 * view, 1.3], place)
+            depth = _box_at(place, pose) if session == stood_in else np.full((480, 640), 9.0, np.float32)
+            detector.add_view(session, frame, depth, K, pose)  # type: ignore[arg-type]
+            measurements = [Measurement(frame, i, codes[i] + rng.normal(scale=0.02, size=16),
+                                        c + rng.normal(scale=0.003, size=3), 0.8) for i, c in layout.items()
+                            if seen(i, view)]
+            (detector.add_source if session == "source" else detector.add_target)(measurements)
+    return _reported_and_withheld(detector)
+
+
 def _added_where_the_source_had(stood: bool, source_object: bool, object_views: int = 10) -> tuple[set[int], dict[int, str]]:
     """A table of four mugs seen by both sessions; the target has mug 20 added at its middle. In the
     source's depth something stands there (`stood`), and its map has an object there (`source_object`,
     a mug unlike 20: a switch; seen in the first `object_views` of the source's 10 views) or none. The
     reported and the withheld mugs, with the reasons."""
-    table = np.array([0.0, 0.0])
-    mugs = {k + 1: np.r_[table + offset, 0.8] for k, offset in enumerate([(-0.2, -0.15), (0.2, -0.1), (-0.15, 0.2),
-                                                                             (0.25, 0.2)])}
-    place = np.r_[table, 0.8]
-    source = dict(mugs) | ({30: place} if source_object else {})
-    target = dict(mugs) | {20: place}
-    codes = {i: _code(100 + i) for i in set(source) | set(target)}
-    rng = np.random.default_rng(0)
-    detector = ChangeDetector(DetectorConfig(registration=RegistrationConfig(pairs=4)))
-    for session, layout, first in (("source", source, 0), ("target", target, 20)):
-        for view in range(10):
-            frame, eye = first + view, [-1.2, 0.02 * view, 1.3]
-            pose = look_at(eye, place)
-            depth = _box_at(place, pose) if session == "source" and stood else np.full((480, 640), 9.0, np.float32)
-            detector.add_view(session, frame, depth, K, pose)  # type: ignore[arg-type]
-            measurements = [Measurement(frame, i, codes[i] + rng.normal(scale=0.02, size=16),
-                                        c + rng.normal(scale=0.003, size=3), 0.8) for i, c in layout.items()
-                            if i != 30 or view < object_views]
-            (detector.add_source if session == "source" else detector.add_target)(measurements)
-    return _reported_and_withheld(detector)
+    place = np.array([0.0, 0.0, 0.8])
+    source = _table_mugs() | ({30: place} if source_object else {})
+    target = _table_mugs() | {20: place}
+    return _two_walks(source, target, place, "source" if stood else None, 0,
+                      seen=lambda i, view: i != 30 or view < object_views)
 
 
 def test_an_added_mug_where_the_source_saw_something_it_took_no_object_of_is_withheld():
@@ -396,26 +406,9 @@ def _removed_beside(target_new: bool) -> tuple[set[int], dict[int, str]]:
     target's map does not: the target's depth ends on something standing in 40's place. With
     `target_new` that something is target object 20, new there (a switch: 40 gone, 20 in its place);
     without, nothing but mug 5, matched unchanged. The reported and the withheld objects."""
-    table = np.array([0.0, 0.0])
-    mugs = {k + 1: np.r_[table + offset, 0.8] for k, offset in enumerate([(-0.2, -0.15), (0.2, -0.1), (-0.15, 0.2),
-                                                                             (0.25, 0.2)])}
-    mugs[5] = np.r_[table, 0.8]
-    ghost = np.r_[table + (0.06, 0.0), 0.8]
-    source = dict(mugs) | {40: ghost}
-    target = dict(mugs) | ({20: ghost} if target_new else {})
-    codes = {i: _code(100 + i) for i in set(source) | set(target)}
-    rng = np.random.default_rng(1)
-    detector = ChangeDetector(DetectorConfig(registration=RegistrationConfig(pairs=4)))
-    for session, layout, first in (("source", source, 0), ("target", target, 20)):
-        for view in range(10):
-            frame, eye = first + view, [-1.2, 0.02 * view, 1.3]
-            pose = look_at(eye, ghost)
-            depth = _box_at(ghost, pose) if session == "target" else np.full((480, 640), 9.0, np.float32)
-            detector.add_view(session, frame, depth, K, pose)  # type: ignore[arg-type]
-            measurements = [Measurement(frame, i, codes[i] + rng.normal(scale=0.02, size=16),
-                                        c + rng.normal(scale=0.003, size=3), 0.8) for i, c in layout.items()]
-            (detector.add_source if session == "source" else detector.add_target)(measurements)
-    return _reported_and_withheld(detector)
+    ghost = np.array([0.06, 0.0, 0.8])
+    mugs = _table_mugs() | {5: np.array([0.0, 0.0, 0.8])}
+    return _two_walks(mugs | {40: ghost}, mugs | ({20: ghost} if target_new else {}), ghost, "target", 1)
 
 
 def test_a_removal_against_an_object_that_stayed_is_no_switch_and_one_against_a_new_object_is():
