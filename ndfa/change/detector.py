@@ -155,8 +155,6 @@ class ChangeDetector:
         claimed against."""
         evidence = self.config.evidence
         session_map = self.source if session == "source" else self.target
-        # a removal's switch needs the target object in its place to be new there: not matched
-        # unchanged to a source object, its own addition not withheld
         settled = set(self.partners) | set(self.unseen) if session == "target" else set()
         return any(np.linalg.norm(horizontal(o.center_world - place_world)) <= 2 * evidence.sight_radius_m
                    and abs(o.center_world[2] - place_world[2]) <= evidence.sight_height_m
