@@ -144,16 +144,19 @@ def test_a_walk_longer_than_the_bound_keeps_an_even_sample_of_its_depths():
     assert len(views) == 100 and views.sight(np.array([1.2, 0.1, 0.8]), *SIZE).in_view == 100
 
 
-def _box_at(place: np.ndarray, pose: np.ndarray, background_m: float = 9.0) -> np.ndarray:
-    """A depth image of `background_m` with a box's face standing at `place` (a mug's size, its face
-    3 cm nearer than the place's center): something in the place that perception took no object of."""
+def _box_at(place: np.ndarray, pose: np.ndarray, background_m: float = 9.0,
+            half_m: tuple[float, float, float] = (0.04, 0.04, 0.05)) -> np.ndarray:
+    """A depth image of `background_m` with a box's face standing at `place` (of `half_m` half
+    sizes: a mug's by default; its face `half_m[0]` less 1 cm nearer than the place's center):
+    something in the place that perception took no object of."""
     world_to_camera = np.linalg.inv(pose)
-    corners = np.array([[x, y, z] for x in (-0.04, 0.04) for y in (-0.04, 0.04) for z in (-0.05, 0.05)]) + place
+    hx, hy, hz = half_m
+    corners = np.array([[x, y, z] for x in (-hx, hx) for y in (-hy, hy) for z in (-hz, hz)]) + place
     points = corners @ world_to_camera[:3, :3].T + world_to_camera[:3, 3]
     u, v = K[0, 0] * points[:, 0] / points[:, 2] + K[0, 2], K[1, 1] * points[:, 1] / points[:, 2] + K[1, 2]
     center = world_to_camera[:3, :3] @ place + world_to_camera[:3, 3]
     depth = np.full((480, 640), background_m, np.float32)
-    depth[int(v.min()):int(v.max()) + 1, int(u.min()):int(u.max()) + 1] = center[2] - 0.03
+    depth[int(v.min()):int(v.max()) + 1, int(u.min()):int(u.max()) + 1] = center[2] - (hx - 0.01)
     return depth
 
 
@@ -382,22 +385,45 @@ def test_a_short_objects_place_on_a_table_is_not_hidden_by_the_table_under_it():
     assert views.sight(mug, *SIZE, floor_m=table_m).unhidden == pytest.approx(views.sight(mug, *SIZE).unhidden)
 
 
-def test_a_measurement_stands_at_its_views_lowest_points_and_an_object_at_its_lowest_measurement():
-    from ndfa.change.associate import SessionMap, lowest_height
+def test_a_measurement_spans_its_views_lowest_to_highest_points_and_an_object_its_measurements_widest():
+    from ndfa.change.associate import SessionMap, height_extent
     from ndfa.core.events import ObservationEvent
 
     rng = np.random.default_rng(3)
     points = np.c_[rng.uniform(-0.03, 0.03, (400, 2)), rng.uniform(0.76, 0.80, 400)]
-    points[0, 2] = 0.2                       # one stray point far below: not where it stands
-    assert lowest_height(points) == pytest.approx(0.762, abs=0.002)
-    assert np.isnan(lowest_height(None))
+    points[0, 2], points[1, 2] = 0.2, 1.5    # a stray point far below and one far above: not the object's
+    assert height_extent(points) == pytest.approx((0.762, 0.798), abs=0.002)
+    assert np.isnan(height_extent(None)).all()
     event = ObservationEvent(session="source", frame_index=0, instance_id=1, n_pixels=500, skipped=None,
                              points_world=points, shape_code=_code(1), center_world=np.array([0.0, 0.0, 0.78]))
     session = SessionMap(DetectorConfig())
     first = session.update(Measurement.of(event))
-    session.update(replace(Measurement.of(event), frame_index=1, base_height=0.755))
-    session.update(replace(Measurement.of(event), frame_index=2, base_height=float("nan")))
-    assert session.objects[first.object_id].base_height == pytest.approx(0.755)
+    session.update(replace(Measurement.of(event), frame_index=1, base_height=0.755, top_height=0.81))
+    session.update(replace(Measurement.of(event), frame_index=2, base_height=float("nan"), top_height=float("nan")))
+    assert (session.objects[first.object_id].base_height, session.objects[first.object_id].top_height) \
+        == pytest.approx((0.755, 0.81))
+
+
+def test_a_short_objects_place_is_not_seen_empty_by_rays_that_pass_over_its_top():
+    """A cup 5.5 cm tall stands on a table seen from 1.2 m aside and 0.75 m above it (raw random
+    seed 10's unchanged cup, seen in both sessions). The place's cylinder (11 cm) centred at the
+    cup's center reaches 2.75 cm above its rim: the rays to those samples pass over the cup, and
+    with them the place read as seen empty, so that the cup's source object was taken as removed.
+    With the height the cup reaches (`ceiling_m`, its views' highest points) they are left out,
+    and the depth that ended on the cup stands; where no cup stood the place is still seen empty."""
+    table_m, eye = 0.75, np.array([0.0, 0.0, 1.5])
+    cup = np.array([1.2, 0.0, table_m + 0.0275])
+    pose = look_at(eye, cup)
+    stood, empty = SessionViews(SightRule()), SessionViews(SightRule())
+    stood.add(0, np.minimum(_table_at(table_m, pose), _box_at(cup, pose, half_m=(0.036, 0.036, 0.0275))), K, pose)
+    empty.add(0, _table_at(table_m, pose), K, pose)
+    rim = table_m + 0.055
+    assert stood.sight(cup, *SIZE, floor_m=table_m).seen_empty               # the rays over its rim
+    held = stood.sight(cup, *SIZE, floor_m=table_m, ceiling_m=rim)
+    assert held.shown and (held.well, held.empty) == (1, 0) and not held.seen_empty
+    assert empty.sight(cup, *SIZE, floor_m=table_m, ceiling_m=rim).seen_empty
+    mug = cup + [0, 0, 0.02]      # a mug's center, its rim 12 cm above the table: every sample is of it
+    assert stood.sight(mug, *SIZE, ceiling_m=table_m + 0.12).as_dict() == stood.sight(mug, *SIZE).as_dict()
 
 
 def _removed_beside(target_new: bool) -> tuple[set[int], dict[int, str]]:

@@ -53,6 +53,8 @@ class Measurement:
     # the height of the view's lowest points (their 5th percentile along up): where the object
     # stands, as this view shows it (segments lose a centimetre or so to the support); NaN: not known
     base_height: float = float("nan")
+    # ... and of its highest (their 95th percentile): how high the object reaches, as far as this view shows it
+    top_height: float = float("nan")
 
     @classmethod
     def of(cls, observation: ObservationEvent) -> Measurement:
@@ -64,15 +66,16 @@ class Measurement:
         return cls(observation.frame_index, observation.instance_id, observation.shape_code,
                    observation.center_world, observation.mean_occupancy, observation.heading_rad,
                    observation.heading_strength, observation.category, observation.category_probability,
-                   observation.n_pixels, lowest_height(observation.points_world))
+                   observation.n_pixels, *height_extent(observation.points_world))
 
 
-def lowest_height(points_world: np.ndarray | None) -> float:
-    """The height of a view's lowest points (the 5th percentile along up: a stray point below the
-    support does not set it); NaN without points."""
+def height_extent(points_world: np.ndarray | None) -> tuple[float, float]:
+    """The heights of a view's lowest and highest points (the 5th and 95th percentiles along up: a
+    stray point below the support or above the object does not set them); NaN without points."""
     if points_world is None or not len(points_world):
-        return float("nan")
-    return float(np.percentile(np.asarray(points_world)[:, UP_AXIS], 5))
+        return float("nan"), float("nan")
+    low, high = np.percentile(np.asarray(points_world)[:, UP_AXIS], [5, 95])
+    return float(low), float(high)
 
 
 @dataclass
@@ -100,8 +103,10 @@ class SessionObject:
     latest_center: np.ndarray | None = None  # its latest measurement's center (None: its center)
     # category -> the summed probability of its measurements that found it the likeliest (`category`)
     category_votes: dict[str, float] = field(default_factory=dict)
-    # the lowest of its measurements' `base_height`s: where it stands (inf: none known)
+    # the lowest of its measurements' `base_height`s: where it stands (inf: none known); and the
+    # highest of their `top_height`s: how high it reaches (-inf: none known)
     base_height: float = float("inf")
+    top_height: float = float("-inf")
 
     @property
     def category(self) -> str:
@@ -120,10 +125,13 @@ class SessionObject:
         if m.category != UNKNOWN_CATEGORY and np.isfinite(m.category_probability):
             self.category_votes[m.category] = self.category_votes.get(m.category, 0.0) + m.category_probability
 
-    def lower_base(self, m: Measurement) -> None:
-        """Take a measurement's base where it lies lower (one without points changes nothing)."""
+    def extend(self, m: Measurement) -> None:
+        """Take a measurement's base where it lies lower and its top where it reaches higher (one
+        without points changes nothing)."""
         if np.isfinite(m.base_height):
             self.base_height = min(self.base_height, m.base_height)
+        if np.isfinite(m.top_height):
+            self.top_height = max(self.top_height, m.top_height)
 
     @property
     def center_scatter_m(self) -> float:
@@ -223,12 +231,12 @@ class SessionMap:
                 instance_ids=(m.instance_id,), code_sum=_unit(m.shape_code), centers=[m.center_world],
                 headings=[(m.heading_rad, m.heading_strength)], frames=[m.frame_index], pixels=[m.n_pixels])
             self.objects[object_id].vote(m)
-            self.objects[object_id].lower_base(m)
+            self.objects[object_id].extend(m)
             self.tree.insert(object_id, m.center_world)
             return Association(object_id, True, False, float("nan"), float("nan"), len(candidates))
         best.n_measurements += 1
         best.vote(m)
-        best.lower_base(m)
+        best.extend(m)
         best.last_frame = m.frame_index
         best.latest_center = m.center_world
         kept = keep_in_history(best)

@@ -97,13 +97,16 @@ class ChangeDetector:
         if self.config.evidence.sight_radius_m > 0:
             self.views[session].add(frame_index, depth, K, pose_world_camera)
 
-    def sight(self, session: Session, place_world: np.ndarray, size: float = 1.0, below_m: float = np.inf) -> Sight:
+    def sight(self, session: Session, place_world: np.ndarray, size: float = 1.0,
+              reach_m: tuple[float, float] = (np.inf, np.inf)) -> Sight:
         """How well `session`'s frames showed an object of the category standing at `place_world`
         (that session's world): `ndfa.change.sight`, sized by `EvidenceConfig.sight_*` (and
-        `size`: `_own_size`), the object standing `below_m` under its center (`_below`)."""
+        `size`: `_own_size`), the object standing `reach_m[0]` under its center and reaching
+        `reach_m[1]` above it (`_reach`)."""
         evidence = self.config.evidence
+        height = float(np.asarray(place_world)[UP_AXIS])
         return self.views[session].sight(place_world, evidence.sight_radius_m, evidence.sight_height_m, size,
-                                         float(np.asarray(place_world)[UP_AXIS]) - below_m)
+                                         height - reach_m[0], height + reach_m[1])
 
     def _own_size(self, session: Session, obj: SessionObject) -> float:
         """The claimed object's size as its own views (`session`'s) show it, as a share of
@@ -116,12 +119,16 @@ class ChangeDetector:
         return own_size(np.asarray(obj.pixels), cameras, obj.center_world, views.K, *typical)
 
     @staticmethod
-    def _below(obj: SessionObject) -> float:
-        """How far under its center the object stands (its views' lowest points: `base_height`;
-        inf when not known), a height that holds in either session's world."""
-        return float(obj.center_world[UP_AXIS] - obj.base_height) if np.isfinite(obj.base_height) else np.inf
+    def _reach(obj: SessionObject) -> tuple[float, float]:
+        """How far under its center the object stands and how far above it it reaches (its views'
+        lowest and highest points: `base_height`, `top_height`; inf when not known): heights that
+        hold in either session's world."""
+        center = float(obj.center_world[UP_AXIS])
+        return (center - obj.base_height if np.isfinite(obj.base_height) else np.inf,
+                obj.top_height - center if np.isfinite(obj.top_height) else np.inf)
 
-    def _unshown(self, session: Session, place_world: np.ndarray, size: float = 1.0, below_m: float = np.inf) -> str | None:
+    def _unshown(self, session: Session, place_world: np.ndarray, size: float = 1.0,
+                 reach_m: tuple[float, float] = (np.inf, np.inf)) -> str | None:
         """Why a change at `place_world` is withheld: `session`, the other one, did not show the
         place, or sighted something there that none of its objects is (`WaitingConfig.sightings`,
         `ndfa.change.sightings`), or showed it but not empty while its map holds no object there
@@ -130,7 +137,7 @@ class ChangeDetector:
         evidence = self.config.evidence
         if evidence.sight_radius_m <= 0:
             return None
-        seen = self.sight(session, place_world, size, below_m)
+        seen = self.sight(session, place_world, size, reach_m)
         if not seen.shown:
             return f"its place was {seen.describe(session)}"
         if self.config.waiting.sightings:  # something too small to encode stood there (`ndfa.change.sightings`)
@@ -216,7 +223,7 @@ class ChangeDetector:
             for source_id in candidates:
                 obj = self.source.objects[source_id]
                 why = self._unshown("target", apply(to_target, obj.center_world[None])[0], self._own_size("source", obj),
-                                   self._below(obj))
+                                   self._reach(obj))
                 if why is not None:
                     unshown[source_id] = why
         removed = [i for i in candidates if i not in unshown]
@@ -385,7 +392,7 @@ class ChangeDetector:
             twin = self._held_twice(object_id)
             withheld = (f"one object held twice: target object {twin}, already decided, stood in its place"
                         if twin is not None else self._unshown("source", center_source, self._own_size("target", obj),
-                                                                  self._below(obj)))
+                                                                  self._reach(obj)))
             decision = self._decision(frame_index, object_id, "added", verdict, center_source, withheld=withheld)
             (self.changed if decision.withheld is None else self.unseen)[object_id] = decision
             if swapped_with is not None and swapped_with in self.partners:

@@ -87,6 +87,10 @@ STANDING_M = 0.03
 # An object's own size (`own_size`) is read at this percentile of its views' pixels against the
 # cylinder's: its fullest views show it whole, the others partly hidden or cut by the support.
 OWN_SIZE_PERCENTILE = 90
+# A sample of the place's cylinder this far above the object's own top (its views' highest points)
+# is of no part of it (`SessionViews.sight`'s `ceiling_m`): a few millimetres for the top's
+# percentile and the depth's noise, less than a row of the cylinder's samples (2.75 cm apart).
+OVER_TOP_M = 0.01
 # A frame's flat stop (`STANDING_M`) counts as the place seen empty only where it saw at least this
 # share of the place's upper facing samples (not hidden by a nearer surface, not without depth): the
 # rest of its upper half hidden, the few rays left ending low say nothing of what stood in it.
@@ -223,14 +227,18 @@ class SessionViews:
         return np.array([self.poses[i][:3, 3] for i in position]).reshape(-1, 3)
 
     def sight(self, place_world: np.ndarray, radius_m: float, height_m: float, size: float = 1.0,
-              floor_m: float = -np.inf) -> Sight:
+              floor_m: float = -np.inf, ceiling_m: float = np.inf) -> Sight:
         """How well these frames showed an object of `radius_m` and `height_m` standing centred at
         `place_world` (this session's world; the module docstring says how); `size`: the object's
         pixels as a share of that cylinder's (`own_size`, at most 1), which scales the pixels that
         decide `shown` and nothing else (the frames that judge emptiness are the cylinder's);
         `floor_m`: the height the object stands at: the samples below it are inside the support,
         not hidden by anything in front, and are left out of the share not hidden (an object shorter
-        than the cylinder); whether the place was seen empty is judged on every sample as before."""
+        than the cylinder); whether the place was seen empty is judged on every sample as before;
+        `ceiling_m`: the height the object reaches (its views' highest points): the samples more than
+        `OVER_TOP_M` above it (and above the place's center) are of no part of it, and are left out of
+        the share not hidden and of whether the place was seen empty (a ray passing over a cup's rim
+        does not say the cup is gone)."""
         rule = self.rule
         if not self.indices:
             return Sight(True, float("nan"), 0, min_pixels=rule.min_pixels)
@@ -253,7 +261,9 @@ class SessionViews:
         in_view = inside.all(axis=1) & (center_depth >= rule.min_depth_m) & (center_depth <= rule.max_depth_m)
         if not in_view.any():
             return Sight(False, 0.0, len(self), min_pixels=rule.min_pixels)
-        facing = np.einsum("fsj,sj->fs", cameras[:, None, :] - samples[None], normals) > 0
+        # the samples of the object's own height: none above its top (and the place's center row always)
+        of_it = samples[:, 2] <= max(ceiling_m, float(np.asarray(place_world)[2])) + OVER_TOP_M
+        facing = (np.einsum("fsj,sj->fs", cameras[:, None, :] - samples[None], normals) > 0) & of_it[None]
         rows = np.clip(np.rint((v - STRIDE // 2) / STRIDE), 0, self.depths[0].shape[0] - 1).astype(int)
         cols = np.clip(np.rint((u - STRIDE // 2) / STRIDE), 0, self.depths[0].shape[1] - 1).astype(int)
         kept = [k for k, f in enumerate(self.kept) if in_view[f]]    # the frames in view with their depth

@@ -16,6 +16,12 @@ from ndfa.perception.segmentation_config import SegmentationConfig
 
 _REFIT_WINDOWS = (2.5, 1.5, 1.0, 1.0)  # inlier windows of the successive refits, in plane_distance_m
 _THIN = 4  # the plane search uses every 4th sampled point: its counts only rank levels
+# A surface within an accepted plane's band (`_surfaces`): its window holds this many times each of
+# the windows this many windows above and below it, and its points spread this far across.
+_SURFACE_PEAK, _SURFACE_SHELL, _SURFACE_SPREAD_M = 2.5, 2.0, 0.15
+# ... and it lies at least this far from the accepted plane: nearer, it holds nothing the plane does
+# not (a far stretch of one table top a pose's tilt set 3 cm lower); a shelf's boards are 15 cm apart or more.
+_SURFACE_APART_M = 0.10
 
 
 @dataclass(frozen=True)
@@ -74,7 +80,7 @@ def find_horizontal_planes(points: np.ndarray, up: np.ndarray, config: Segmentat
             search_up = normal
             heights = search_up @ sample
             order = np.argsort(heights)
-        searchable &= np.abs(normal @ sample - offset) > config.band_height_m
+        searchable &= ~_held_by(sample, normal, offset, config)
     return _parallel(planes, columns, config) if len(planes) > 1 else planes
 
 
@@ -96,8 +102,51 @@ def track_horizontal_planes(points: np.ndarray, previous: list[Plane], up: np.nd
         if not _acceptable(sample, inliers, normal, offset, camera, config):
             return None
         planes.append(Plane(normal, float(offset), np.abs(normal @ columns - offset) <= config.plane_distance_m))
-        searchable &= np.abs(normal @ sample - offset) > config.band_height_m
+        searchable &= ~_held_by(sample, normal, offset, config)
     return _parallel(planes, columns, config) if len(planes) > 1 else planes
+
+
+def _held_by(sample: np.ndarray, normal: np.ndarray, offset: float, config: SegmentationConfig) -> np.ndarray:
+    """Which points of `sample` (rows (3, N)) an accepted plane holds, so that no other level is
+    searched among them: those within `band_height_m` of it, what stands on it (mug bodies at one
+    height) or belongs to it (a table's rim), but for the levels there that are surfaces of their
+    own (`_surfaces`: a shelf's boards, 25-35 cm apart, the lowest 15-35 cm above the floor)."""
+    height = normal @ sample - offset
+    held = np.abs(height) <= config.band_height_m
+    for level in _surfaces(plane_axes(normal) @ np.compress(held, sample, axis=1), height[held], config):
+        held &= np.abs(height - level) > _REFIT_WINDOWS[0] * config.plane_distance_m
+    return held
+
+
+def _surfaces(flat: np.ndarray, height: np.ndarray, config: SegmentationConfig) -> list[float]:
+    """The levels at least `_SURFACE_APART_M` from 0 among points (horizontal coordinates `flat` as
+    rows (2, N), and `height`) where a horizontal surface lies that is wider than any object: the height window of `plane_distance_m`
+    holds at least `min_plane_points` (thinned), `_SURFACE_PEAK` times what each of the windows
+    `_SURFACE_SHELL` windows above and below holds (the slices of mug bodies and of walls hold as
+    many points at every height: a surface's lie at one), and its points spread at least
+    `min_plane_spread_m` along their narrower horizontal axis (no strip of a wall) and
+    `_SURFACE_SPREAD_M` along their wider one (a box's top, however flat, is no wider than
+    `max_extent_m`). Largest first."""
+    distance = config.plane_distance_m
+    heights = np.sort(height)
+    if len(heights) < config.min_plane_points / _THIN:
+        return []
+    grid = np.arange(heights[0], heights[-1] + distance, distance / 2)
+
+    def count(levels: np.ndarray) -> np.ndarray:
+        return np.searchsorted(heights, levels + distance, side="right") - np.searchsorted(heights, levels - distance)
+
+    shell = _SURFACE_SHELL * distance
+    inside, beside = count(grid), np.maximum(count(grid - shell), count(grid + shell))
+    peaks = np.flatnonzero((np.abs(grid) >= _SURFACE_APART_M) & (inside >= config.min_plane_points / _THIN)
+                           & (inside >= _SURFACE_PEAK * beside))
+    levels: list[float] = []
+    for level in grid[peaks[np.argsort(-inside[peaks], kind="stable")]]:
+        narrow, wide = _spreads(np.compress(np.abs(height - level) <= distance, flat, axis=1))
+        if all(abs(level - other) > shell for other in levels) and narrow >= config.min_plane_spread_m \
+                and wide >= _SURFACE_SPREAD_M:
+            levels.append(float(level))
+    return levels
 
 
 def _refined(sample: np.ndarray, searchable: np.ndarray, normal: np.ndarray, offset: float, inliers: np.ndarray,
@@ -144,9 +193,14 @@ def _parallel(planes: list[Plane], columns: np.ndarray, config: SegmentationConf
 
 def _narrow_spread(columns: np.ndarray, normal: np.ndarray) -> float:
     """Standard deviation of the points (as rows (3, N)) along their narrower axis within the plane."""
-    flat = plane_axes(normal) @ columns
+    return _spreads(plane_axes(normal) @ columns)[0]
+
+
+def _spreads(flat: np.ndarray) -> tuple[float, float]:
+    """Standard deviations of 2-D points (as rows (2, N)) along their narrower and wider axes."""
     flat = flat - flat.mean(axis=1, keepdims=True)
-    return float(np.sqrt(np.linalg.eigvalsh(flat @ flat.T / flat.shape[1])[0]))
+    narrow, wide = np.sqrt(np.maximum(np.linalg.eigvalsh(flat @ flat.T / flat.shape[1]), 0.0))
+    return float(narrow), float(wide)
 
 
 def _fit_plane(columns: np.ndarray, up: np.ndarray) -> tuple[np.ndarray, float] | None:

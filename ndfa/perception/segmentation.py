@@ -68,6 +68,12 @@ from ndfa.perception.segmentation_config import SegmentationConfig
 from ndfa.perception.split import split_in_two
 
 
+# A point above an object's height overhangs when the depth passes this far beyond the spot this
+# far under that height, straight below it (`_overhanging`): the board above a shelf's mugs (25-35
+# cm up, the mugs 6-13 cm tall) with the room seen between them.
+OVERHANG_PROBE_M, FREE_M = 0.05, 0.05
+
+
 @dataclass(frozen=True)
 class ClusterVerdict:
     """What became of one DBSCAN cluster (`explain_frame`): its shape, and `rejected`, the test it
@@ -169,7 +175,7 @@ def explain_frame(frame: Frame, config: SegmentationConfig = SegmentationConfig(
         return labels, verdicts
     up = planes[0].normal  # the planes' common normal: it corrects a slightly tilted pose
     min_heights = _min_heights(depths, config)
-    candidate, plane_of_point = _candidates(points, min_heights, planes, up, config)
+    candidate, plane_of_point = _candidates(points, min_heights, planes, up, config, frame)
     if not candidate.any():
         return labels, verdicts
     cluster_points = points[candidate]
@@ -256,23 +262,29 @@ def _world_points(frame: Frame, rows: np.ndarray, cols: np.ndarray, depth: np.nd
 
 
 def _candidates(points: np.ndarray, min_heights: np.ndarray, planes: list[Plane], up: np.ndarray,
-                config: SegmentationConfig
+                config: SegmentationConfig, frame: Frame | None = None
                 ) -> tuple[np.ndarray, np.ndarray]:
-    """Which points may belong to objects, and the index of the plane each stands on (step 3)."""
+    """Which points may belong to objects, and the index of the plane each stands on (step 3);
+    `frame`: the points' frame, whose depth tells what overhangs (`_overhanging`; None: nothing)."""
     candidate = np.zeros(len(points), dtype=bool)
     plane_of_point = np.full(len(points), -1, dtype=np.int64)
     axes = plane_axes(up)
     margin = int(np.ceil(config.footprint_margin_m / config.footprint_cell_m))
     # The planes share their normal (`find_horizontal_planes`): one projection gives every height.
     along = points @ up if all(np.array_equal(p.normal, up) for p in planes) else None
-    for index, plane in enumerate(planes):
+    # The highest plane first: a point within the bands of two planes (a shelf's board and the
+    # floor under it) stands on the nearer one below it; no plane's own points stand on another.
+    on_a_plane = np.logical_or.reduce([plane.inliers for plane in planes])
+    for index in sorted(range(len(planes)), key=lambda i: -planes[i].offset):
+        plane = planes[index]
         h = plane.height(points) if along is None else along - plane.offset
-        band = np.flatnonzero(~candidate & (h >= min_heights) & (h <= config.band_height_m))
+        band = np.flatnonzero(~candidate & ~on_a_plane & (h >= min_heights) & (h <= config.band_height_m))
         if len(band) == 0:
             continue
         band_flat = points[band] @ axes.T
         over = _over_footprint(points[plane.inliers] @ axes.T, band_flat, config.footprint_cell_m, margin)
-        over[over] = ~_under_tall(band_flat[over], band_flat, h[band], config)
+        overhangs = None if frame is None else _overhanging(frame, points[band], h[band], up, config)
+        over[over] = ~_under_tall(band_flat[over], band_flat, h[band], config, overhangs)
         chosen = band[over]
         candidate[chosen] = True
         plane_of_point[chosen] = index
@@ -298,29 +310,61 @@ def _over_footprint(marked_flat: np.ndarray, flat: np.ndarray, cell: float, marg
     return over
 
 
-def _under_tall(flat: np.ndarray, band_flat: np.ndarray, band_heights: np.ndarray, config: SegmentationConfig
-                ) -> np.ndarray:
+def _under_tall(flat: np.ndarray, band_flat: np.ndarray, band_heights: np.ndarray, config: SegmentationConfig,
+                overhangs: np.ndarray | None = None) -> np.ndarray:
     """Which points (horizontal coordinates `flat`) stand in a column that reaches above an
     object's height: a point of the band (`band_flat`, `band_heights`) higher than
     `max_object_height_m` lies within `column_radius_m` of them horizontally. Such columns hold
     parts of taller things (walls, cabinet fronts, legs), dropped before clustering, which they
     would otherwise dominate. A radius, not grid cells: whether a wall's foot shared a cell with
     the wall above it depended on where the cell edges fell, which a tenth of a degree of levelling
-    moves by a centimetre a few metres out (docs/segmentation.md, "Columns")."""
+    moves by a centimetre a few metres out (docs/segmentation.md, "Columns"). `overhangs`: which
+    band points overhang space the camera saw empty (`_overhanging`), no column."""
     tall = band_heights > config.max_object_height_m
-    if not tall.any() or len(flat) == 0:
+    if overhangs is not None:
+        tall &= ~overhangs
+    return _within(band_flat[tall], flat, config.column_radius_m)
+
+
+def _overhanging(frame: Frame, points: np.ndarray, heights: np.ndarray, up: np.ndarray,
+                 config: SegmentationConfig) -> np.ndarray:
+    """Which points (world, `heights` above their plane) higher than `max_object_height_m` have
+    space under them that the frame saw through: at `OVERHANG_PROBE_M` under an object's height
+    straight below each, the depth reaches `FREE_M` past that spot. The board above a shelf's mugs
+    is such; a wall's upper part is not (what is under it is more wall, or hidden behind a nearer
+    thing: a chair in front of a cabinet's foot), and neither is what the frame cannot tell."""
+    free = np.zeros(len(points), dtype=bool)
+    tall = np.flatnonzero(heights > config.max_object_height_m)
+    if not len(tall):
+        return free
+    probes = points[tall] - np.outer(heights[tall] - (config.max_object_height_m - OVERHANG_PROBE_M), up)
+    world_to_camera = np.linalg.inv(frame.pose_world_camera)
+    camera = probes @ world_to_camera[:3, :3].T + world_to_camera[:3, 3]
+    z = camera[:, 2]
+    ahead = z > 1e-6
+    u = np.rint(frame.K[0, 0] * camera[:, 0] / np.where(ahead, z, 1.0) + frame.K[0, 2]).astype(np.int64)
+    v = np.rint(frame.K[1, 1] * camera[:, 1] / np.where(ahead, z, 1.0) + frame.K[1, 2]).astype(np.int64)
+    height, width = frame.depth.shape
+    inside = ahead & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    measured = np.zeros(len(tall))
+    measured[inside] = frame.depth[v[inside], u[inside]]
+    free[tall] = np.isfinite(measured) & (measured > z + FREE_M)
+    return free
+
+
+def _within(marked_flat: np.ndarray, flat: np.ndarray, radius: float) -> np.ndarray:
+    """Which 2-D points (`flat`) lie within `radius` of a point of `marked_flat`. Exact, with fewer
+    searches: a point sharing a cell of side radius / 1.5 with a marked point lies within 0.95 radius
+    of it; a marked point within the radius lies in the point's cell of side radius or a
+    neighbouring one, so only the points there are searched."""
+    if len(marked_flat) == 0 or len(flat) == 0:
         return np.zeros(len(flat), dtype=bool)
-    tall_flat = band_flat[tall]
-    # Exact, with fewer searches: a point sharing a cell of side radius / 1.5 with a tall point lies
-    # within 0.95 radius of it; a tall point within the radius lies in the point's cell of side
-    # radius or a neighbouring one, so only the points there are searched.
-    radius = config.column_radius_m
-    under = _over_footprint(tall_flat, flat, radius / 1.5, 0)
-    near = np.flatnonzero(~under & _over_footprint(tall_flat, flat, radius, 1))
+    within = _over_footprint(marked_flat, flat, radius / 1.5, 0)
+    near = np.flatnonzero(~within & _over_footprint(marked_flat, flat, radius, 1))
     if len(near):
-        distance, _ = cKDTree(tall_flat).query(flat[near], distance_upper_bound=radius)
-        under[near] = np.isfinite(distance)
-    return under
+        distance, _ = cKDTree(marked_flat).query(flat[near], distance_upper_bound=radius)
+        within[near] = np.isfinite(distance)
+    return within
 
 
 def _kept_clusters(points: np.ndarray, depths: np.ndarray, cluster_of_point: np.ndarray, plane_of_point: np.ndarray,
