@@ -17,6 +17,7 @@ from ndfa.core.errors import SimError
 from ndfa.core.geometry import make_pose, rotation_z
 from ndfa.io.ingest.synthetic import render_objects
 from ndfa.log.table_sink import TableSink
+from ndfa.perception.segmentation_config import SegmentationConfig
 from ndfa.sim.presets import make_config
 from ndfa.sim.render import SceneRenderer
 from ndfa.sim.shelves import shelf_camera_poses
@@ -176,3 +177,27 @@ def test_each_route_sees_every_mug_on_every_level_past_the_boards():
             for i, n in zip(ids.tolist(), counts.tolist()):
                 seen[i] = max(seen.get(i, 0), n * 16)  # pixels at full resolution, roughly
         assert {i for i, n in seen.items() if i and is_visible(n)} == set(world.layout(session))
+
+
+# -- segmentation without masks on a shelf (`ndfa.perception.planes`, `segmentation`) -------------
+
+LOWER_BOARD = ((-0.45, 0.8, 0.18), (0.45, 1.15, 0.20))   # 20 cm above the floor, 2 cm thick
+UPPER_BOARD = ((-0.45, 0.8, 0.48), (0.45, 1.15, 0.50))   # the next one, 30 cm higher
+SIDE_PANELS = [((-0.47, 0.8, 0.0), (-0.45, 1.15, 0.8)), ((0.45, 0.8, 0.0), (0.47, 1.15, 0.8))]
+SHELF_MUGS = [(-0.2, 0.95, 0.04, 0.20, 0.30), (0.0, 1.0, 0.04, 0.20, 0.31), (0.22, 0.93, 0.04, 0.20, 0.29)]
+
+
+@pytest.mark.parametrize("pitch_deg, height_m", [(10.0, 0.42), (25.0, 0.55), (35.0, 0.9)])
+@pytest.mark.parametrize("objects", [False, True])
+def test_mugs_on_a_shelfs_lowest_board_are_segmented_under_the_next_board(pitch_deg, height_m, objects):
+    """A shelf unit's lowest board 20 cm above the floor, the next 30 cm higher, three mugs on the
+    lower one, seen from just above it (as `--preset shelves` walks), from higher, and from above.
+    The board lies within `band_height_m` of the floor, whose band held every level there, so its
+    mugs stood 20 cm above their plane ("floating"); and the next board overhangs them, so they
+    stood in a tall column. The board is a support of its own (`ndfa.perception.planes._surfaces`)
+    and the board above hangs over space the camera sees through (`_overhanging`): one segment per mug."""
+    from test_outline import FLOOR, WALL, _camera, _kept_near, _render
+
+    frame = _render([FLOOR, WALL, LOWER_BOARD, UPPER_BOARD, *SIDE_PANELS], SHELF_MUGS, _camera(pitch_deg, (0.0, 0.1, height_m)))
+    config = SegmentationConfig().for_objects() if objects else SegmentationConfig()
+    assert [len(_kept_near(frame, config, mug[:2])[0]) for mug in SHELF_MUGS] == [1, 1, 1]

@@ -113,14 +113,16 @@ def _held_by(sample: np.ndarray, normal: np.ndarray, offset: float, config: Segm
     own (`_surfaces`: a shelf's boards, 25-35 cm apart, the lowest 15-35 cm above the floor)."""
     height = normal @ sample - offset
     held = np.abs(height) <= config.band_height_m
-    for level in _surfaces(plane_axes(normal) @ np.compress(held, sample, axis=1), height[held], config):
+    for level in _surfaces(sample, height, held, normal, config):
         held &= np.abs(height - level) > _REFIT_WINDOWS[0] * config.plane_distance_m
     return held
 
 
-def _surfaces(flat: np.ndarray, height: np.ndarray, config: SegmentationConfig) -> list[float]:
-    """The levels at least `_SURFACE_APART_M` from 0 among points (horizontal coordinates `flat` as
-    rows (2, N), and `height`) where a horizontal surface lies that is wider than any object: the height window of `plane_distance_m`
+def _surfaces(sample: np.ndarray, height: np.ndarray, among: np.ndarray, normal: np.ndarray,
+              config: SegmentationConfig) -> list[float]:
+    """The levels at least `_SURFACE_APART_M` from 0 among the points `among` of `sample` (rows
+    (3, N), `height` above a plane of `normal`) where a horizontal surface lies that is wider than
+    any object: the height window of `plane_distance_m`
     holds at least `min_plane_points` (thinned), `_SURFACE_PEAK` times what each of the windows
     `_SURFACE_SHELL` windows above and below holds (the slices of mug bodies and of walls hold as
     many points at every height: a surface's lie at one), and its points spread at least
@@ -128,7 +130,7 @@ def _surfaces(flat: np.ndarray, height: np.ndarray, config: SegmentationConfig) 
     `_SURFACE_SPREAD_M` along their wider one (a box's top, however flat, is no wider than
     `max_extent_m`). Largest first."""
     distance = config.plane_distance_m
-    heights = np.sort(height)
+    heights = np.sort(height[among])
     if len(heights) < config.min_plane_points / _THIN:
         return []
     grid = np.arange(heights[0], heights[-1] + distance, distance / 2)
@@ -142,7 +144,7 @@ def _surfaces(flat: np.ndarray, height: np.ndarray, config: SegmentationConfig) 
                            & (inside >= _SURFACE_PEAK * beside))
     levels: list[float] = []
     for level in grid[peaks[np.argsort(-inside[peaks], kind="stable")]]:
-        narrow, wide = _spreads(np.compress(np.abs(height - level) <= distance, flat, axis=1))
+        narrow, wide = _spreads(plane_axes(normal) @ np.compress(among & (np.abs(height - level) <= distance), sample, axis=1))
         if all(abs(level - other) > shell for other in levels) and narrow >= config.min_plane_spread_m \
                 and wide >= _SURFACE_SPREAD_M:
             levels.append(float(level))

@@ -273,12 +273,15 @@ def _candidates(points: np.ndarray, min_heights: np.ndarray, planes: list[Plane]
     # The planes share their normal (`find_horizontal_planes`): one projection gives every height.
     along = points @ up if all(np.array_equal(p.normal, up) for p in planes) else None
     # The highest plane first: a point within the bands of two planes (a shelf's board and the
-    # floor under it) stands on the nearer one below it; no plane's own points stand on another.
-    on_a_plane = np.logical_or.reduce([plane.inliers for plane in planes])
+    # floor under it) stands on the nearer one below it, and the higher plane's own points on none.
     for index in sorted(range(len(planes)), key=lambda i: -planes[i].offset):
         plane = planes[index]
         h = plane.height(points) if along is None else along - plane.offset
-        band = np.flatnonzero(~candidate & ~on_a_plane & (h >= min_heights) & (h <= config.band_height_m))
+        free = ~candidate
+        for above in planes:
+            if 0 < above.offset - plane.offset <= config.band_height_m:
+                free &= ~above.inliers
+        band = np.flatnonzero(free & (h >= min_heights) & (h <= config.band_height_m))
         if len(band) == 0:
             continue
         band_flat = points[band] @ axes.T
