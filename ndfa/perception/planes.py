@@ -45,9 +45,10 @@ def find_horizontal_planes(points: np.ndarray, up: np.ndarray, config: Segmentat
     counted over all points. The first (largest) plane's refitted normal becomes the up direction
     for the others: a pose tilted by a few degrees (the `paper` target's are, by up to 3)
     otherwise smears a far table top over several height windows. Once a plane is accepted, the
-    levels within `band_height_m` of it are not searched: what lies there stands on it (mug bodies
-    at one height) or belongs to it (a table's rim). A level is also rejected when it lies above
-    the `camera` position (world; None: no such test), or its inliers form a strip.
+    levels within `band_height_m` of it are not searched (`_held_by`: what lies there stands on it
+    or belongs to it) but for horizontal surfaces wider than any object (a shelf's boards). A level
+    is also rejected when it lies above the `camera` position (world; None: no such test), or its
+    inliers form a strip.
     """
     camera = np.full(3, np.inf) if camera is None else camera
     planes: list[Plane] = []
@@ -112,7 +113,7 @@ def _held_by(sample: np.ndarray, normal: np.ndarray, offset: float, config: Segm
     height) or belongs to it (a table's rim), but for the levels there that are surfaces of their
     own (`_surfaces`: a shelf's boards, 25-35 cm apart, the lowest 15-35 cm above the floor)."""
     height = normal @ sample - offset
-    held = np.abs(height) <= config.band_height_m
+    held: np.ndarray = np.abs(height) <= config.band_height_m
     for level in _surfaces(sample, height, held, normal, config):
         held &= np.abs(height - level) > _REFIT_WINDOWS[0] * config.plane_distance_m
     return held

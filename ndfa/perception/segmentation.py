@@ -10,13 +10,14 @@ rest with DBSCAN; this is that, for one frame at a time:
    rather than random: the height window of `plane_distance_m` holding the most points wins, its inliers are refitted by least
    squares (which absorbs a tilt of the pose up to `plane_max_tilt_deg`), and the search repeats
    away from the accepted planes while a level holds enough points. Floor and table tops are
-   both found; at the end all planes take the normal of the widest one. With `plane_search_every`
+   both found, and a shelf's boards 15-35 cm apart; at the end all planes take the normal of the widest one. With `plane_search_every`
    above 1, a session's pass (`PlaneTracker`) refits the previous frame's planes instead, and
    searches the heights in full every so many frames or where a refitted plane fails the tests.
 3. Candidates: points above a support plane by more than `min_height_m` and at most
    `band_height_m`, whose horizontal position lies over (or within `footprint_margin_m` of) that
-   plane's own inliers, and with no point higher than `max_object_height_m` within
-   `column_radius_m` horizontally (that column is part of something taller: a wall, a table leg).
+   plane's own inliers (the nearest plane below a point that two planes' bands reach), and with no
+   point higher than `max_object_height_m` within `column_radius_m` horizontally (that column is
+   part of something taller: a wall, a table leg; not a board overhanging space seen empty).
    Rule for the floor: none is needed. Every horizontal plane supports objects; what stands on
    the floor (legs) or next to it (walls) reaches above an object's height and is dropped here or
    at step 5. So a frame that sees only a table top, or only the floor with objects on it, needs
@@ -66,7 +67,6 @@ from ndfa.perception.objectness import ClusterShape, cluster_shape, judge
 from ndfa.perception.planes import Plane, find_horizontal_planes, plane_axes, track_horizontal_planes
 from ndfa.perception.segmentation_config import SegmentationConfig
 from ndfa.perception.split import split_in_two
-
 
 # A point above an object's height overhangs when the depth passes this far beyond the spot this
 # far under that height, straight below it (`_overhanging`): the board above a shelf's mugs (25-35
