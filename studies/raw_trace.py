@@ -161,7 +161,7 @@ def segments(recording: str, step: int, radius_m: float = 0.10) -> None:
         # the final verdicts (hidden, cut) replace the gate's, in the same order
         for (center, _), verdict in zip(list(found), verdicts):
             xy = center[:2]
-            distances = [float(np.linalg.norm(xy - p)) for _, _, p in items]
+            distances = [float(np.linalg.norm(xy - p[:2])) for _, _, p in items]
             best = int(np.argmin(distances))
             if distances[best] > radius_m:
                 continue

@@ -130,3 +130,17 @@ def test_a_tilted_truth_is_compared_horizontally_in_its_level_world():
     # 30 cm above mug 1 (a centre's height is no evidence), expressed in the tilted world.
     above = tilt @ np.array([0.0, 0.0, 1.05, 1.0])
     assert match_object(ReportedObject("target", 0, above[:3]), gt, np.eye(4)).instance_id == 1
+
+
+def test_a_report_is_matched_on_its_own_level_not_to_the_item_on_the_board_below():
+    """Shelves: mug 1 on a board at 0.20 m, mug 2 on the board above (0.50 m), 2 cm aside of it. A
+    report at mug 2's center (5 cm above its base) is mug 2, though mug 1 stands nearer horizontally;
+    one at mug 1's is mug 1; one between the boards, 15 cm above mug 1's base, still mug 1's level.
+    (With one item within reach, height decides nothing: the tests above.)"""
+    gt = {"objects": [{"instance_id": 1, "source": placed(0.0, 0.0, 0.20), "target": placed(0.0, 0.0, 0.20), "change": "unchanged"},
+                      {"instance_id": 2, "source": placed(0.02, 0.0, 0.50), "target": placed(0.02, 0.0, 0.50), "change": "unchanged"}]}
+    assert match_object(obj("target", 0, 0.0, 0.0, 0.55), gt, np.eye(4)).instance_id == 2
+    assert match_object(obj("target", 1, 0.02, 0.0, 0.25), gt, np.eye(4)).instance_id == 1
+    assert match_object(obj("target", 2, 0.0, 0.0, 0.35), gt, np.eye(4)).instance_id == 1
+    # and a bottle's center, 18 cm above its table, is the bottle's
+    assert match_object(obj("target", 3, 0.0, 0.0, 0.38), gt, np.eye(4)).instance_id == 1

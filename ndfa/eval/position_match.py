@@ -41,9 +41,13 @@ from ndfa.eval.scoring import KindReport, Score, score
 # off the axis when one side was seen, plus what the alignment leaves). Items stand apart by their
 # footprints plus a clearance (`ndfa.sim.world`; no two of one session nearer than 11.6 cm on the
 # seven scenes of issue 16), so an object standing elsewhere is not credited to an item, and the
-# nearest item wins where two are within reach. Horizontal only: a center's height depends on how
-# much of the object the views saw (a rim seen from above sits high), not on which object it is.
+# nearest item wins where two are within reach. Horizontal: a center's height depends on how much
+# of the object the views saw (a rim seen from above sits high), not on which object it is; only
+# between items within reach stacked on shelves it tells the level: an object's center lies between
+# `LEVEL_BELOW_M` under its base and `LEVEL_ABOVE_M` over it (up to 36 cm tall, its center a few cm
+# off), short of a board 25 cm away.
 MATCH_RADIUS_M = 0.07
+LEVEL_BELOW_M, LEVEL_ABOVE_M = 0.05, 0.25
 # The camera axes' points for the alignment lie this far from the camera: about the scale of the
 # room's distances, so that positions and orientations weigh alike in the fit.
 AXIS_POINT_M = 1.0
@@ -143,32 +147,36 @@ def align_worlds(run_poses: Sequence[np.ndarray] | np.ndarray,
 
 
 def truth_items(ground_truth: dict, session: str) -> list[tuple[int, str, np.ndarray]]:
-    """(instance id, kind, horizontal center (2,) in the true level world) of every item standing in
-    `session`: its mugs and the (static) clutter."""
+    """(instance id, kind, base (3,): where it stands, in the true level world) of every item
+    standing in `session`: its mugs and the (static) clutter."""
     level_world = _level_world(ground_truth)
     items = []
     for o in ground_truth.get("objects", []):
         if o.get(session):
-            items.append((int(o["instance_id"]), "mug", _horizontal(level_world, np.array(o[session]["pose_world_object"])[:3, 3])))
+            items.append((int(o["instance_id"]), "mug", _levelled(level_world, np.array(o[session]["pose_world_object"])[:3, 3])))
     for c in ground_truth.get("clutter", []):
         items.append((int(c["instance_id"]), f"clutter:{c['kind']}",
-                      _horizontal(level_world, np.array(c["pose_world_object"])[:3, 3])))
+                      _levelled(level_world, np.array(c["pose_world_object"])[:3, 3])))
     return items
 
 
 def match_object(reported: ReportedObject, ground_truth: dict, pose_true_run: np.ndarray,
                  radius_m: float = MATCH_RADIUS_M) -> Match:
-    """The item of the report's session nearest its center (true world, horizontally) within `radius_m`;
-    the center mapped by the report's own `pose_true_run` when it has one, else by `pose_true_run`."""
+    """The item of the report's session nearest its center (true world, horizontally) within
+    `radius_m`, of those the center stands on the level of if any (`LEVEL_BELOW_M`,
+    `LEVEL_ABOVE_M`: items stacked on shelves); the center mapped by the report's own
+    `pose_true_run` when it has one, else by `pose_true_run`."""
     if reported.pose_true_run is not None:
         pose_true_run = reported.pose_true_run
     center_true = pose_true_run[:3, :3] @ np.asarray(reported.center_world, dtype=np.float64) + pose_true_run[:3, 3]
-    center = _horizontal(_level_world(ground_truth), center_true)
+    center = _levelled(_level_world(ground_truth), center_true)
     items = truth_items(ground_truth, reported.session)
     if not items:
         return Match(reported, None, "nothing", float("inf"))
-    distances = [float(np.linalg.norm(xy - center)) for _, _, xy in items]
-    best = int(np.argmin(distances))
+    distances = [float(np.linalg.norm(base[:2] - center[:2])) for _, _, base in items]
+    within = [k for k, distance in enumerate(distances) if distance <= radius_m]
+    on_level = [k for k in within if -LEVEL_BELOW_M <= center[2] - items[k][2][2] <= LEVEL_ABOVE_M]
+    best = min(on_level or within or range(len(items)), key=lambda k: distances[k])
     instance_id, kind, _ = items[best]
     if distances[best] <= radius_m:
         return Match(reported, instance_id, kind, distances[best])
@@ -219,5 +227,5 @@ def _level_world(ground_truth: dict) -> np.ndarray:
     return np.eye(4) if not tilt else invert_pose(np.array(tilt["pose_world_level"], dtype=np.float64))
 
 
-def _horizontal(pose_level_world: np.ndarray, point_world: np.ndarray) -> np.ndarray:
-    return (pose_level_world[:3, :3] @ point_world + pose_level_world[:3, 3])[:2]
+def _levelled(pose_level_world: np.ndarray, point_world: np.ndarray) -> np.ndarray:
+    return pose_level_world[:3, :3] @ point_world + pose_level_world[:3, 3]
