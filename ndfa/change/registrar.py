@@ -11,8 +11,8 @@ Prior hypotheses (`add_prior`: the sessions share one world, or their scene clou
 are scored at every attempt by the same pairs (`ndfa.change.register.verify_prior`), also before
 there are N of them: with few objects (two mugs on a table) RANSAC never gets its N, but a prior
 that two pairs agree with is a T_rel. Each candidate must pass its own bar (RANSAC `RansacConfig.min_inliers`,
-a prior `PriorConfig.min_inliers`, or RANSAC's where its own evidence is weak, and a RANSAC fit must
-agree with a prior where there is one); the one with most inliers wins, RANSAC's on a tie. A standalone prior (a scene alignment or shared world
+a prior `PriorConfig.min_inliers`, or RANSAC's for a scene alignment whose own evidence is weak, and
+a RANSAC fit must agree with a prior where there is one); the one with most inliers wins, RANSAC's on a tie. A standalone prior (a scene alignment or shared world
 whose own evidence is strong, `RegistrationPrior.standalone`) passes with fewer pairs, as "scene (own
 evidence)" or "shared world (own evidence)": the objects are then tested against it, and pairs that
 confirm it later replace it.
@@ -142,14 +142,16 @@ class Registrar:
         source_centers = {i: o.center_world for i, o in source.objects.items()}
         candidates: list[tuple[Registration | None, bool]] = []  # (estimate, passes its bar)
         verified = []  # the priors and how the pairs verify them
-        # A prior whose own evidence is weak is one more hypothesis: as many pairs confirm it as would
-        # accept RANSAC's fit (as many as the source has, in a small map), not two chance ones
-        # (a shelf's units turned half a turn: docs/registration.md, "A weak prior").
+        # A scene alignment whose own evidence is weak is one more hypothesis: as many pairs confirm it
+        # as would accept RANSAC's fit (as many as the source has, in a small map), not two chance ones
+        # (a shelf's units turned half a turn: docs/registration.md, "A weak prior"). Given poses
+        # that share a world are no search's outcome: their two pairs, as before.
         weak_min = max(self.prior_config.min_inliers, min(self.ransac.min_inliers, len(source.objects)))
         for prior in self.priors:
             check = verify_prior(prior, pairs, target_centers, source_centers, self.config.inlier_m,
                                  support_m=self.prior_config.support_m)
-            confirmed = len(check.inliers) >= (self.prior_config.min_inliers if prior.standalone else weak_min)
+            searched = prior.method == "scene alignment" and not prior.standalone
+            confirmed = len(check.inliers) >= (weak_min if searched else self.prior_config.min_inliers)
             if not confirmed and prior.standalone:  # too few pairs: it stands on the scene's own evidence
                 check = dataclasses.replace(check, method=OWN_EVIDENCE[prior.method], evidence=prior.evidence)
             verified.append((prior, check, confirmed or prior.standalone))
