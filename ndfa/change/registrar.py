@@ -10,9 +10,10 @@ itself is `ndfa.change.register.ransac_registration` on shape-matched (target, s
 Prior hypotheses (`add_prior`: the sessions share one world, or their scene clouds were aligned)
 are scored at every attempt by the same pairs (`ndfa.change.register.verify_prior`), also before
 there are N of them: with few objects (two mugs on a table) RANSAC never gets its N, but a prior
-that two pairs agree with is a T_rel. Each candidate must pass its own bar (RANSAC `RansacConfig.min_inliers`,
-a prior `PriorConfig.min_inliers`, or RANSAC's for a scene alignment whose own evidence is weak, and
-a RANSAC fit must agree with a prior where there is one); the one with most inliers wins, RANSAC's on a tie. A standalone prior (a scene alignment or shared world
+that two pairs agree with is a T_rel. Each candidate must pass its own bar (RANSAC
+`RansacConfig.min_inliers`; a prior `PriorConfig.min_inliers`, or RANSAC's for a scene alignment
+whose own evidence is weak; and a RANSAC fit must agree with a prior where there is one); the one
+with most inliers wins, RANSAC's on a tie. A standalone prior (a scene alignment or shared world
 whose own evidence is strong, `RegistrationPrior.standalone`) passes with fewer pairs, as "scene (own
 evidence)" or "shared world (own evidence)": the objects are then tested against it, and pairs that
 confirm it later replace it.

@@ -123,8 +123,8 @@ def _surfaces(sample: np.ndarray, height: np.ndarray, among: np.ndarray, normal:
               config: SegmentationConfig) -> list[float]:
     """The levels at least `_SURFACE_APART_M` from 0 among the points `among` of `sample` (rows
     (3, N), `height` above a plane of `normal`) where a horizontal surface lies that is wider than
-    any object: the height window of `plane_distance_m`
-    holds at least `min_plane_points` (thinned), `_SURFACE_PEAK` times what each of the windows
+    any object: the height window of `plane_distance_m` holds at least `min_plane_points`
+    (thinned), `_SURFACE_PEAK` times what each of the windows
     `_SURFACE_SHELL` windows above and below holds (the slices of mug bodies and of walls hold as
     many points at every height: a surface's lie at one), and its points spread at least
     `min_plane_spread_m` along their narrower horizontal axis (no strip of a wall) and

@@ -61,7 +61,7 @@ from scipy.spatial import cKDTree
 
 from ndfa.core import conventions
 from ndfa.core.frame import Frame
-from ndfa.core.geometry import backproject
+from ndfa.core.geometry import backproject, invert_pose, project, transform_points
 from ndfa.perception.dbscan import dbscan, voxel_dbscan
 from ndfa.perception.objectness import ClusterShape, cluster_shape, judge
 from ndfa.perception.planes import Plane, find_horizontal_planes, plane_axes, track_horizontal_planes
@@ -341,16 +341,13 @@ def _overhanging(frame: Frame, points: np.ndarray, heights: np.ndarray, up: np.n
     if not len(tall):
         return free
     probes = points[tall] - np.outer(heights[tall] - (config.max_object_height_m - OVERHANG_PROBE_M), up)
-    world_to_camera = np.linalg.inv(frame.pose_world_camera)
-    camera = probes @ world_to_camera[:3, :3].T + world_to_camera[:3, 3]
+    camera = transform_points(invert_pose(frame.pose_world_camera), probes)
     z = camera[:, 2]
-    ahead = z > 1e-6
-    u = np.rint(frame.K[0, 0] * camera[:, 0] / np.where(ahead, z, 1.0) + frame.K[0, 2]).astype(np.int64)
-    v = np.rint(frame.K[1, 1] * camera[:, 1] / np.where(ahead, z, 1.0) + frame.K[1, 2]).astype(np.int64)
+    pixels = np.rint(project(frame.K, camera))
     height, width = frame.depth.shape
-    inside = ahead & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+    inside = (z > 1e-6) & (pixels[:, 0] >= 0) & (pixels[:, 0] < width) & (pixels[:, 1] >= 0) & (pixels[:, 1] < height)
     measured = np.zeros(len(tall))
-    measured[inside] = frame.depth[v[inside], u[inside]]
+    measured[inside] = frame.depth[pixels[inside, 1].astype(np.int64), pixels[inside, 0].astype(np.int64)]
     free[tall] = np.isfinite(measured) & (measured > z + FREE_M)
     return free
 
