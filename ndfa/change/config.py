@@ -183,6 +183,12 @@ class EvidenceConfig:
     # it, was not seen empty, and the change is withheld with the reason (`ndfa.change.sight`,
     # docs/detector.md). Off: False (shown is enough).
     seen_empty: bool = True
+    # ... nor where that session's map holds an object in the place measured at least this many
+    # times but too few to be tested: something object-like stood there, whatever the frames read of
+    # the place (a cup narrower and shorter than the place's cylinder reads "seen through"); one view
+    # may be a stray segment or a piece of a neighbour (raw textured seed 1's moved mug's new place
+    # held such a source object). Off: 0.
+    glimpse_views: int = 2
     # Two sessions' views of an object are from a common side when their directions from the object
     # about up lie within this many degrees (`ndfa.change.sides`): the NDF's codes and handle
     # headings depend on the side seen. A turn ("rotated") is measured between the views from a

@@ -146,9 +146,28 @@ class ChangeDetector:
             if sighted >= self.config.waiting.min_measurements:
                 return (f"its place was not seen empty: the {session} sighted something there in {sighted} "
                         "views too small to encode, and none of its objects stood there")
+        glimpsed = self._glimpsed_at(session, place_world) if evidence.glimpse_views else None
+        if evidence.seen_empty and glimpsed is not None:
+            return (f"its place held {session} object {glimpsed}, seen {self._views_of(session, glimpsed)} time(s): "
+                    "too few to test, and no sign that it was not the same object")
         if not evidence.seen_empty or seen.seen_empty or self._stands_at(session, place_world):
             return None
         return f"its place was {seen.describe_occupied(session)}"
+
+    def _glimpsed_at(self, session: Session, place_world: np.ndarray) -> int | None:
+        """The object of `session`'s map standing in the place (its center within `sight_radius_m`
+        horizontally and `sight_height_m` in height) measured at least `EvidenceConfig.glimpse_views`
+        times but too few to be tested (`DecisionPolicy.testable`), if any (docs/detector.md)."""
+        evidence = self.config.evidence
+        session_map = self.source if session == "source" else self.target
+        return next((object_id for object_id, o in sorted(session_map.objects.items())
+                     if np.linalg.norm(horizontal(o.center_world - place_world)) <= evidence.sight_radius_m
+                     and abs(o.center_world[2] - place_world[2]) <= evidence.sight_height_m
+                     and o.n_measurements >= evidence.glimpse_views
+                     and not self.policy.testable(o.n_measurements, self.sightings[session].count(object_id))), None)
+
+    def _views_of(self, session: Session, object_id: int) -> int:
+        return (self.source if session == "source" else self.target).objects[object_id].n_measurements
 
     def _stands_at(self, session: Session, place_world: np.ndarray) -> bool:
         """Whether `session`'s map holds an object standing in the place (its center within two
