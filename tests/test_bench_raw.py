@@ -44,6 +44,14 @@ def test_bench_raw_times_every_stage_of_both_sessions_before_now_and_under_load(
     assert frames == sum(lengths) and rows["frames used (the rest skipped)"] == [str(frames), str(half), str(half)]
     for wall, fps in zip(rows["wall s"], rows["frames/s (input frames / wall)"]):
         assert float(fps) == pytest.approx(frames / float(wall), rel=0.05, abs=0.05)
+    # How many times faster than the camera recorded both sessions: their recorded time over the wall.
+    (label,) = [name for name in rows if name.startswith("x real time")]
+    recorded = float(re.search(r"recorded ([\d.]+) s", label).group(1))
+    times = [RecordingReader(small_raw_pair / name).timestamps() for name in ("source.mcap", "target.mcap")]
+    period = times[0][1] - times[0][0]
+    assert recorded == pytest.approx(sum(t[-1] - t[0] + period for t in times), abs=0.06)
+    for wall, realtime in zip(rows["wall s"], rows[label]):
+        assert float(realtime) == pytest.approx(recorded / float(wall), rel=0.05, abs=0.01)
     # Stages that run one after the other, before the frames' passes, fit in the wall time of the two
     # processes they run in (`--workers` 2, the default: the target's poses and the scene alignment
     # in the worker, `ndfa.run.workers`).

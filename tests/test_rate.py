@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from ndfa.io.recording import RecordingReader
-from ndfa.run.rate import at_rate, used_positions
+from ndfa.run.rate import at_rate, recorded_seconds, used_positions
 from ndfa.run.stream import RunOptions
 from ndfa.run.world import spread
 from tests.test_sessions import SAMPLE
@@ -30,6 +30,12 @@ def test_at_rate_uses_frames_at_most_so_often():
     assert at_rate(times, 100) == list(range(91))        # slower than the rate: every frame
     used = at_rate(times, 7)
     assert min(np.diff([times[p] for p in used])) >= 0.9 / 7
+
+
+def test_a_recordings_time_counts_its_last_frames_period_too():
+    assert recorded_seconds(jittered(30, 300, jitter_s=0.0)) == pytest.approx(10.0)
+    assert recorded_seconds(jittered(5, 339, jitter_s=0.001)) == pytest.approx(339 / 5, abs=0.01)
+    assert recorded_seconds([3.0]) == 0.0
 
 
 def test_a_pause_in_the_recording_takes_the_first_frame_after_it():

@@ -184,6 +184,7 @@ def _bench_raw(source: Path, target: Path, before_ref: str | None, load: bool, r
     table.add_row("frames used (the rest skipped)", *(str(row["frames_used"]) for row in rows))
     table.add_row("frames/s (input frames / wall)", *(f"{row['fps']:.1f}" for row in rows))
     table.add_row("CPU s", *(f"{row['cpu_s']:.1f}" for row in rows))
+    table.add_row(f"x real time (recorded {now['recorded_s']:.1f} s / wall)", *(f"{row['realtime']:.2f}" for row in rows))
     table.add_row("TP / FP / FN", *("-" if row["score"] is None else "/".join(map(str, row["score"])) for row in rows))
     console.print(table)
     for row in rows:

@@ -6,8 +6,9 @@ segmented, the two sessions' scene clouds are aligned before the target pass, an
 estimates T_rel along the way. This times all of it, both sessions, the way `ndfa detect` runs it
 (the stages overlapped in threads, no sinks), and gives each stage's wall time as ms per input frame
 (both sessions' frames, those a `--frame-step` or `--rate` skips counted too); frames/s is both
-sessions' input frames over the wall time of the whole run, the rate to compare with the sensor's
-(30 frames/s). A run that skips frames says how many it used (`frames_used`).
+sessions' input frames over the wall time of the whole run; `realtime`, the time both sessions took to
+record over that wall time (`ndfa.run.rate.recorded_seconds`): above 1 the run kept up with the
+camera. A run that skips frames says how many it used (`frames_used`).
 
 With the stages overlapped, a stage's time is its own thread's (waits for the GIL and the cores
 included), so the per-frame stages add up to more than the wall time. Speed figures of this module
@@ -26,6 +27,8 @@ from typing import TYPE_CHECKING
 
 from ndfa.eval.bench import machine
 from ndfa.eval.revision import alternate, beside_busy_process, revision_tree, run_in_tree
+from ndfa.io.recording import RecordingReader
+from ndfa.run.rate import recorded_seconds
 
 if TYPE_CHECKING:  # the NDF's torch loads only when a benchmark runs
     from ndfa.pipeline import PipelineConfig
@@ -96,8 +99,6 @@ def raw_pass_of(tree: Path, ref: str, source: Path, target: Path, threads: int =
     leaves out."""
     import json
 
-    from ndfa.io.recording import RecordingReader
-
     module = tree / "ndfa" / "eval" / "bench_raw.py"
     if module.is_file() and "def raw_pass(" in (text := module.read_text()) and "frame_step: int" in text:
         out = tree / "raw_pass.json"
@@ -138,7 +139,8 @@ def raw_pass_runs(source: Path, target: Path, now: PipelineConfig | None = None,
     ran it (`raw_pass_of`), alternating with now (`ndfa.eval.revision.alternate`). A label's row
     is its run of median frames/s, every run's in `fps_runs`. With `load`, now once more beside
     one busy process. `workers`: now's (default `RunOptions.workers`); the before runs as its revision did.
-    `rate_hz` (`ndfa detect --rate`): now's only; `before_frame_step`: the before's (default `frame_step`)."""
+    `rate_hz` (`ndfa detect --rate`): now's only; `before_frame_step`: the before's (default `frame_step`).
+    Every row also gives `recorded_s` (both sessions' recorded time) and `realtime` (that over its wall)."""
     now_run = functools.partial(raw_pass, source, target, now, threads, frame_step, workers=workers, rate_hz=rate_hz)
     with contextlib.ExitStack() as stack:
         before = None
@@ -149,4 +151,5 @@ def raw_pass_runs(source: Path, target: Path, now: PipelineConfig | None = None,
         rows = alternate(now_run, before, repeat)
     if load:
         rows.append({"label": "now, beside one busy process"} | beside_busy_process(now_run))
-    return rows
+    recorded_s = recorded_seconds(RecordingReader(source).timestamps()) + recorded_seconds(RecordingReader(target).timestamps())
+    return [row | {"recorded_s": recorded_s, "realtime": recorded_s / row["wall_s"]} for row in rows]

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numpy as np
+
 from ndfa.io.recording import RecordingReader
 
 # Share of the period by which two used frames may be closer than 1 / rate: a recording's
@@ -48,6 +50,16 @@ def used_positions(reader: RecordingReader, frame_step: int = 1, rate_hz: float 
     if frame_step != 1:
         raise ValueError("a frame step and a rate: give one of them")
     return at_rate(reader.timestamps(), rate_hz)
+
+
+def recorded_seconds(timestamps: Sequence[float]) -> float:
+    """How long a recording took to record, seconds: its first to its last frame plus one frame's
+    period (the median step), so that 300 frames at 30 Hz are 10 s. What "real time" means for it:
+    a run over it in less wall time than this kept up with its camera."""
+    times = np.asarray(timestamps, dtype=float)
+    if len(times) < 2:
+        return 0.0
+    return float(times[-1] - times[0] + np.median(np.diff(times)))
 
 
 def describe_use(used: Sequence[int], length: int) -> str:
