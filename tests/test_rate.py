@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from ndfa.io.recording import RecordingReader
+from ndfa.io.recording.reader import SEEK_GAP_FRAMES, _sparse
 from ndfa.run.rate import at_rate, recorded_seconds, used_positions
 from ndfa.run.stream import RunOptions
 from ndfa.run.world import spread
@@ -76,6 +77,23 @@ def test_frames_at_positions():
     assert list(reader.frames(positions=[])) == []
     with pytest.raises(ValueError, match="increase"):
         list(reader.frames(positions=[5, 3]))
+
+
+def test_frames_far_apart_are_read_by_seeking_and_are_the_frames_a_read_through_gives():
+    reader = RecordingReader(SAMPLE / "source.mcap")
+    every = list(reader.frames())
+    for positions in (range(0, len(every), SEEK_GAP_FRAMES), range(3, len(every), 7), [1, 9, 30, 31, len(every) - 1]):
+        assert _sparse(positions)
+        seeking = list(reader.frames(positions=positions))
+        assert len(seeking) == len(positions)
+        for frame, position in zip(seeking, positions):
+            expected = every[position]
+            assert (frame.index, frame.timestamp) == (expected.index, expected.timestamp)
+            np.testing.assert_array_equal(frame.depth, expected.depth)
+            np.testing.assert_array_equal(frame.rgb, expected.rgb)
+            np.testing.assert_array_equal(frame.instances, expected.instances)
+            np.testing.assert_array_equal(frame.pose_world_camera, expected.pose_world_camera)
+    assert not _sparse(range(0, len(every), 2)) and not _sparse([4])
 
 
 def test_spread_is_the_grid_where_every_frame_is_used_and_the_nearest_used_frames_otherwise():

@@ -56,6 +56,10 @@ _IMAGE_FORMATS: dict[str, dict[str, tuple[str, int]]] = {
     channels.INSTANCES: {channels.MONO16: ("<u2", 1)},
 }
 
+# Wanted frames at least this far apart on average (`frames(positions=...)`, `--rate` on a fast camera)
+# are read by seeking to each one's chunks instead of reading every chunk (`_sparse`).
+SEEK_GAP_FRAMES = 4
+
 # Channels without which a timestamp is not a frame.
 _REQUIRED_PER_FRAME = (channels.DEPTH, channels.CALIBRATION, channels.TF)
 
@@ -136,7 +140,14 @@ class RecordingReader:
             return
         wanted = positions if isinstance(positions, range) else frozenset(positions)
         with open(self.path, "rb") as file:
-            for position, (time_ns, messages) in enumerate(self._messages_by_time(file)):
+            mcap = SeekingReader(file, validate_crcs=True)
+            times = self._indexed_times(file) if _sparse(positions) else None
+            if times is not None:  # only the chunks that hold a wanted frame are read
+                for position in positions:
+                    for time_ns, messages in self._messages_by_time(mcap, times[position]):
+                        yield self._assemble_frame(time_ns, messages)
+                return
+            for position, (time_ns, messages) in enumerate(self._messages_by_time(mcap)):
                 if position in wanted:
                     yield self._assemble_frame(time_ns, messages)
                 if position == positions[-1]:
@@ -150,7 +161,7 @@ class RecordingReader:
             indexed = self._indexed_times(file)
             if indexed is not None:
                 return [time_ns / 1e9 for time_ns in indexed]
-            return [time_ns / 1e9 for time_ns, _ in self._messages_by_time(file)]
+            return [time_ns / 1e9 for time_ns, _ in self._messages_by_time(SeekingReader(file, validate_crcs=True))]
 
     def _indexed_times(self, file: BinaryIO) -> list[int] | None:
         """The depth messages' log times (ns, sorted) from the chunks' message index records (each
@@ -254,12 +265,13 @@ class RecordingReader:
                 raise RecordingError(f"{self.path} is corrupt: {error}") from error
             yield item
 
-    def _messages_by_time(self, file: BinaryIO) -> Iterator[tuple[int, dict[str, Message]]]:
-        """Yield (time in ns, {topic: message}) per timestamp, in time order: one frame each."""
-        mcap = SeekingReader(file, validate_crcs=True)
+    def _messages_by_time(self, mcap: SeekingReader, at_ns: int | None = None) -> Iterator[tuple[int, dict[str, Message]]]:
+        """Yield (time in ns, {topic: message}) per timestamp, in time order: one frame each; with
+        `at_ns`, the one frame at that time (only the chunks its messages lie in are read)."""
         topics = [topic for topic in channels.FRAME_CHANNELS if topic in self._channels]
         group_time, group = None, {}
-        for _, channel, message in self._checked(mcap.iter_messages(topics=topics, log_time_order=True)):
+        messages = mcap.iter_messages(topics=topics, log_time_order=True, starting_at=at_ns, ending_at=at_ns)
+        for _, channel, message in self._checked(messages):
             if message.log_time != group_time:
                 if group:
                     yield self._complete_group(group_time, group)
@@ -372,6 +384,17 @@ class RecordingReader:
         if values_per_pixel == 1:
             return pixels.reshape(image.height, image.width)
         return pixels.reshape(image.height, image.width, values_per_pixel)
+
+
+def _sparse(positions: Sequence[int]) -> bool:
+    """Whether `positions` skip so many frames that reading only the chunks of the wanted ones is
+    cheaper than reading every chunk once: a chunk holds two or three 640 x 480 frames
+    (`writer.CHUNK_SIZE_BYTES`), and a frame's messages may lie in two, so a frame read on its own
+    costs one or two chunks' decompression and its checksum; from SEEK_GAP_FRAMES apart on average
+    that is less than every chunk's."""
+    if len(positions) < 2:
+        return False
+    return (positions[-1] - positions[0]) / (len(positions) - 1) >= SEEK_GAP_FRAMES
 
 
 def _check_mcap_file(path: Path) -> dict[int, ChunkRecord]:
