@@ -12,10 +12,11 @@ from typer.testing import CliRunner
 from ndfa.cli import app
 from ndfa.core.errors import RecordingError
 from ndfa.eval.runs import score_detection
-from ndfa.io.recording import Frame, RecordingWriter
+from ndfa.io.recording import Frame, RecordingReader, RecordingWriter
 from ndfa.log.table_sink import TABLES, TableSink
 from ndfa.pipeline import PipelineConfig
 from ndfa.run.detect import RunOptions, run_detection
+from ndfa.run.rate import DEFAULT_RATE_HZ, ODOMETRY_RATE_HZ
 
 SAMPLE = Path(__file__).parents[1] / "recordings" / "sample"
 SUMMARY_KEYS = {"tp", "fp", "fn", "precision", "recall", "frames", "objects_source", "objects_target", "fps",
@@ -41,6 +42,9 @@ def test_summary_scores_the_sample_against_its_ground_truth(run):
     assert summary["objects_source"] >= 10 and summary["objects_target"] >= 10
     assert set(summary["stage_ms"]) == {"reading", "perception", "encoding", "detection", "registration"}
     assert summary["ndf_runtime"] == "onnxruntime"  # the default where it is installed (docs/speed.md)
+    # The frames it used, as the run chose them (ndfa.run.rate): the defaults, which use every frame of the 5 Hz sample.
+    assert (summary["frame_step"], summary["rate_hz"], summary["odometry_rate_hz"]) == (1, DEFAULT_RATE_HZ, ODOMETRY_RATE_HZ)
+    assert summary["frames"] == sum(len(RecordingReader(SAMPLE / name)) for name in ("source.mcap", "target.mcap"))
     # the added mug (instance 14) stands where the source had nothing: it must be found
     assert any(14 in change["instance_ids"] for change in summary["changes"])
     # a move says where from: its source object and that object's masks

@@ -54,7 +54,7 @@ def test_a_rate_that_leaves_one_frame_or_comes_with_a_frame_step_is_refused(ndfa
              "--rate 0.001 leaves 1 of the 62 frames", "source.mcap", "span")
     one_line(ndfa("detect", SAMPLE / "source.mcap", SAMPLE / "target.mcap", "--rate", "15", "--frame-step", "2"),
              "--rate and --frame-step", "give one of them")
-    one_line(ndfa("detect", SAMPLE / "source.mcap", SAMPLE / "target.mcap", "--rate", "0"), "--rate")
+    one_line(ndfa("detect", SAMPLE / "source.mcap", SAMPLE / "target.mcap", "--rate", "-1"), "--rate")
 
 
 def test_the_route_bound_is_the_simulators_own():

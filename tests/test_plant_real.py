@@ -5,7 +5,7 @@ mug removed, a procedural mug moved, another added; and the same plan with nothi
   registered by the static scene (`ndfa.run.scene_evidence`), one unchanged mug being left to pair,
   too few for the object pairs alone.
 - The halves (frames 0-249 against 250-499) with docs/plant_kitchen.toml planted, estimated poses:
-  every 2nd frame planted (the odometry's frames), every 4th detected (docs/plant.md).
+  every 2nd frame planted, run at the default rates: the odometry on every 4th, the pass on every 8th.
 Skipped with a reason when the dataset (../shared, or $NDFA_REDKITCHEN) is absent."""
 
 from __future__ import annotations
@@ -70,7 +70,7 @@ def planted(slices, tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def planted_run(planted):
-    return planted, score_detection(run_detection(planted.paths["source"], planted.paths["target"]))
+    return planted, score_detection(run_detection(planted.paths["source"], planted.paths["target"], options=kitchen.SLICE))
 
 
 def test_planted_changes_are_the_detectors_objects_where_planted(planted_run):
@@ -101,11 +101,11 @@ def test_planted_changes_are_found_with_the_datasets_poses(planted_run):
     assert _every_kind_right(result), (result.score.kinds, [c.kind for c in result.changes])
 
 
-# The halves: the odometry tracks every 2nd frame (every 4th leaves the target's poses doubtful,
-# 10.8 cm, and the scene alignment ambiguous: a rival 0.77 against 0.76; docs/plant.md), the
-# detector reads every 2nd of those. Planted as the measured kitchen pair (`kitchen`).
+# The halves: every 2nd 7-Scenes frame (15 Hz), run at the default rates (`ndfa.run.rate`): the
+# odometry tracks every 2nd of them (7.5 Hz), the pass uses every 2nd of those. Planted as the
+# measured kitchen pair (`kitchen`).
 HALVES_PLAN = Path(__file__).resolve().parents[1] / "docs" / "plant_kitchen.toml"
-HALVES_STEP, HALVES_DETECT_STEP = 2, 2
+HALVES_STEP = 2
 
 
 @pytest.fixture(scope="module")
@@ -118,7 +118,7 @@ def planted_halves(tmp_path_factory):
 
 def test_planted_changes_in_the_halves_are_found_with_estimated_poses(planted_halves):
     result = score_detection(run_detection(planted_halves.paths["source"], planted_halves.paths["target"],
-                                           options=RunOptions(poses="estimate", frame_step=HALVES_DETECT_STEP)))
+                                           options=RunOptions(poses="estimate")))
     for session, world in result.worlds.items():
         assert world.pose_quality is not None and world.pose_quality.verdict == "good", (session, world.describe())
     # Most of the table changed: one unchanged mug is left to pair, so the static scene registers
@@ -138,6 +138,6 @@ def test_the_same_plan_with_nothing_changed_copies_the_frames_and_reports_no_cha
         for a, b in zip(RecordingReader(original).frames(), RecordingReader(copy).frames(), strict=True):
             assert np.array_equal(a.depth, b.depth) and np.array_equal(a.rgb, b.rgb)
             assert np.allclose(a.pose_world_camera, b.pose_world_camera, atol=1e-12)
-    result = score_detection(run_detection(same.paths["source"], same.paths["target"], options=RunOptions()))
+    result = score_detection(run_detection(same.paths["source"], same.paths["target"], options=kitchen.SLICE))
     assert result.changes == []
     assert result.score is not None and (result.score.tp, result.score.fp, result.score.fn) == (0, 0, 0)

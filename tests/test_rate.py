@@ -3,12 +3,23 @@ the recording's timestamps without decoding, and the frames spread among the use
 
 from __future__ import annotations
 
+import dataclasses
+import json
+
 import numpy as np
 import pytest
 
-from ndfa.io.recording import RecordingReader
+from ndfa.io.recording import RecordingReader, RecordingWriter
 from ndfa.io.recording.reader import SEEK_GAP_FRAMES, _sparse
-from ndfa.run.rate import at_rate, recorded_seconds, used_positions
+from ndfa.run.rate import (
+    DEFAULT_RATE_HZ,
+    ODOMETRY_RATE_HZ,
+    at_rate,
+    chosen_rate,
+    recorded_seconds,
+    tracked_and_used,
+    used_positions,
+)
 from ndfa.run.stream import RunOptions
 from ndfa.run.world import spread
 from tests.test_sessions import SAMPLE
@@ -31,6 +42,64 @@ def test_at_rate_uses_frames_at_most_so_often():
     assert at_rate(times, 100) == list(range(91))        # slower than the rate: every frame
     used = at_rate(times, 7)
     assert min(np.diff([times[p] for p in used])) >= 0.9 / 7
+
+
+class _Stamps:
+    """A recording as `used_positions` reads it: its length and its timestamps."""
+
+    def __init__(self, times: list[float]) -> None:
+        self.times = times
+
+    def __len__(self) -> int:
+        return len(self.times)
+
+    def timestamps(self) -> list[float]:
+        return self.times
+
+
+def test_a_run_uses_a_fast_camera_at_the_default_rate_and_a_slow_one_whole():
+    fast, slow = _Stamps(jittered(30, 300)), _Stamps(jittered(DEFAULT_RATE_HZ, 40))
+    assert list(RunOptions().positions(fast)) == list(range(0, 300, round(30 / DEFAULT_RATE_HZ)))
+    assert list(RunOptions().positions(slow)) == list(range(40))
+    # A frame step replaces the rate; a rate of None (`--rate 0`) uses every frame.
+    assert list(RunOptions(frame_step=2).positions(fast)) == list(range(0, 300, 2))
+    assert list(RunOptions(rate_hz=None).positions(fast)) == list(range(300))
+    assert list(RunOptions(rate_hz=15).positions(fast)) == list(range(0, 300, 2))
+    assert chosen_rate(None) == DEFAULT_RATE_HZ and chosen_rate(0) is None and chosen_rate(10) == 10
+    assert chosen_rate(None, frame_step=3) is None
+
+
+def test_the_odometry_tracks_more_frames_than_the_pass_uses_and_every_one_of_those():
+    fast = _Stamps(jittered(30, 300))
+    tracked, used = RunOptions().tracked_and_used(fast)
+    assert list(tracked) == list(range(0, 300, round(30 / ODOMETRY_RATE_HZ)))
+    assert list(used) == list(range(0, 300, round(30 / DEFAULT_RATE_HZ))) and set(used) <= set(tracked)
+    # Odd rates too: the pass's frames are picked among the odometry's.
+    tracked, used = tracked_and_used(fast, rate_hz=4, odometry_rate_hz=11)
+    assert set(used) <= set(tracked) and len(used) < len(tracked)
+    assert min(np.diff([fast.times[p] for p in used])) >= 0.9 / 4
+    # A frame step, every frame (`--rate 0`), or no faster odometry rate: the same frames for both.
+    for options in (RunOptions(frame_step=3), RunOptions(rate_hz=None), RunOptions(odometry_rate_hz=None),
+                    RunOptions(rate_hz=20)):
+        tracked, used = options.tracked_and_used(fast)
+        assert list(tracked) == list(used) == list(options.positions(fast))
+
+
+def test_detect_uses_a_30_hz_recording_at_the_default_rate_and_every_frame_at_rate_0(ndfa, tmp_path):
+    reader = RecordingReader(SAMPLE / "source.mcap")
+    paths = [tmp_path / "a.mcap", tmp_path / "b.mcap"]
+    for path in paths:  # the sample's first 30 frames, stamped as a 30 Hz camera would
+        with RecordingWriter(path, {"source": "sim", "session": path.stem}) as writer:
+            for i, frame in enumerate(reader.frames(stop=30)):
+                writer.write_frame(dataclasses.replace(frame, index=i, timestamp=i / 30.0))
+    used = len(range(0, 30, round(30 / DEFAULT_RATE_HZ)))
+    code, _, err = ndfa("detect", *paths, "--json", tmp_path / "default.json")
+    assert code == 0, err
+    assert f"{used} of its 30 frames used (--rate {DEFAULT_RATE_HZ:g}, the default" in " ".join(err.split())
+    assert json.loads((tmp_path / "default.json").read_text())["frames"] == 2 * used
+    code, _, err = ndfa("detect", *paths, "--rate", "0", "--json", tmp_path / "every.json")
+    assert code == 0, err
+    assert "frames used" not in err and json.loads((tmp_path / "every.json").read_text())["frames"] == 60
 
 
 def test_a_recordings_time_counts_its_last_frames_period_too():

@@ -9,8 +9,9 @@ import typer
 from rich.table import Table
 
 from ndfa.cli.app import app, console
-from ndfa.cli.checks import at_least, at_least_one, checkpoint, positive, thread_count
+from ndfa.cli.checks import at_least, at_least_one, checkpoint, non_negative, thread_count
 from ndfa.eval.revision import RAW_BEFORE_REF
+from ndfa.run.rate import chosen_rate
 
 
 @app.command("bench")
@@ -45,8 +46,8 @@ def bench_command(
                                                              "the shipped ones; with --before-ref, that revision's).",
                                                   callback=checkpoint),
     frame_step: int = typer.Option(1, help="detect, raw: use every N-th frame.", callback=at_least_one),
-    rate: Optional[float] = typer.Option(None, help="raw: now, use frames at most this often, Hz (`ndfa detect --rate`).",
-                                         callback=positive),
+    rate: Optional[float] = typer.Option(None, help="raw: now, use frames at most this often, Hz (`ndfa detect --rate`: "
+                                         "its default where not given, 0 every frame).", callback=non_negative),
     before_frame_step: Optional[int] = typer.Option(None, help="raw --compare: the before's --frame-step (default "
                                                                "--frame-step).", callback=at_least_one),
     repeat: int = typer.Option(1, help="detect, raw: run now and the before this many times, in turns; a column "
@@ -86,7 +87,7 @@ def bench_command(
         if rate is not None and frame_step > 1:
             raise typer.BadParameter("--rate and --frame-step both choose the frames: give one of them")
         _bench_raw(source, target, (before_ref or RAW_BEFORE_REF) if compare else None, load=load, repeat=repeat,
-                   threads=threads, frame_step=frame_step, workers=workers, rate_hz=rate,
+                   threads=threads, frame_step=frame_step, workers=workers, rate_hz=chosen_rate(rate, frame_step),
                    before_frame_step=before_frame_step)
         return
     if what == "detect":

@@ -19,6 +19,7 @@ from ndfa.cli.checks import (
     at_least_one,
     checkpoint,
     in_range,
+    non_negative,
     number_text,
     output_dir,
     output_file,
@@ -31,7 +32,7 @@ from ndfa.io.recording import RecordingReader
 from ndfa.io.recording.ground_truth import changed_instances, identical_moves
 from ndfa.perception.segmentation_config import GATES
 from ndfa.run.align import REGISTRATION_MODES
-from ndfa.run.rate import used_positions
+from ndfa.run.rate import DEFAULT_RATE_HZ, ODOMETRY_RATE_HZ, chosen_rate, tracked_and_used
 from ndfa.run.workers import WORKERS
 from ndfa.run.world import POSE_MODES, UP_MODES
 
@@ -55,9 +56,10 @@ def detect_command(
     frame_step: int = typer.Option(1, help="Use every N-th frame of each recording (the pass and, where poses are "
                                    "estimated, the odometry: the others are skipped).", callback=at_least_one),
     rate: Optional[float] = typer.Option(None, help="Use frames at most this often, Hz, by each recording's "
-                                         "timestamps (15 on a 30 Hz recording: every 2nd frame; the others are "
-                                         "skipped, by the odometry too; docs/speed.md). Default: every frame.",
-                                         callback=positive),
+                                         f"timestamps (default {number_text(DEFAULT_RATE_HZ)}: every 6th frame of a "
+                                         "30 Hz recording, every frame of a slower one; the others are skipped, by "
+                                         "the odometry too; 0: every frame; docs/speed.md).",
+                                         callback=non_negative),
     no_images: bool = typer.Option(False, "--no-images", help="Leave depth/colour/mask images out of the .rrd (smaller)."),
     association_distance: Optional[float] = typer.Option(
         None, help=f"delta_d, metres (default {_DETECTOR.association.distance_m}).", callback=positive),
@@ -124,20 +126,27 @@ def detect_command(
         raise typer.BadParameter(f"--gate must be one of {', '.join(GATES)}, got {gate!r}")
     if rate is not None and frame_step > 1:
         raise OptionError("--rate and --frame-step both choose the frames: give one of them")
-    if frame_step > 1 or rate is not None:
-        for recording in recordings:
-            reader = RecordingReader(recording)
-            frames, used = len(reader), len(used_positions(reader, frame_step, rate))
-            if used < 2 <= frames:  # a session of one frame sees one view: the step then drops all the rest
-                if rate is not None:
-                    times = reader.timestamps()
-                    raise OptionError(f"--rate {number_text(rate)} leaves 1 of the {frames} frames of {recording}: "
-                                      f"its frames span {times[-1] - times[0]:.3g} s")
-                raise OptionError(f"--frame-step {number_text(frame_step)} leaves 1 of the {frames} frames of {recording}: "
-                                  f"at most {frames - 1} keeps two")
-            chosen = f"--rate {number_text(rate)}" if rate is not None else f"--frame-step {frame_step}"
-            err_console.print(f"{recording}: {used} of its {frames} frames used ({chosen}; the others are skipped)",
-                              highlight=False)
+    rate_hz = chosen_rate(rate, frame_step)
+    for recording in recordings:
+        reader = RecordingReader(recording)
+        tracked, used = (len(p) for p in tracked_and_used(reader, frame_step, rate_hz, ODOMETRY_RATE_HZ))
+        frames = len(reader)
+        if used == frames:
+            continue
+        if used < 2 <= frames:  # a session of one frame sees one view: the step then drops all the rest
+            if rate_hz is not None:
+                times = reader.timestamps()
+                given = "" if rate is not None else "the default "
+                raise OptionError(f"{given}--rate {number_text(rate_hz)} leaves 1 of the {frames} frames of {recording}: "
+                                  f"its frames span {times[-1] - times[0]:.3g} s (--rate 0: every frame)")
+            raise OptionError(f"--frame-step {number_text(frame_step)} leaves 1 of the {frames} frames of {recording}: "
+                              f"at most {frames - 1} keeps two")
+        chosen = (f"--frame-step {frame_step}" if rate_hz is None else f"--rate {number_text(rate_hz)}"
+                  + ("" if rate is not None else ", the default; --rate 0 for every frame"))
+        odometry = "" if reader.has_poses or tracked == used else (
+            f"; its odometry tracks {tracked} (at most {number_text(ODOMETRY_RATE_HZ)} a second)")
+        err_console.print(f"{recording}: {used} of its {frames} frames used ({chosen}; the others are skipped){odometry}",
+                          highlight=False)
     if threads is not None:
         import torch  # lazy: torch takes seconds to import, and `ndfa --help` none
 
@@ -178,7 +187,7 @@ def detect_command(
                                  f"--registration {registration}")
     if paper_parameters:
         registration = "objects"
-    options = RunOptions(frame_step=frame_step, rate_hz=rate, up=up, poses=poses, registration=registration,
+    options = RunOptions(frame_step=frame_step, rate_hz=rate_hz, up=up, poses=poses, registration=registration,
                          check_poses_backward=check_poses_backward, workers=workers)
     if len(recordings) > 2:
         _detect_sessions(recordings, config, pipeline, runtime, log, tables, json_out, no_images, options)
@@ -216,7 +225,8 @@ def detect_command(
         table.add_row(c.kind if c.angle_deg is None else f"{c.kind} {c.angle_deg:+.0f}°", c.session, str(c.object_id), str(c.frame_index),
                       " ".join(f"{v:+.2f}" for v in position), ",".join(map(str, c.instance_ids)))
     console.print(table)
-    summary = result.summary() | {"ndf_runtime": runtime}
+    summary = result.summary() | {"ndf_runtime": runtime, "frame_step": options.frame_step, "rate_hz": options.rate_hz,
+                                  "odometry_rate_hz": options.odometry_rate_hz}
     line = f"objects: source {summary['objects_source']}, target {summary['objects_target']}; " \
            f"target pass {summary['fps']:.1f} frames/s (" + ", ".join(f"{k} {v:.1f} ms" for k, v in summary["stage_ms"].items()) + ")"
     console.print(line)

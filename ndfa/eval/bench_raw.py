@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING
 from ndfa.eval.bench import machine
 from ndfa.eval.revision import alternate, beside_busy_process, revision_tree, run_in_tree
 from ndfa.io.recording import RecordingReader
-from ndfa.run.rate import recorded_seconds
+from ndfa.run.rate import DEFAULT_RATE_HZ, recorded_seconds
 
 if TYPE_CHECKING:  # the NDF's torch loads only when a benchmark runs
     from ndfa.pipeline import PipelineConfig
@@ -39,7 +39,7 @@ RAW_STAGES = ("odometry", "up", "reading", "segmentation", "perception", "encodi
 
 
 def raw_pass(source: Path, target: Path, config: PipelineConfig | None = None, threads: int = 1, frame_step: int = 1,
-             overlap: bool = True, workers: int | None = None, rate_hz: float | None = None) -> dict:
+             overlap: bool = True, workers: int | None = None, rate_hz: float | None = DEFAULT_RATE_HZ) -> dict:
     """One `ndfa detect SOURCE TARGET` without sinks, timed: `stage_s` (seconds over the run, each
     stage of `RAW_STAGES`, wherever it ran: the worker's stages come back with their results,
     `ndfa.run.workers`), `stage_ms` (the same per input frame of both sessions), `wall_s`, `fps` (both
@@ -132,7 +132,7 @@ Path(sys.argv[5]).write_text(json.dumps(result))
 
 def raw_pass_runs(source: Path, target: Path, now: PipelineConfig | None = None, before_ref: str | None = None,
                   load: bool = False, repeat: int = 1, threads: int = 1, frame_step: int = 1,
-                  workers: int | None = None, rate_hz: float | None = None,
+                  workers: int | None = None, rate_hz: float | None = DEFAULT_RATE_HZ,
                   before_frame_step: int | None = None) -> list[dict]:
     """`raw_pass` with the config `now` (default: the shipped one) `repeat` times, each row
     labelled; with `before_ref` (a git revision of this checkout), the raw pass as that revision

@@ -16,6 +16,20 @@ import numpy as np
 
 from ndfa.io.recording import RecordingReader
 
+# Frames a second of a recording's own clock a run uses unless told otherwise (`RunOptions.rate_hz`,
+# `ndfa detect --rate`; a slower recording keeps every frame). A camera carried at a walking pace
+# (0.4 m/s) moves 8 cm between two such frames: the simulator's recordings, on which the method's
+# rules and counts of views were measured, are recorded at it, and a 30 Hz camera's neighbouring
+# frames add near-copies of a view, not evidence. It also keeps the raw pass ahead of the camera on
+# 2 cores. What other rates gave: docs/speed.md ("A default rate").
+DEFAULT_RATE_HZ = 5.0
+
+# ... and where a session's poses are estimated, the odometry tracks at most this many frames a
+# second (every frame the pass uses among them): a hand-held camera turns up to 90 deg/s, and at 5 Hz
+# a simulated office's target facing a faint wall was lost; faster than this the same walk drifted
+# more (docs/speed.md, "A default rate").
+ODOMETRY_RATE_HZ = 10.0
+
 # Share of the period by which two used frames may be closer than 1 / rate: a recording's
 # timestamps jitter (a 30 Hz stream's 33.3 ms steps by a millisecond or more), and at `--rate 15`
 # every second frame of it (66.7 ms apart, give or take) should be used, not every third.
@@ -39,6 +53,15 @@ def at_rate(timestamps: Sequence[float], rate_hz: float) -> list[int]:
     return used
 
 
+def chosen_rate(rate_hz: float | None, frame_step: int = 1) -> float | None:
+    """The rate a run uses for the options given (`ndfa detect --rate`, `--frame-step`): None (no
+    rate: every frame, or every `frame_step`-th) for a step above 1 or a rate of 0, else the rate,
+    `DEFAULT_RATE_HZ` where none is given."""
+    if frame_step > 1 or rate_hz == 0:
+        return None
+    return DEFAULT_RATE_HZ if rate_hz is None else rate_hz
+
+
 def used_positions(reader: RecordingReader, frame_step: int = 1, rate_hz: float | None = None) -> Sequence[int]:
     """The positions (`RecordingReader.frames`) of the frames a run uses: every `frame_step`-th
     (a range, the file not read), or, with `rate_hz`, those `at_rate` picks from the recording's
@@ -60,6 +83,20 @@ def recorded_seconds(timestamps: Sequence[float]) -> float:
     if len(times) < 2:
         return 0.0
     return float(times[-1] - times[0] + np.median(np.diff(times)))
+
+
+def tracked_and_used(reader: RecordingReader, frame_step: int = 1, rate_hz: float | None = None,
+                     odometry_rate_hz: float | None = None) -> tuple[Sequence[int], Sequence[int]]:
+    """The positions of the frames the odometry tracks (where a session's poses are estimated) and
+    of those the pass uses, a subset of them: `used_positions` for both, unless a rate and a faster
+    `odometry_rate_hz` are given; then the odometry's frames at that rate, and the pass's picked
+    among them at `rate_hz`."""
+    used = used_positions(reader, frame_step, rate_hz)
+    if frame_step > 1 or rate_hz is None or odometry_rate_hz is None or odometry_rate_hz <= rate_hz:
+        return used, used
+    times = reader.timestamps()
+    tracked = at_rate(times, odometry_rate_hz)
+    return tracked, [tracked[i] for i in at_rate([times[p] for p in tracked], rate_hz)]
 
 
 def describe_use(used: Sequence[int], length: int) -> str:

@@ -176,10 +176,10 @@ def session_pass(
     # A detector that takes no priors (`PriorConfig.enabled` off: the paper's) is offered none.
     registration = options.registration if pipeline.config.detector.priors.enabled else "objects"
     # Where the worlds and the scene alignments run (here, or ahead in a worker process): `ndfa.run.workers`.
-    # The frames each session's run uses (`options.frame_step`, `options.rate_hz`): the pass's and the odometry's.
-    used = [options.positions(reader) for reader in readers]
+    # The frames each session's odometry tracks and its pass uses (`options.frame_step`, `options.rate_hz`, ...).
+    tracked, used = zip(*(options.tracked_and_used(reader) for reader in readers))
     ahead = Ahead(readers, names, options.workers, options.up, options.poses, options.check_poses_backward,
-                  registration, options.align, used)
+                  registration, options.align, tracked)
     worlds: dict[str, SessionWorld] = {}
 
     def know(index: int) -> None:

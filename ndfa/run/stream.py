@@ -20,7 +20,7 @@ from ndfa.perception.segmentation import PlaneTracker
 from ndfa.pipeline import ChangeDetectionPipeline, ObservedFrame
 from ndfa.run.align import RegistrationMode
 from ndfa.run.cloud_align import AlignConfig
-from ndfa.run.rate import used_positions
+from ndfa.run.rate import DEFAULT_RATE_HZ, ODOMETRY_RATE_HZ, tracked_and_used
 from ndfa.run.workers import WORKERS
 from ndfa.run.world import PoseMode, SessionWorld, UpMode
 
@@ -40,8 +40,12 @@ class RunOptions:
     """How recordings are run, beside the pipeline's config: the same for two sessions
     (`ndfa.run.detect.run_detection`) and for more (`ndfa.run.sessions.run_sessions`).
 
-    frame_step, rate_hz: the frames of each recording used (every n-th, or at most rate_hz a second
-        by their timestamps; not both): by the pass and by the odometry (`ndfa.run.rate`).
+    frame_step, rate_hz: the frames of each recording the pass uses (`ndfa.run.rate`): every
+        frame_step-th where it is above 1, else at most rate_hz a second by their timestamps
+        (default `DEFAULT_RATE_HZ`; None: every frame).
+    odometry_rate_hz: where a session's poses are estimated, the odometry tracks frames at most
+        this often, the pass's among them (default `ODOMETRY_RATE_HZ`; None: the pass's frames
+        alone, as with a frame step).
     up, poses: what each session's world gets when it lacks it (`ndfa.run.world.prepare_session`).
     check_poses_backward: estimated poses are checked by a second estimate over the frames last
         first (`prepare_session`): a better quality figure for twice the odometry's time.
@@ -52,7 +56,8 @@ class RunOptions:
     """
 
     frame_step: int = 1
-    rate_hz: float | None = None
+    rate_hz: float | None = DEFAULT_RATE_HZ
+    odometry_rate_hz: float | None = ODOMETRY_RATE_HZ
     up: UpMode = "auto"
     poses: PoseMode = "auto"
     check_poses_backward: bool = False
@@ -61,8 +66,12 @@ class RunOptions:
     workers: int = WORKERS
 
     def positions(self, reader: RecordingReader) -> Sequence[int]:
-        """The positions of the frames of `reader` the run uses (`ndfa.run.rate.used_positions`)."""
-        return used_positions(reader, self.frame_step, self.rate_hz)
+        """The positions of the frames of `reader` the pass uses."""
+        return self.tracked_and_used(reader)[1]
+
+    def tracked_and_used(self, reader: RecordingReader) -> tuple[Sequence[int], Sequence[int]]:
+        """The positions of the frames of `reader` the odometry tracks and the pass uses (`ndfa.run.rate.tracked_and_used`)."""
+        return tracked_and_used(reader, self.frame_step, None if self.frame_step > 1 else self.rate_hz, self.odometry_rate_hz)
 
 
 def open_recordings(paths: Sequence[Path], names: Sequence[str], segment: bool = True
