@@ -45,7 +45,7 @@ from ndfa.core.frame import Frame
 from ndfa.io.recording import RecordingReader
 from ndfa.trajectory.level import level_frame, level_poses
 from ndfa.trajectory.metrics import absolute_trajectory_error, relative_pose_error
-from ndfa.trajectory.quality import PoseQuality, judge
+from ndfa.trajectory.quality import PoseQuality, judge, up_disagreement
 from ndfa.trajectory.session import (
     UNTRACKED_POSES,
     choose_method,
@@ -254,6 +254,8 @@ def prepare_session(reader: RecordingReader, session: str, up: UpMode = "auto",
                                "wrong? the IMU's is used")
     else:
         world.up, world.up_source = planes, "estimated"
+    if estimated and world.pose_quality is not None and planes.method == "planes":
+        world.pose_quality = up_disagreement(world.pose_quality, planes.frames_agreeing, planes.frames_used)
     world.up = up_under_poses(world.up, world.pose_quality)
     world.seconds["up"] = time.perf_counter() - started
     if world.up.ok and world.up.confidence == "low":
