@@ -57,8 +57,10 @@ def detect_command(
                                    "estimated, the odometry: the others are skipped).", callback=at_least_one),
     rate: Optional[float] = typer.Option(None, help="Use frames at most this often, Hz, by each recording's "
                                          f"timestamps (default {number_text(DEFAULT_RATE_HZ)}: every 6th frame of a "
-                                         "30 Hz recording, every frame of a slower one; the others are skipped, by "
-                                         "the odometry too; 0: every frame; docs/speed.md).",
+                                         "30 Hz recording, every frame of a slower one; the others are skipped); "
+                                         "where poses are estimated the odometry tracks at most "
+                                         f"{number_text(ODOMETRY_RATE_HZ)} a second, these among them. 0: every "
+                                         "frame, for both (docs/speed.md).",
                                          callback=non_negative),
     no_images: bool = typer.Option(False, "--no-images", help="Leave depth/colour/mask images out of the .rrd (smaller)."),
     association_distance: Optional[float] = typer.Option(
