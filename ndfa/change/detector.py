@@ -141,33 +141,34 @@ class ChangeDetector:
         if not seen.shown:
             return f"its place was {seen.describe(session)}"
         if self.config.waiting.sightings:  # something too small to encode stood there (`ndfa.change.sightings`)
-            session_map = self.source if session == "source" else self.target
+            session_map = self._map(session)
             sighted = self.sightings[session].unexplained(place_world, session_map)
             if sighted >= self.config.waiting.min_measurements:
                 return (f"its place was not seen empty: the {session} sighted something there in {sighted} "
                         "views too small to encode, and none of its objects stood there")
         glimpsed = self._glimpsed_at(session, place_world) if evidence.glimpse_views else None
         if evidence.seen_empty and glimpsed is not None:
-            return (f"its place held {session} object {glimpsed}, seen {self._views_of(session, glimpsed)} time(s): "
+            object_id, glimpse = glimpsed
+            return (f"its place held {session} object {object_id}, seen {glimpse.n_measurements} time(s): "
                     "too few to test, and no sign that it was not the same object")
         if not evidence.seen_empty or seen.seen_empty or self._stands_at(session, place_world):
             return None
         return f"its place was {seen.describe_occupied(session)}"
 
-    def _glimpsed_at(self, session: Session, place_world: np.ndarray) -> int | None:
+    def _glimpsed_at(self, session: Session, place_world: np.ndarray) -> tuple[int, SessionObject] | None:
         """The object of `session`'s map standing in the place (its center within `sight_radius_m`
         horizontally and `sight_height_m` in height) measured at least `EvidenceConfig.glimpse_views`
         times but too few to be tested (`DecisionPolicy.testable`), if any (docs/detector.md)."""
         evidence = self.config.evidence
-        session_map = self.source if session == "source" else self.target
-        return next((object_id for object_id, o in sorted(session_map.objects.items())
+        session_map = self._map(session)
+        return next(((object_id, o) for object_id, o in sorted(session_map.objects.items())
                      if np.linalg.norm(horizontal(o.center_world - place_world)) <= evidence.sight_radius_m
                      and abs(o.center_world[2] - place_world[2]) <= evidence.sight_height_m
                      and o.n_measurements >= evidence.glimpse_views
                      and not self.policy.testable(o.n_measurements, self.sightings[session].count(object_id))), None)
 
-    def _views_of(self, session: Session, object_id: int) -> int:
-        return (self.source if session == "source" else self.target).objects[object_id].n_measurements
+    def _map(self, session: Session) -> SessionMap:
+        return self.source if session == "source" else self.target
 
     def _stands_at(self, session: Session, place_world: np.ndarray) -> bool:
         """Whether `session`'s map holds an object standing in the place (its center within two
@@ -180,7 +181,7 @@ class ChangeDetector:
         (of a monitor's post, say) are something perception glimpsed, no object a switch could be
         claimed against."""
         evidence = self.config.evidence
-        session_map = self.source if session == "source" else self.target
+        session_map = self._map(session)
         settled = set(self.partners) | set(self.unseen) if session == "target" else set()
         return any(np.linalg.norm(horizontal(o.center_world - place_world)) <= 2 * evidence.sight_radius_m
                    and abs(o.center_world[2] - place_world[2]) <= evidence.sight_height_m
@@ -343,7 +344,7 @@ class ChangeDetector:
         one level): two objects cannot stand that close, so it is a fragment of that one (a view of
         its upper part, the rest hidden), and its sightings repeat that view."""
         count = self.sightings[session].count(object_id)
-        session_map = self.source if session == "source" else self.target
+        session_map = self._map(session)
         if count == 0 or self.config.views.same_place_m <= 0:
             return count
         obj = session_map.objects[object_id]

@@ -88,11 +88,12 @@ def recorded_seconds(timestamps: Sequence[float]) -> float:
 def tracked_and_used(reader: RecordingReader, frame_step: int = 1, rate_hz: float | None = None,
                      odometry_rate_hz: float | None = None) -> tuple[Sequence[int], Sequence[int]]:
     """The positions of the frames the odometry tracks (where a session's poses are estimated) and
-    of those the pass uses, a subset of them: `used_positions` for both, unless a rate and a faster
-    `odometry_rate_hz` are given; then the odometry's frames at that rate, and the pass's picked
-    among them at `rate_hz`."""
-    used = used_positions(reader, frame_step, rate_hz)
+    of those the pass uses, a subset of them. A frame step above 1 gives both every
+    `frame_step`-th frame (the rates play no part); a rate and a faster `odometry_rate_hz` give the
+    odometry's frames at that rate and the pass's picked among them at `rate_hz`; otherwise both
+    are `used_positions`."""
     if frame_step > 1 or rate_hz is None or odometry_rate_hz is None or odometry_rate_hz <= rate_hz:
+        used = used_positions(reader, frame_step, None if frame_step > 1 else rate_hz)
         return used, used
     times = reader.timestamps()
     tracked = at_rate(times, odometry_rate_hz)

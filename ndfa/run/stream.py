@@ -71,7 +71,7 @@ class RunOptions:
 
     def tracked_and_used(self, reader: RecordingReader) -> tuple[Sequence[int], Sequence[int]]:
         """The positions of the frames of `reader` the odometry tracks and the pass uses (`ndfa.run.rate.tracked_and_used`)."""
-        return tracked_and_used(reader, self.frame_step, None if self.frame_step > 1 else self.rate_hz, self.odometry_rate_hz)
+        return tracked_and_used(reader, self.frame_step, self.rate_hz, self.odometry_rate_hz)
 
 
 def open_recordings(paths: Sequence[Path], names: Sequence[str], segment: bool = True
